@@ -1,0 +1,171 @@
+//! Welding: turns a triangle soup into an indexed [`Scene`] by joining vertices at the same
+//! position (exactly, or within a tolerance), dropping triangles that welding made
+//! degenerate and vertices no triangle uses.
+//!
+//! The exact weld sorts `(position bits, index)` pairs, so it runs in parallel and its result
+//! does not depend on the thread count: every group is represented by its lowest index, and
+//! surviving vertices keep their input order.
+
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+
+use crate::soup::MeshSoup;
+use crate::{ImportStats, Scene};
+
+/// How vertices are joined.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Weld {
+    /// Join vertices whose positions are bit-for-bit equal (`-0.0` equals `0.0`).
+    #[default]
+    Exact,
+    /// Join vertices closer than this fraction of the bounding-box diagonal. Chains of close
+    /// vertices join transitively; each group takes the position of its first vertex.
+    Relative(f32),
+}
+
+/// Welds `soup` into a scene.
+pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
+    let input_vertices = soup.positions.len() as u64;
+    let input_triangles = soup.triangles.len() as u64;
+    let representative = match weld {
+        Weld::Exact => exact_representatives(&soup.positions),
+        Weld::Relative(fraction) => {
+            let tolerance = f64::from(fraction) * diagonal(&soup.positions);
+            if tolerance > 0.0 {
+                tolerance_representatives(&soup.positions, tolerance)
+            } else {
+                exact_representatives(&soup.positions)
+            }
+        }
+    };
+
+    // Remap corners to representatives and drop triangles with a repeated corner.
+    let mut triangles = Vec::with_capacity(soup.triangles.len());
+    let mut triangle_parts = Vec::with_capacity(soup.triangles.len());
+    for (t, &part) in soup.triangles.iter().zip(&soup.triangle_parts) {
+        let [a, b, c] = t.map(|v| representative[v as usize]);
+        if a != b && b != c && a != c {
+            triangles.push([a, b, c]);
+            triangle_parts.push(part);
+        }
+    }
+    let degenerate = input_triangles - triangles.len() as u64;
+
+    // Keep referenced representatives in input order.
+    const UNUSED: u32 = u32::MAX;
+    let mut new_index = vec![UNUSED; soup.positions.len()];
+    for t in &triangles {
+        for &v in t {
+            new_index[v as usize] = 0;
+        }
+    }
+    let mut positions = Vec::new();
+    for (old, slot) in new_index.iter_mut().enumerate() {
+        if *slot != UNUSED {
+            *slot = positions.len() as u32;
+            positions.push(soup.positions[old]);
+        }
+    }
+    for t in &mut triangles {
+        *t = t.map(|v| new_index[v as usize]);
+    }
+    let distinct = representative
+        .iter()
+        .enumerate()
+        .filter(|&(i, &r)| i as u32 == r)
+        .count() as u64;
+    Scene {
+        stats: ImportStats {
+            input_vertices,
+            input_triangles,
+            welded_vertices: input_vertices - distinct,
+            degenerate_triangles_dropped: degenerate,
+            short_faces_dropped: soup.short_faces_dropped,
+            unreferenced_vertices_dropped: distinct - positions.len() as u64,
+        },
+        positions,
+        triangles,
+        triangle_parts,
+        part_names: soup.part_names,
+    }
+}
+
+/// The length of the bounding box's diagonal.
+fn diagonal(positions: &[[f32; 3]]) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(f64::from(p[k]));
+            hi[k] = hi[k].max(f64::from(p[k]));
+        }
+    }
+    if positions.is_empty() {
+        return 0.0;
+    }
+    (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt()
+}
+
+/// For each vertex, the lowest index with bit-identical position.
+fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
+    let key = |p: &[f32; 3]| -> u128 {
+        // `+ 0.0` turns -0.0 into 0.0 so both weld; every other value keeps its bits.
+        let bits = p.map(|c| (c + 0.0).to_bits());
+        (u128::from(bits[0]) << 64) | (u128::from(bits[1]) << 32) | u128::from(bits[2])
+    };
+    let mut keyed: Vec<(u128, u32)> = positions
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| (key(p), i as u32))
+        .collect();
+    keyed.par_sort_unstable();
+    let mut representative = vec![0u32; positions.len()];
+    let mut group_start = 0;
+    for i in 0..keyed.len() {
+        if keyed[i].0 != keyed[group_start].0 {
+            group_start = i;
+        }
+        representative[keyed[i].1 as usize] = keyed[group_start].1;
+    }
+    representative
+}
+
+/// For each vertex, the lowest index of its group of vertices chained within `tolerance`.
+fn tolerance_representatives(positions: &[[f32; 3]], tolerance: f64) -> Vec<u32> {
+    let cell_of = |p: &[f32; 3]| p.map(|c| (f64::from(c) / tolerance).floor() as i64);
+    let mut parent: Vec<u32> = (0..positions.len() as u32).collect();
+    fn root(parent: &mut [u32], mut v: u32) -> u32 {
+        while parent[v as usize] != v {
+            let up = parent[parent[v as usize] as usize];
+            parent[v as usize] = up;
+            v = up;
+        }
+        v
+    }
+    let mut grid: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
+    let squared = tolerance * tolerance;
+    for (i, p) in positions.iter().enumerate() {
+        let cell = cell_of(p);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let Some(others) = grid.get(&[cell[0] + dx, cell[1] + dy, cell[2] + dz]) else {
+                        continue;
+                    };
+                    for &j in others {
+                        let q = positions[j as usize];
+                        let d2: f64 = (0..3).map(|k| (f64::from(p[k]) - f64::from(q[k])).powi(2)).sum();
+                        if d2 <= squared {
+                            let (a, b) = (root(&mut parent, i as u32), root(&mut parent, j));
+                            // The lower index becomes the root, so groups keep their first vertex.
+                            let (low, high) = (a.min(b), a.max(b));
+                            parent[high as usize] = low;
+                        }
+                    }
+                }
+            }
+        }
+        grid.entry(cell).or_default().push(i as u32);
+    }
+    (0..positions.len() as u32).map(|v| root(&mut parent, v)).collect()
+}
