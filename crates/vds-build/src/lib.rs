@@ -1,0 +1,22 @@
+//! The vds vertex-tree builder: Luebke & Erikson's view-dependent simplification hierarchy
+//! ("View-Dependent Simplification of Arbitrary Polygonal Environments", SIGGRAPH 1997).
+//!
+//! One global tree spans the whole scene: leaves are the original vertices, each inner node
+//! clusters its children into one proxy vertex. [`build_tree`] clusters vertices with a
+//! tight octree ([`octree`]), places proxies by quadric error metrics ([`quadric`]), bounds
+//! each node's error, triangles and normals ([`bounds`]), and assigns every triangle to the
+//! one node whose folding removes it (its *subtri* node). [`verify_tree`] checks all of
+//! that against the scene.
+
+#![deny(missing_docs)]
+
+pub mod bounds;
+mod build;
+pub mod octree;
+pub mod quadric;
+mod tree;
+mod verify;
+
+pub use build::{BuildTimings, build_tree, build_tree_timed};
+pub use tree::{Node, VertexTree};
+pub use verify::{TreeError, verify_tree};

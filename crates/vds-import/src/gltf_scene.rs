@@ -26,7 +26,9 @@ pub fn read_gltf(data: &[u8], path: &Path, soup: &mut MeshSoup) -> Result<(), Fo
         .map_err(|e| FormatError::syntax(Location::File, format!("invalid glTF: {e}")))?;
     let buffers = load_buffers(&gltf, path)?;
     let document = &gltf.document;
-    let roots: Vec<gltf::Node> = match document.default_scene().or_else(|| document.scenes().next())
+    let roots: Vec<gltf::Node> = match document
+        .default_scene()
+        .or_else(|| document.scenes().next())
     {
         Some(scene) => scene.nodes().collect(),
         None => {
@@ -68,7 +70,10 @@ fn load_buffers(gltf: &gltf::Gltf, path: &Path) -> Result<Vec<Vec<u8>>, FormatEr
                         .decode(payload)
                         .map_err(|e| FormatError::syntax(at(), format!("bad base64: {e}")))?
                 } else {
-                    let file = path.parent().unwrap_or(Path::new(".")).join(uri.replace("%20", " "));
+                    let file = path
+                        .parent()
+                        .unwrap_or(Path::new("."))
+                        .join(uri.replace("%20", " "));
                     std::fs::read(&file).map_err(|e| {
                         FormatError::syntax(at(), format!("cannot read {}: {e}", file.display()))
                     })?
@@ -102,7 +107,10 @@ fn walk(
         index: node.index() as u64,
     };
     if depth > MAX_NODE_DEPTH || on_path[node.index()] {
-        return Err(FormatError::syntax(at(), "node hierarchy has a cycle or is too deep"));
+        return Err(FormatError::syntax(
+            at(),
+            "node hierarchy has a cycle or is too deep",
+        ));
     }
     on_path[node.index()] = true;
     let local = node.transform().matrix().map(|c| c.map(f64::from));
@@ -132,17 +140,26 @@ fn accessor_bytes<'b>(
     at: &dyn Fn() -> Location,
 ) -> Result<(&'b [u8], usize), FormatError> {
     if accessor.sparse().is_some() {
-        return Err(FormatError::new(at(), Problem::Unsupported("sparse accessors".into())));
+        return Err(FormatError::new(
+            at(),
+            Problem::Unsupported("sparse accessors".into()),
+        ));
     }
-    let view = accessor
-        .view()
-        .ok_or_else(|| FormatError::new(at(), Problem::Unsupported("accessor without buffer view".into())))?;
+    let view = accessor.view().ok_or_else(|| {
+        FormatError::new(
+            at(),
+            Problem::Unsupported("accessor without buffer view".into()),
+        )
+    })?;
     let buffer = buffers
         .get(view.buffer().index())
         .ok_or_else(|| FormatError::syntax(at(), "buffer view names a missing buffer"))?;
     let stride = view.stride().unwrap_or(element_size);
     let overflow = || FormatError::syntax(at(), "accessor byte range overflows");
-    let view_end = view.offset().checked_add(view.length()).ok_or_else(overflow)?;
+    let view_end = view
+        .offset()
+        .checked_add(view.length())
+        .ok_or_else(overflow)?;
     let view_bytes = buffer.get(view.offset()..view_end).ok_or_else(|| {
         FormatError::new(
             at(),
@@ -162,7 +179,10 @@ fn accessor_bytes<'b>(
             .ok_or_else(overflow)?,
     };
     if stride < element_size || end > view_bytes.len() {
-        return Err(FormatError::syntax(at(), "accessor does not fit in its buffer view"));
+        return Err(FormatError::syntax(
+            at(),
+            "accessor does not fit in its buffer view",
+        ));
     }
     Ok((&view_bytes[accessor.offset()..end], stride))
 }
@@ -180,7 +200,10 @@ fn read_primitive(
         index: primitive.index() as u64,
     };
     let mode = primitive.mode();
-    if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+    if !matches!(
+        mode,
+        Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+    ) {
         return Err(FormatError::new(
             at(),
             Problem::UnsupportedPrimitiveMode(format!("{mode:?}")),
@@ -205,7 +228,9 @@ fn read_primitive(
     for i in 0..vertex_count {
         let record = &bytes[i * stride..i * stride + 12];
         let coord = |k: usize| {
-            f64::from(f32::from_le_bytes(record[4 * k..4 * k + 4].try_into().expect("4 bytes")))
+            f64::from(f32::from_le_bytes(
+                record[4 * k..4 * k + 4].try_into().expect("4 bytes"),
+            ))
         };
         let p = world.transform_point3(DVec3::new(coord(0), coord(1), coord(2)));
         soup.push_vertex([p.x as f32, p.y as f32, p.z as f32], at)?;
@@ -217,7 +242,12 @@ fn read_primitive(
                 (Dimensions::Scalar, DataType::U8) => 1,
                 (Dimensions::Scalar, DataType::U16) => 2,
                 (Dimensions::Scalar, DataType::U32) => 4,
-                _ => return Err(FormatError::syntax(at(), "indices must be unsigned scalars")),
+                _ => {
+                    return Err(FormatError::syntax(
+                        at(),
+                        "indices must be unsigned scalars",
+                    ));
+                }
             };
             let (bytes, stride) = accessor_bytes(&accessor, size, buffers, &at)?;
             let mut out = Vec::with_capacity(accessor.count());
@@ -243,7 +273,11 @@ fn read_primitive(
         Mode::TriangleStrip => {
             for (i, w) in indices.windows(3).enumerate() {
                 // Every other strip triangle is flipped to keep a consistent winding.
-                let t = if i % 2 == 0 { [w[0], w[1], w[2]] } else { [w[1], w[0], w[2]] };
+                let t = if i % 2 == 0 {
+                    [w[0], w[1], w[2]]
+                } else {
+                    [w[1], w[0], w[2]]
+                };
                 soup.push_polygon(part, &t);
             }
         }

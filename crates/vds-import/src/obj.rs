@@ -109,12 +109,14 @@ pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<
 
 /// Lines of an OBJ file with their 1-based numbers and first keyword.
 fn statements(data: &[u8]) -> impl Iterator<Item = (u64, &str, std::str::SplitWhitespace<'_>)> {
-    data.split(|&b| b == b'\n').enumerate().filter_map(|(i, line)| {
-        let text = std::str::from_utf8(line).ok()?;
-        let mut words = text.split_whitespace();
-        let keyword = words.next()?;
-        Some((i as u64 + 1, keyword, words))
-    })
+    data.split(|&b| b == b'\n')
+        .enumerate()
+        .filter_map(|(i, line)| {
+            let text = std::str::from_utf8(line).ok()?;
+            let mut words = text.split_whitespace();
+            let keyword = words.next()?;
+            Some((i as u64 + 1, keyword, words))
+        })
 }
 
 /// Finds the first `v` line with a NaN or infinite coordinate (error path only).
@@ -141,7 +143,11 @@ fn locate_bad_face_index(data: &[u8]) -> FormatError {
                     let Some(Ok(written)) = word.split('/').next().map(str::parse::<i64>) else {
                         continue;
                     };
-                    let index = if written < 0 { vertex_count + written } else { written - 1 };
+                    let index = if written < 0 {
+                        vertex_count + written
+                    } else {
+                        written - 1
+                    };
                     if index < 0 || index >= vertex_count {
                         return FormatError::new(
                             Location::Line(line),

@@ -63,8 +63,15 @@ impl Scalar {
 
 #[derive(Debug, Clone)]
 enum Property {
-    Scalar { name: String, ty: Scalar },
-    List { name: String, count: Scalar, item: Scalar },
+    Scalar {
+        name: String,
+        ty: Scalar,
+    },
+    List {
+        name: String,
+        count: Scalar,
+        item: Scalar,
+    },
 }
 
 impl Property {
@@ -112,7 +119,12 @@ fn parse_header(data: &[u8]) -> Result<Header, FormatError> {
     };
     match next_line(&mut offset, &mut line_number) {
         Some(magic) if magic == "ply" => {}
-        _ => return Err(FormatError::syntax(Location::Line(1), "missing 'ply' magic line")),
+        _ => {
+            return Err(FormatError::syntax(
+                Location::Line(1),
+                "missing 'ply' magic line",
+            ));
+        }
     }
     loop {
         let Some(line) = next_line(&mut offset, &mut line_number) else {
@@ -152,7 +164,10 @@ fn parse_header(data: &[u8]) -> Result<Header, FormatError> {
                     return Err(FormatError::syntax(at, format!("unknown type in '{line}'")));
                 };
                 if !count.is_integer() {
-                    return Err(FormatError::syntax(at, "list count type must be an integer"));
+                    return Err(FormatError::syntax(
+                        at,
+                        "list count type must be an integer",
+                    ));
                 }
                 let element = elements
                     .last_mut()
@@ -164,8 +179,9 @@ fn parse_header(data: &[u8]) -> Result<Header, FormatError> {
                 });
             }
             ["property", ty, name] => {
-                let ty = Scalar::parse(ty)
-                    .ok_or_else(|| FormatError::syntax(at.clone(), format!("unknown type '{ty}'")))?;
+                let ty = Scalar::parse(ty).ok_or_else(|| {
+                    FormatError::syntax(at.clone(), format!("unknown type '{ty}'"))
+                })?;
                 let element = elements
                     .last_mut()
                     .ok_or_else(|| FormatError::syntax(at, "property before any element"))?;
@@ -174,7 +190,12 @@ fn parse_header(data: &[u8]) -> Result<Header, FormatError> {
                     ty,
                 });
             }
-            _ => return Err(FormatError::syntax(at, format!("unexpected header line '{line}'"))),
+            _ => {
+                return Err(FormatError::syntax(
+                    at,
+                    format!("unexpected header line '{line}'"),
+                ));
+            }
         }
     }
     let encoding = encoding
@@ -206,15 +227,18 @@ struct Binary<'a> {
 
 impl Binary<'_> {
     fn take<const N: usize>(&mut self) -> Result<[u8; N], FormatError> {
-        let bytes = self.data.get(self.position..self.position + N).ok_or_else(|| {
-            FormatError::new(
-                Location::Byte(self.position as u64),
-                Problem::Truncated {
-                    needed: N as u64,
-                    available: (self.data.len() - self.position) as u64,
-                },
-            )
-        })?;
+        let bytes = self
+            .data
+            .get(self.position..self.position + N)
+            .ok_or_else(|| {
+                FormatError::new(
+                    Location::Byte(self.position as u64),
+                    Problem::Truncated {
+                        needed: N as u64,
+                        available: (self.data.len() - self.position) as u64,
+                    },
+                )
+            })?;
         self.position += N;
         let mut out: [u8; N] = bytes.try_into().expect("slice of N bytes");
         if self.big_endian {
@@ -242,7 +266,10 @@ impl Values for Binary<'_> {
             Scalar::I32 => i64::from(i32::from_le_bytes(self.take()?)),
             Scalar::U32 => i64::from(u32::from_le_bytes(self.take()?)),
             Scalar::F32 | Scalar::F64 => {
-                return Err(FormatError::syntax(self.location(), "expected an integer type"));
+                return Err(FormatError::syntax(
+                    self.location(),
+                    "expected an integer type",
+                ));
             }
         })
     }
@@ -325,7 +352,10 @@ pub fn read_ply(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Form
     let body = &data[header.body_start..];
     match header.encoding {
         Encoding::Ascii => {
-            let header_lines = data[..header.body_start].iter().filter(|&&b| b == b'\n').count();
+            let header_lines = data[..header.body_start]
+                .iter()
+                .filter(|&&b| b == b'\n')
+                .count();
             let mut values = Ascii {
                 data: body,
                 position: 0,
@@ -488,12 +518,11 @@ fn read_faces(
                             ),
                             _ => e,
                         })?;
-                        let vertex = check_index(index, vertex_count as usize, || {
-                            Location::Element {
+                        let vertex =
+                            check_index(index, vertex_count as usize, || Location::Element {
                                 kind: "face".into(),
                                 index: row,
-                            }
-                        })?;
+                            })?;
                         corners.push(base as u32 + vertex);
                     }
                     soup.push_polygon(part, &corners);

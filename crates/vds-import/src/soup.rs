@@ -30,12 +30,19 @@ impl MeshSoup {
     }
 
     /// Appends a vertex after checking it is finite, and returns its index.
-    pub fn push_vertex(&mut self, p: [f32; 3], location: impl FnOnce() -> Location) -> Result<u32, FormatError> {
+    pub fn push_vertex(
+        &mut self,
+        p: [f32; 3],
+        location: impl FnOnce() -> Location,
+    ) -> Result<u32, FormatError> {
         if !p.iter().all(|c| c.is_finite()) {
             return Err(FormatError::new(location(), Problem::NonFiniteCoordinate));
         }
         let index = u32::try_from(self.positions.len()).map_err(|_| {
-            FormatError::new(location(), Problem::Unsupported("more than 2^32 vertices".into()))
+            FormatError::new(
+                location(),
+                Problem::Unsupported("more than 2^32 vertices".into()),
+            )
         })?;
         self.positions.push(p);
         Ok(index)
@@ -60,12 +67,8 @@ impl MeshSoup {
         let vertex_base = self.positions.len() as u32;
         let part_base = self.part_names.len() as u32;
         self.positions.extend(other.positions);
-        self.triangles.extend(
-            other
-                .triangles
-                .iter()
-                .map(|t| t.map(|v| v + vertex_base)),
-        );
+        self.triangles
+            .extend(other.triangles.iter().map(|t| t.map(|v| v + vertex_base)));
         self.triangle_parts
             .extend(other.triangle_parts.iter().map(|p| p + part_base));
         self.part_names.extend(other.part_names);

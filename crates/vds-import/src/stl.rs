@@ -40,7 +40,9 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
             },
         ));
     }
-    let count = u64::from(u32::from_le_bytes(data[80..84].try_into().expect("4 bytes")));
+    let count = u64::from(u32::from_le_bytes(
+        data[80..84].try_into().expect("4 bytes"),
+    ));
     let body = &data[HEADER_BYTES + 4..];
     let needed = count * RECORD_BYTES;
     if needed > body.len() as u64 {
@@ -56,19 +58,25 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
     soup.positions.reserve(count as usize * 3);
     soup.triangles.reserve(count as usize);
     soup.triangle_parts.reserve(count as usize);
-    for (index, record) in body.chunks_exact(RECORD_BYTES as usize).take(count as usize).enumerate() {
+    for (index, record) in body
+        .chunks_exact(RECORD_BYTES as usize)
+        .take(count as usize)
+        .enumerate()
+    {
         // Bytes 0..12 are the facet normal, 48..50 the attribute word: neither is used.
         let mut corners = [0u32; 3];
         for (k, corner) in corners.iter_mut().enumerate() {
             let at = 12 + 12 * k;
             let coord = |i: usize| {
-                f32::from_le_bytes(record[at + 4 * i..at + 4 * i + 4].try_into().expect("4 bytes"))
+                f32::from_le_bytes(
+                    record[at + 4 * i..at + 4 * i + 4]
+                        .try_into()
+                        .expect("4 bytes"),
+                )
             };
-            *corner = soup.push_vertex([coord(0), coord(1), coord(2)], || {
-                Location::Element {
-                    kind: "triangle".into(),
-                    index: index as u64,
-                }
+            *corner = soup.push_vertex([coord(0), coord(1), coord(2)], || Location::Element {
+                kind: "triangle".into(),
+                index: index as u64,
             })?;
         }
         soup.push_polygon(part, &corners);
@@ -78,7 +86,10 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
 
 fn read_ascii(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<(), FormatError> {
     let text = std::str::from_utf8(data).map_err(|e| {
-        FormatError::syntax(Location::Byte(e.valid_up_to() as u64), "ASCII STL is not valid UTF-8")
+        FormatError::syntax(
+            Location::Byte(e.valid_up_to() as u64),
+            "ASCII STL is not valid UTF-8",
+        )
     })?;
     let mut part: Option<u32> = None;
     let mut solids = 0usize;
@@ -88,7 +99,9 @@ fn read_ascii(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<()
         let line_number = line_index as u64 + 1;
         let at = || Location::Line(line_number);
         let mut words = line.split_whitespace();
-        let Some(keyword) = words.next() else { continue };
+        let Some(keyword) = words.next() else {
+            continue;
+        };
         match keyword {
             "solid" => {
                 let name: Vec<&str> = words.collect();
@@ -137,7 +150,10 @@ fn read_ascii(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<()
             }
             "facet" | "endfacet" | "endsolid" => {}
             other => {
-                return Err(FormatError::syntax(at(), format!("unexpected keyword '{other}'")));
+                return Err(FormatError::syntax(
+                    at(),
+                    format!("unexpected keyword '{other}'"),
+                ));
             }
         }
     }

@@ -154,7 +154,9 @@ fn tolerance_representatives(positions: &[[f32; 3]], tolerance: f64) -> Vec<u32>
                     };
                     for &j in others {
                         let q = positions[j as usize];
-                        let d2: f64 = (0..3).map(|k| (f64::from(p[k]) - f64::from(q[k])).powi(2)).sum();
+                        let d2: f64 = (0..3)
+                            .map(|k| (f64::from(p[k]) - f64::from(q[k])).powi(2))
+                            .sum();
                         if d2 <= squared {
                             let (a, b) = (root(&mut parent, i as u32), root(&mut parent, j));
                             // The lower index becomes the root, so groups keep their first vertex.
@@ -167,5 +169,7 @@ fn tolerance_representatives(positions: &[[f32; 3]], tolerance: f64) -> Vec<u32>
         }
         grid.entry(cell).or_default().push(i as u32);
     }
-    (0..positions.len() as u32).map(|v| root(&mut parent, v)).collect()
+    (0..positions.len() as u32)
+        .map(|v| root(&mut parent, v))
+        .collect()
 }

@@ -1,0 +1,203 @@
+//! Bounding volumes per node: axis-aligned boxes (build-time only), bounding spheres of the
+//! supported triangles (Luebke & Erikson §4.2, the irrelevance and frustum tests) and cones of
+//! normals (§3.2, silhouette and backface tests).
+//!
+//! Everything is computed in `f64` and rounded outwards when stored as `f32`, so stored bounds
+//! stay conservative.
+
+use crate::quadric::{cross, dot, sub};
+
+/// An axis-aligned box; empty when `min > max`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Aabb {
+    /// Lower corner.
+    pub min: [f64; 3],
+    /// Upper corner.
+    pub max: [f64; 3],
+}
+
+impl Aabb {
+    /// The empty box.
+    pub const EMPTY: Aabb = Aabb {
+        min: [f64::INFINITY; 3],
+        max: [f64::NEG_INFINITY; 3],
+    };
+
+    /// Grows the box to contain `p`.
+    pub fn add_point(&mut self, p: [f64; 3]) {
+        for k in 0..3 {
+            self.min[k] = self.min[k].min(p[k]);
+            self.max[k] = self.max[k].max(p[k]);
+        }
+    }
+
+    /// Grows the box to contain `other`.
+    pub fn add_box(&mut self, other: &Aabb) {
+        for k in 0..3 {
+            self.min[k] = self.min[k].min(other.min[k]);
+            self.max[k] = self.max[k].max(other.max[k]);
+        }
+    }
+
+    /// The centre.
+    pub fn center(&self) -> [f64; 3] {
+        [0, 1, 2].map(|k| 0.5 * (self.min[k] + self.max[k]))
+    }
+
+    /// The nearest point of the box to `p`.
+    pub fn clamp(&self, p: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|k| p[k].clamp(self.min[k], self.max[k]))
+    }
+}
+
+/// A cone of normals: every bounded normal `n` satisfies `angle(axis, n) <= half_angle`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NormalCone {
+    /// Unit axis.
+    pub axis: [f64; 3],
+    /// Half opening angle in radians, in `[0, π]`; negative for the empty cone.
+    pub half_angle: f64,
+}
+
+/// Added to merged and fitted cone angles so rounding never leaves a normal just outside.
+const CONE_SLACK_RADIANS: f64 = 1e-6;
+
+impl NormalCone {
+    /// The cone that bounds no normal (a cluster with only zero-area triangles).
+    pub const EMPTY: NormalCone = NormalCone {
+        axis: [0.0, 0.0, 1.0],
+        half_angle: -1.0,
+    };
+
+    /// True when the cone bounds no normal.
+    pub fn is_empty(&self) -> bool {
+        self.half_angle < 0.0
+    }
+
+    /// The tightest cone around `normals` (unit vectors) with their normalised sum as axis.
+    pub fn fit(normals: impl Iterator<Item = [f64; 3]> + Clone) -> NormalCone {
+        let mut sum = [0.0; 3];
+        let mut first = None;
+        for n in normals.clone() {
+            first.get_or_insert(n);
+            for k in 0..3 {
+                sum[k] += n[k];
+            }
+        }
+        let Some(first) = first else {
+            return NormalCone::EMPTY;
+        };
+        let length = dot(sum, sum).sqrt();
+        let axis = if length > 1e-9 {
+            sum.map(|c| c / length)
+        } else {
+            first
+        };
+        let half_angle = normals
+            .map(|n| angle_between(axis, n))
+            .fold(0.0f64, f64::max);
+        NormalCone {
+            axis,
+            half_angle: (half_angle + CONE_SLACK_RADIANS).min(std::f64::consts::PI),
+        }
+    }
+
+    /// The smallest cone containing both cones (as an axis rotation in their common plane).
+    pub fn merge(&self, other: &NormalCone) -> NormalCone {
+        if other.is_empty() {
+            return *self;
+        }
+        if self.is_empty() {
+            return *other;
+        }
+        let between = angle_between(self.axis, other.axis);
+        if between + other.half_angle <= self.half_angle {
+            return *self;
+        }
+        if between + self.half_angle <= other.half_angle {
+            return *other;
+        }
+        let half_angle = 0.5 * (self.half_angle + other.half_angle + between) + CONE_SLACK_RADIANS;
+        if half_angle >= std::f64::consts::PI {
+            return NormalCone {
+                axis: self.axis,
+                half_angle: std::f64::consts::PI,
+            };
+        }
+        // Rotate self.axis towards other.axis by (half_angle - self.half_angle).
+        let rotate_by = half_angle - self.half_angle;
+        let normal = cross(self.axis, other.axis);
+        let sin_between = dot(normal, normal).sqrt();
+        if sin_between < 1e-12 {
+            // Axes (anti)parallel: containment failed above only if they are opposite.
+            return NormalCone {
+                axis: self.axis,
+                half_angle: std::f64::consts::PI,
+            };
+        }
+        // Unit vector in the plane of both axes, perpendicular to self.axis, towards other.
+        let towards = cross(normal, self.axis).map(|c| c / sin_between);
+        let (s, c) = rotate_by.sin_cos();
+        let axis = [0, 1, 2].map(|k| c * self.axis[k] + s * towards[k]);
+        let length = dot(axis, axis).sqrt();
+        NormalCone {
+            axis: axis.map(|x| x / length),
+            half_angle,
+        }
+    }
+
+    /// True when `n` (unit) lies in the cone, with `tolerance` radians of slack.
+    pub fn contains(&self, n: [f64; 3], tolerance: f64) -> bool {
+        !self.is_empty() && angle_between(self.axis, n) <= self.half_angle + tolerance
+    }
+}
+
+/// The angle between two unit vectors, robust near 0 and π (atan2 of sine and cosine).
+pub fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let c = cross(a, b);
+    dot(c, c).sqrt().atan2(dot(a, b))
+}
+
+/// A triangle's unit normal, or `None` when its area is zero.
+pub fn triangle_normal(p0: [f64; 3], p1: [f64; 3], p2: [f64; 3]) -> Option<[f64; 3]> {
+    let n = cross(sub(p1, p0), sub(p2, p0));
+    let length = dot(n, n).sqrt();
+    (length > 0.0 && length.is_finite()).then(|| n.map(|c| c / length))
+}
+
+/// The smallest `f32` not below `x`, so a stored radius never shrinks.
+pub fn round_up_f32(x: f64) -> f32 {
+    let y = x as f32;
+    if f64::from(y) < x { y.next_up() } else { y }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn merged_cone_contains_both_inputs() {
+        let a = NormalCone::fit([[1.0, 0.0, 0.0]].into_iter());
+        let b = NormalCone::fit([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].into_iter());
+        let m = a.merge(&b);
+        for n in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] {
+            assert!(m.contains(n, 1e-9), "{m:?} misses {n:?}");
+        }
+        assert!(m.half_angle < std::f64::consts::PI);
+    }
+
+    #[test]
+    fn opposite_normals_give_full_cone() {
+        let a = NormalCone::fit([[0.0, 0.0, 1.0]].into_iter());
+        let b = NormalCone::fit([[0.0, 0.0, -1.0]].into_iter());
+        let m = a.merge(&b);
+        assert!(m.contains([0.0, 0.0, -1.0], 0.0) && m.contains([0.0, 0.0, 1.0], 0.0));
+    }
+
+    #[test]
+    fn round_up_never_shrinks() {
+        for x in [0.1f64, 1.0 / 3.0, 1e-30, 12345.678_901_234] {
+            assert!(f64::from(round_up_f32(x)) >= x);
+        }
+    }
+}

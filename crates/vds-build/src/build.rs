@@ -1,0 +1,319 @@
+//! The build pipeline: scene → clustering → per-node attributes → subtris.
+//!
+//! Attributes are computed bottom-up one depth level at a time, in parallel within a level:
+//! a leaf's quadric, triangle bounds and normal cone come from its incident triangles; an
+//! inner node combines its children's. Only the accumulators of the level below are kept, so
+//! transient memory is bounded by the widest level, not by the whole tree.
+
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+use vds_import::Scene;
+
+use crate::bounds::{Aabb, NormalCone, round_up_f32, triangle_normal};
+use crate::octree::cluster;
+use crate::quadric::{Quadric, dot, sub};
+use crate::tree::{Node, VertexTree};
+
+/// Wall-clock time of each build phase.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BuildTimings {
+    /// Tight-octree clustering.
+    pub cluster: Duration,
+    /// Vertex → triangle adjacency.
+    pub adjacency: Duration,
+    /// Quadrics, proxies, error radii, spheres and cones.
+    pub attributes: Duration,
+    /// Assigning triangles to nodes as subtris.
+    pub subtris: Duration,
+}
+
+impl BuildTimings {
+    /// The sum of all phases.
+    pub fn total(&self) -> Duration {
+        self.cluster + self.adjacency + self.attributes + self.subtris
+    }
+}
+
+/// Builds the vertex tree of a scene.
+pub fn build_tree(scene: &Scene) -> VertexTree {
+    build_tree_timed(scene).0
+}
+
+/// Builds the vertex tree of a scene and reports how long each phase took.
+pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
+    let mut timings = BuildTimings::default();
+    if scene.positions.is_empty() {
+        return (VertexTree::default(), timings);
+    }
+    let start = Instant::now();
+    let clustering = cluster(&scene.positions);
+    timings.cluster = start.elapsed();
+
+    let start = Instant::now();
+    let adjacency = Adjacency::new(scene.positions.len(), &scene.triangles);
+    timings.adjacency = start.elapsed();
+
+    let start = Instant::now();
+    let leaf_count = clustering.leaf_vertex.len();
+    let mut vertex_rank = vec![0u32; leaf_count];
+    for (rank, &v) in clustering.leaf_vertex.iter().enumerate() {
+        vertex_rank[v as usize] = rank as u32;
+    }
+    let mut leaf_node = vec![0u32; leaf_count];
+    for (id, n) in clustering.nodes.iter().enumerate() {
+        if n.child_count == 0 {
+            leaf_node[n.leaf_begin as usize] = id as u32;
+        }
+    }
+    let leaf_positions: Vec<[f32; 3]> = clustering
+        .leaf_vertex
+        .par_iter()
+        .map(|&v| scene.positions[v as usize])
+        .collect();
+    let nodes = compute_attributes(scene, &clustering, &adjacency, &leaf_positions);
+    timings.attributes = start.elapsed();
+    drop(adjacency);
+
+    let mut tree = VertexTree {
+        nodes,
+        leaf_vertex: clustering.leaf_vertex,
+        vertex_rank,
+        leaf_node,
+        subtris: Vec::new(),
+        level_starts: clustering.level_starts,
+    };
+    let start = Instant::now();
+    assign_subtris(&mut tree, &scene.triangles);
+    timings.subtris = start.elapsed();
+    (tree, timings)
+}
+
+/// Incident triangles of each vertex, in increasing triangle id (compressed rows).
+struct Adjacency {
+    offsets: Vec<u32>,
+    triangles: Vec<u32>,
+}
+
+impl Adjacency {
+    fn new(vertex_count: usize, triangles: &[[u32; 3]]) -> Adjacency {
+        let mut offsets = vec![0u32; vertex_count + 1];
+        for t in triangles {
+            for &v in t {
+                offsets[v as usize + 1] += 1;
+            }
+        }
+        for i in 0..vertex_count {
+            offsets[i + 1] += offsets[i];
+        }
+        let mut fill = offsets.clone();
+        let mut list = vec![0u32; offsets[vertex_count] as usize];
+        for (id, t) in triangles.iter().enumerate() {
+            for &v in t {
+                list[fill[v as usize] as usize] = id as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        Adjacency {
+            offsets,
+            triangles: list,
+        }
+    }
+
+    fn of(&self, vertex: u32) -> &[u32] {
+        let v = vertex as usize;
+        &self.triangles[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    }
+}
+
+/// What a node passes to its parent.
+#[derive(Clone, Copy)]
+struct Accumulator {
+    quadric: Quadric,
+    position_sum: [f64; 3],
+    vertex_box: Aabb,
+    triangle_box: Aabb,
+    cone: NormalCone,
+}
+
+fn widen(p: [f32; 3]) -> [f64; 3] {
+    p.map(f64::from)
+}
+
+fn compute_attributes(
+    scene: &Scene,
+    clustering: &crate::octree::Clustering,
+    adjacency: &Adjacency,
+    leaf_positions: &[[f32; 3]],
+) -> Vec<Node> {
+    let corners = |t: u32| scene.triangles[t as usize].map(|v| widen(scene.positions[v as usize]));
+    let mut nodes: Vec<Node> = clustering
+        .nodes
+        .iter()
+        .map(|c| Node {
+            parent: c.parent,
+            first_child: c.first_child,
+            child_count: c.child_count,
+            depth: c.depth,
+            leaf_begin: c.leaf_begin,
+            leaf_end: c.leaf_end,
+            subtri_begin: 0,
+            subtri_end: 0,
+            proxy: [0.0; 3],
+            error_radius: 0.0,
+            sphere_center: [0.0; 3],
+            sphere_radius: 0.0,
+            cone_axis: [0.0, 0.0, 1.0],
+            cone_half_angle: -1.0,
+        })
+        .collect();
+    let levels = &clustering.level_starts;
+    let mut below: Vec<Accumulator> = Vec::new();
+    let mut below_start = *levels.last().expect("level starts end with the node count") as usize;
+    for level in (0..levels.len() - 1).rev() {
+        let (start, end) = (levels[level] as usize, levels[level + 1] as usize);
+        let (this_level, deeper) = nodes[start..].split_at_mut(end - start);
+        let deeper: &[Node] = deeper;
+        let accumulators: Vec<Accumulator> = this_level
+            .par_iter_mut()
+            .map(|node| {
+                if node.is_leaf() {
+                    let vertex = clustering.leaf_vertex[node.leaf_begin as usize];
+                    leaf_attributes(
+                        node,
+                        scene.positions[vertex as usize],
+                        adjacency.of(vertex),
+                        &corners,
+                    )
+                } else {
+                    let children = node.children();
+                    let offset = |id: u32| id as usize - below_start;
+                    let child_nodes =
+                        &deeper[children.start as usize - end..children.end as usize - end];
+                    let child_accumulators = &below[offset(children.start)..offset(children.end)];
+                    inner_attributes(node, child_nodes, child_accumulators, leaf_positions)
+                }
+            })
+            .collect();
+        below = accumulators;
+        below_start = start;
+    }
+    nodes
+}
+
+fn leaf_attributes(
+    node: &mut Node,
+    position: [f32; 3],
+    incident: &[u32],
+    corners: &(impl Fn(u32) -> [[f64; 3]; 3] + Sync),
+) -> Accumulator {
+    let p = widen(position);
+    let mut quadric = Quadric::default();
+    let mut triangle_box = Aabb::EMPTY;
+    triangle_box.add_point(p);
+    for &t in incident {
+        let [a, b, c] = corners(t);
+        quadric.add(&Quadric::from_triangle(a, b, c));
+        for q in [a, b, c] {
+            triangle_box.add_point(q);
+        }
+    }
+    let center = triangle_box.center().map(|c| c as f32);
+    let radius = incident
+        .iter()
+        .flat_map(|&t| corners(t))
+        .map(|q| distance(widen(center), q))
+        .fold(distance(widen(center), p), f64::max);
+    let cone = NormalCone::fit(incident.iter().filter_map(|&t| {
+        let [a, b, c] = corners(t);
+        triangle_normal(a, b, c)
+    }));
+    node.proxy = position;
+    node.error_radius = 0.0;
+    node.sphere_center = center;
+    node.sphere_radius = round_up_f32(radius);
+    store_cone(node, &cone);
+    let mut vertex_box = Aabb::EMPTY;
+    vertex_box.add_point(p);
+    Accumulator {
+        quadric,
+        position_sum: p,
+        vertex_box,
+        triangle_box,
+        cone,
+    }
+}
+
+fn inner_attributes(
+    node: &mut Node,
+    children: &[Node],
+    child_accumulators: &[Accumulator],
+    leaf_positions: &[[f32; 3]],
+) -> Accumulator {
+    let mut sum = child_accumulators[0];
+    for a in &child_accumulators[1..] {
+        sum.quadric.add(&a.quadric);
+        for k in 0..3 {
+            sum.position_sum[k] += a.position_sum[k];
+        }
+        sum.vertex_box.add_box(&a.vertex_box);
+        sum.triangle_box.add_box(&a.triangle_box);
+        sum.cone = sum.cone.merge(&a.cone);
+    }
+    let count = f64::from(node.leaf_count());
+    let mean = sum.position_sum.map(|c| c / count);
+    // The proxy stays inside the cluster's vertex box, so inside the node's octree cell.
+    let proxy = sum.vertex_box.clamp(sum.quadric.minimizer_near(mean));
+    node.proxy = proxy.map(|c| c as f32);
+    let proxy = widen(node.proxy);
+    let radius = leaf_positions[node.leaf_begin as usize..node.leaf_end as usize]
+        .iter()
+        .map(|&q| distance(proxy, widen(q)))
+        .fold(0.0, f64::max);
+    node.error_radius = round_up_f32(radius);
+    let center = sum.triangle_box.center().map(|c| c as f32);
+    let sphere_radius = children
+        .iter()
+        .map(|c| distance(widen(center), widen(c.sphere_center)) + f64::from(c.sphere_radius))
+        .fold(0.0, f64::max);
+    node.sphere_center = center;
+    node.sphere_radius = round_up_f32(sphere_radius);
+    store_cone(node, &sum.cone);
+    sum
+}
+
+fn store_cone(node: &mut Node, cone: &NormalCone) {
+    node.cone_axis = cone.axis.map(|c| c as f32);
+    node.cone_half_angle = if cone.is_empty() {
+        -1.0
+    } else {
+        round_up_f32(cone.half_angle)
+    };
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let d = sub(a, b);
+    dot(d, d).sqrt()
+}
+
+/// Fills `tree.subtris` and each node's subtri range.
+fn assign_subtris(tree: &mut VertexTree, triangles: &[[u32; 3]]) {
+    let owner: Vec<u32> = triangles.par_iter().map(|&t| tree.subtri_node(t)).collect();
+    let mut counts = vec![0u32; tree.nodes.len() + 1];
+    for &node in &owner {
+        counts[node as usize + 1] += 1;
+    }
+    for i in 0..tree.nodes.len() {
+        counts[i + 1] += counts[i];
+    }
+    for (id, node) in tree.nodes.iter_mut().enumerate() {
+        node.subtri_begin = counts[id];
+        node.subtri_end = counts[id + 1];
+    }
+    let mut subtris = vec![0u32; triangles.len()];
+    for (t, &node) in owner.iter().enumerate() {
+        subtris[counts[node as usize] as usize] = t as u32;
+        counts[node as usize] += 1;
+    }
+    tree.subtris = subtris;
+}

@@ -1,0 +1,132 @@
+//! The vertex tree: the data structure every other part of vds reads.
+//!
+//! Nodes are stored breadth-first (node 0 is the root, a node's children are contiguous,
+//! every parent precedes its children). Leaves are numbered depth-first by *leaf rank*, so
+//! each node covers a contiguous leaf range and "node N supports vertex V" is a range test on
+//! V's rank: the paper's NodePath test without pointer chasing.
+
+use crate::octree::NO_PARENT;
+
+/// One node of the vertex tree.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Node {
+    /// Parent id, or [`Node::NO_PARENT`] for the root.
+    pub parent: u32,
+    /// First child id; children are `first_child .. first_child + child_count`.
+    pub first_child: u32,
+    /// Number of children: 0 for a leaf, else 2..=8.
+    pub child_count: u8,
+    /// Depth below the root.
+    pub depth: u16,
+    /// First leaf rank this node supports.
+    pub leaf_begin: u32,
+    /// One past the last leaf rank this node supports.
+    pub leaf_end: u32,
+    /// Start of this node's subtris in [`VertexTree::subtris`].
+    pub subtri_begin: u32,
+    /// End of this node's subtris in [`VertexTree::subtris`].
+    pub subtri_end: u32,
+    /// The proxy vertex (for a leaf, the original position).
+    pub proxy: [f32; 3],
+    /// Largest distance from the proxy to any supported original vertex (object units).
+    pub error_radius: f32,
+    /// Centre of a sphere containing every triangle with a corner under this node.
+    pub sphere_center: [f32; 3],
+    /// Radius of that sphere.
+    pub sphere_radius: f32,
+    /// Unit axis of a cone containing the normals of every triangle with a corner under this
+    /// node (zero-area triangles have no normal and are not bounded).
+    pub cone_axis: [f32; 3],
+    /// Half-angle of that cone in radians; negative when it bounds no normal.
+    pub cone_half_angle: f32,
+}
+
+impl Node {
+    /// The parent id of the root.
+    pub const NO_PARENT: u32 = NO_PARENT;
+
+    /// True for a leaf (an original vertex).
+    pub fn is_leaf(&self) -> bool {
+        self.child_count == 0
+    }
+
+    /// The ids of the children.
+    pub fn children(&self) -> std::ops::Range<u32> {
+        self.first_child..self.first_child + u32::from(self.child_count)
+    }
+
+    /// True when this node supports the vertex with leaf rank `rank`.
+    pub fn supports_rank(&self, rank: u32) -> bool {
+        self.leaf_begin <= rank && rank < self.leaf_end
+    }
+
+    /// Number of original vertices under this node.
+    pub fn leaf_count(&self) -> u32 {
+        self.leaf_end - self.leaf_begin
+    }
+}
+
+/// A vertex tree over a scene's vertices and triangles.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct VertexTree {
+    /// Nodes, breadth-first; node 0 is the root. Empty for an empty scene.
+    pub nodes: Vec<Node>,
+    /// Vertex id (index into the scene's positions) of each leaf rank.
+    pub leaf_vertex: Vec<u32>,
+    /// Leaf rank of each vertex id (inverse of `leaf_vertex`).
+    pub vertex_rank: Vec<u32>,
+    /// Node id of the leaf with each leaf rank.
+    pub leaf_node: Vec<u32>,
+    /// Triangle ids (indices into the scene's triangles) grouped by the node they are subtris
+    /// of; each node's are at `subtri_begin..subtri_end`, in increasing triangle id.
+    pub subtris: Vec<u32>,
+    /// Node ids where each depth starts, plus the node count at the end.
+    pub level_starts: Vec<u32>,
+}
+
+impl VertexTree {
+    /// The root id (the tree must not be empty).
+    pub const ROOT: u32 = 0;
+
+    /// Number of nodes.
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Depth of the deepest node (0 for a single node).
+    pub fn max_depth(&self) -> usize {
+        self.level_starts.len().saturating_sub(2)
+    }
+
+    /// The node a triangle is a subtri of: the deepest node supporting two or more of its
+    /// corners (Luebke & Erikson §2.1). Walks up from the middle corner's leaf.
+    pub fn subtri_node(&self, triangle: [u32; 3]) -> u32 {
+        let mut ranks = triangle.map(|v| self.vertex_rank[v as usize]);
+        ranks.sort_unstable();
+        // The deepest pairwise common ancestor involves the middle rank: any node covering
+        // ranks[0] and ranks[2] also covers ranks[1], since ranges are contiguous.
+        let mut node = self.leaf_node[ranks[1] as usize];
+        loop {
+            let n = &self.nodes[node as usize];
+            if n.leaf_begin <= ranks[0] || n.leaf_end > ranks[2] {
+                return node;
+            }
+            node = n.parent;
+        }
+    }
+
+    /// The subtris of node `id`.
+    pub fn subtris_of(&self, id: u32) -> &[u32] {
+        let n = &self.nodes[id as usize];
+        &self.subtris[n.subtri_begin as usize..n.subtri_end as usize]
+    }
+
+    /// A histogram of child counts: entry `k` counts nodes with `k` children.
+    pub fn degree_histogram(&self) -> [u64; 9] {
+        let mut histogram = [0u64; 9];
+        for n in &self.nodes {
+            histogram[usize::from(n.child_count).min(8)] += 1;
+        }
+        histogram
+    }
+}
