@@ -361,7 +361,7 @@ pub fn read_ply(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Form
                 position: 0,
                 line: header_lines as u64 + 1,
             };
-            read_body(&header, &mut values, 2, name, soup)
+            read_body(&header, &mut values, true, name, soup)
         }
         encoding => {
             let mut values = Binary {
@@ -369,17 +369,17 @@ pub fn read_ply(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Form
                 position: 0,
                 big_endian: encoding == Encoding::BinaryBigEndian,
             };
-            read_body(&header, &mut values, 1, name, soup)
+            read_body(&header, &mut values, false, name, soup)
         }
     }
 }
 
-/// Reads every element in header order. `ascii_factor` scales the minimum bytes per value:
-/// an ASCII value takes at least one digit and one separator.
+/// Reads every element in header order. For `ascii` bodies a value takes at least two bytes
+/// (a digit and a separator), which bounds how many rows the remaining bytes can hold.
 fn read_body(
     header: &Header,
     values: &mut impl Values,
-    ascii_factor: usize,
+    ascii: bool,
     name: &str,
     soup: &mut MeshSoup,
 ) -> Result<(), FormatError> {
@@ -395,7 +395,7 @@ fn read_body(
         let min_row_bytes: usize = element
             .properties
             .iter()
-            .map(|p| p.min_binary_bytes().max(1) * ascii_factor)
+            .map(|p| if ascii { 2 } else { p.min_binary_bytes() })
             .sum();
         if min_row_bytes == 0 {
             continue; // An element without properties occupies no bytes.
