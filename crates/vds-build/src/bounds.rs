@@ -93,9 +93,10 @@ impl NormalCone {
         } else {
             first
         };
-        let half_angle = normals
-            .map(|n| angle_between(axis, n))
-            .fold(0.0f64, f64::max);
+        // One acos for the widest normal instead of an angle per normal; acos is accurate
+        // to ~1e-8 rad near 0, well inside the slack added below.
+        let min_cos = normals.map(|n| dot(axis, n)).fold(1.0f64, f64::min);
+        let half_angle = min_cos.clamp(-1.0, 1.0).acos();
         NormalCone {
             axis,
             half_angle: (half_angle + CONE_SLACK_RADIANS).min(std::f64::consts::PI),

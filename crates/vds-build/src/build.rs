@@ -71,7 +71,15 @@ pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
         .par_iter()
         .map(|&v| scene.positions[v as usize])
         .collect();
-    let nodes = compute_attributes(scene, &clustering, &adjacency, &leaf_positions);
+    let mut nodes = clustering.nodes;
+    compute_attributes(
+        scene,
+        &mut nodes,
+        &clustering.level_starts,
+        &clustering.leaf_vertex,
+        &adjacency,
+        &leaf_positions,
+    );
     timings.attributes = start.elapsed();
     drop(adjacency);
 
@@ -140,94 +148,117 @@ fn widen(p: [f32; 3]) -> [f64; 3] {
     p.map(f64::from)
 }
 
+/// Fills every node's attributes, deepest level first. A parent computes its leaf children's
+/// accumulators itself, so only inner nodes' accumulators are kept between levels, indexed
+/// compactly: leaves, the bulk of the tree, never occupy an accumulator slot.
 fn compute_attributes(
     scene: &Scene,
-    clustering: &crate::octree::Clustering,
+    nodes: &mut [Node],
+    levels: &[u32],
+    leaf_vertex: &[u32],
     adjacency: &Adjacency,
     leaf_positions: &[[f32; 3]],
-) -> Vec<Node> {
-    let corners = |t: u32| scene.triangles[t as usize].map(|v| widen(scene.positions[v as usize]));
-    let mut nodes: Vec<Node> = clustering
-        .nodes
-        .iter()
-        .map(|c| Node {
-            parent: c.parent,
-            first_child: c.first_child,
-            child_count: c.child_count,
-            depth: c.depth,
-            leaf_begin: c.leaf_begin,
-            leaf_end: c.leaf_end,
-            subtri_begin: 0,
-            subtri_end: 0,
-            proxy: [0.0; 3],
-            error_radius: 0.0,
-            sphere_center: [0.0; 3],
-            sphere_radius: 0.0,
-            cone_axis: [0.0, 0.0, 1.0],
-            cone_half_angle: -1.0,
-        })
-        .collect();
-    let levels = &clustering.level_starts;
-    let mut below: Vec<Accumulator> = Vec::new();
-    let mut below_start = *levels.last().expect("level starts end with the node count") as usize;
-    for level in (0..levels.len() - 1).rev() {
-        let (start, end) = (levels[level] as usize, levels[level + 1] as usize);
-        let (this_level, deeper) = nodes[start..].split_at_mut(end - start);
-        let deeper: &[Node] = deeper;
-        let accumulators: Vec<Accumulator> = this_level
-            .par_iter_mut()
-            .map(|node| {
-                if node.is_leaf() {
-                    let vertex = clustering.leaf_vertex[node.leaf_begin as usize];
-                    leaf_attributes(
-                        node,
-                        scene.positions[vertex as usize],
-                        adjacency.of(vertex),
-                        &corners,
-                    )
-                } else {
-                    let children = node.children();
-                    let offset = |id: u32| id as usize - below_start;
-                    let child_nodes =
-                        &deeper[children.start as usize - end..children.end as usize - end];
-                    let child_accumulators = &below[offset(children.start)..offset(children.end)];
-                    inner_attributes(node, child_nodes, child_accumulators, leaf_positions)
-                }
-            })
-            .collect();
-        below = accumulators;
-        below_start = start;
+) {
+    let level_count = levels.len() - 1;
+    let mut inner_index = vec![u32::MAX; nodes.len()];
+    for level in 0..level_count {
+        let mut count = 0;
+        for id in levels[level] as usize..levels[level + 1] as usize {
+            if !nodes[id].is_leaf() {
+                inner_index[id] = count;
+                count += 1;
+            }
+        }
     }
-    nodes
+    // Two buffers reused level after level: fresh multi-megabyte allocations per level would
+    // spend more time in page faults than in the geometry.
+    let mut below: Vec<Accumulator> = Vec::new();
+    let mut current: Vec<Accumulator> = Vec::new();
+    for level in (0..level_count).rev() {
+        let (start, end) = (levels[level] as usize, levels[level + 1] as usize);
+        let next_end = levels.get(level + 2).map_or(end, |&e| e as usize);
+        let (this_level, rest) = nodes[start..next_end].split_at_mut(end - start);
+        // The next level is exactly this level's children, in parent order.
+        let mut children_left: &mut [Node] = rest;
+        let mut families: Vec<(&mut Node, &mut [Node])> = Vec::new();
+        for node in this_level.iter_mut() {
+            if !node.is_leaf() {
+                let (children, tail) =
+                    std::mem::take(&mut children_left).split_at_mut(usize::from(node.child_count));
+                children_left = tail;
+                families.push((node, children));
+            }
+        }
+        let below_ref = &below;
+        let inner_index = &inner_index;
+        families
+            .into_par_iter()
+            .map_init(Vec::new, |scratch, (node, children)| {
+                let mut sum: Option<Accumulator> = None;
+                for (k, child) in children.iter_mut().enumerate() {
+                    let accumulator = if child.is_leaf() {
+                        let vertex = leaf_vertex[child.leaf_begin as usize];
+                        leaf_attributes(child, vertex, scene, adjacency.of(vertex), scratch)
+                    } else {
+                        let id = node.first_child as usize + k;
+                        below_ref[inner_index[id] as usize]
+                    };
+                    sum = Some(match sum {
+                        None => accumulator,
+                        Some(sum) => sum.combine(&accumulator),
+                    });
+                }
+                let sum = sum.expect("inner nodes have children");
+                inner_attributes(node, children, &sum, leaf_positions);
+                sum
+            })
+            .collect_into_vec(&mut current);
+        std::mem::swap(&mut below, &mut current);
+    }
+    if nodes.len() == 1 {
+        let vertex = leaf_vertex[0];
+        leaf_attributes(&mut nodes[0], vertex, scene, adjacency.of(vertex), &mut Vec::new());
+    }
+}
+
+/// One incident triangle of a leaf, gathered once and used by every leaf attribute.
+struct Incident {
+    corners: [[f64; 3]; 3],
+    normal: Option<[f64; 3]>,
 }
 
 fn leaf_attributes(
     node: &mut Node,
-    position: [f32; 3],
+    vertex: u32,
+    scene: &Scene,
     incident: &[u32],
-    corners: &(impl Fn(u32) -> [[f64; 3]; 3] + Sync),
+    scratch: &mut Vec<Incident>,
 ) -> Accumulator {
+    let position = scene.positions[vertex as usize];
     let p = widen(position);
     let mut quadric = Quadric::default();
     let mut triangle_box = Aabb::EMPTY;
     triangle_box.add_point(p);
+    scratch.clear();
     for &t in incident {
-        let [a, b, c] = corners(t);
+        let corners = scene.triangles[t as usize].map(|v| widen(scene.positions[v as usize]));
+        let [a, b, c] = corners;
         quadric.add(&Quadric::from_triangle(a, b, c));
-        for q in [a, b, c] {
+        for q in corners {
             triangle_box.add_point(q);
         }
+        scratch.push(Incident {
+            corners,
+            normal: triangle_normal(a, b, c),
+        });
     }
     let center = triangle_box.center().map(|c| c as f32);
-    let radius = incident
+    let radius = scratch
         .iter()
-        .flat_map(|&t| corners(t))
+        .flat_map(|t| t.corners)
         .map(|q| distance(widen(center), q))
         .fold(distance(widen(center), p), f64::max);
-    let cone = NormalCone::fit(incident.iter().filter_map(|&t| {
-        let [a, b, c] = corners(t);
-        triangle_normal(a, b, c)
-    }));
+    let cone = NormalCone::fit(scratch.iter().filter_map(|t| t.normal));
     node.proxy = position;
     node.error_radius = 0.0;
     node.sphere_center = center;
@@ -244,22 +275,20 @@ fn leaf_attributes(
     }
 }
 
-fn inner_attributes(
-    node: &mut Node,
-    children: &[Node],
-    child_accumulators: &[Accumulator],
-    leaf_positions: &[[f32; 3]],
-) -> Accumulator {
-    let mut sum = child_accumulators[0];
-    for a in &child_accumulators[1..] {
-        sum.quadric.add(&a.quadric);
+impl Accumulator {
+    fn combine(mut self, other: &Accumulator) -> Accumulator {
+        self.quadric.add(&other.quadric);
         for k in 0..3 {
-            sum.position_sum[k] += a.position_sum[k];
+            self.position_sum[k] += other.position_sum[k];
         }
-        sum.vertex_box.add_box(&a.vertex_box);
-        sum.triangle_box.add_box(&a.triangle_box);
-        sum.cone = sum.cone.merge(&a.cone);
+        self.vertex_box.add_box(&other.vertex_box);
+        self.triangle_box.add_box(&other.triangle_box);
+        self.cone = self.cone.merge(&other.cone);
+        self
     }
+}
+
+fn inner_attributes(node: &mut Node, children: &[Node], sum: &Accumulator, leaf_positions: &[[f32; 3]]) {
     let count = f64::from(node.leaf_count());
     let mean = sum.position_sum.map(|c| c / count);
     // The proxy stays inside the cluster's vertex box, so inside the node's octree cell.
@@ -279,7 +308,6 @@ fn inner_attributes(
     node.sphere_center = center;
     node.sphere_radius = round_up_f32(sphere_radius);
     store_cone(node, &sum.cone);
-    sum
 }
 
 fn store_cone(node: &mut Node, cone: &NormalCone) {

@@ -22,31 +22,17 @@
 
 use rayon::prelude::*;
 
+use crate::tree::Node;
+
 /// No parent (the root).
 pub const NO_PARENT: u32 = u32::MAX;
 
-/// A node of the clustering: a contiguous range of the leaf order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ClusterNode {
-    /// First leaf rank covered.
-    pub leaf_begin: u32,
-    /// One past the last leaf rank covered.
-    pub leaf_end: u32,
-    /// Parent node id, or [`NO_PARENT`].
-    pub parent: u32,
-    /// First child id (children are contiguous); 0 for a leaf.
-    pub first_child: u32,
-    /// Number of children (0 for a leaf, else 2..=8).
-    pub child_count: u8,
-    /// Depth below the root.
-    pub depth: u16,
-}
-
 /// The clustering of a vertex set.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Clustering {
     /// Nodes in breadth-first order; node 0 is the root.
-    pub nodes: Vec<ClusterNode>,
+    /// Only the topology fields (parent, children, depth, leaf range) are set.
+    pub nodes: Vec<Node>,
     /// Vertex id of each leaf rank (depth-first leaf order).
     pub leaf_vertex: Vec<u32>,
     /// Node ids where each depth starts, plus the total count at the end.
@@ -61,14 +47,10 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
         "vertex ids must fit in u32"
     );
     let mut order: Vec<u32> = (0..positions.len() as u32).collect();
-    let mut nodes = vec![ClusterNode {
-        leaf_begin: 0,
-        leaf_end: positions.len() as u32,
-        parent: NO_PARENT,
-        first_child: 0,
-        child_count: 0,
-        depth: 0,
-    }];
+    // An inner node has at least two children, so there are at most 2V - 1 nodes; reserving
+    // that (untouched pages cost nothing) avoids copying the node array as it grows.
+    let mut nodes = Vec::with_capacity(2 * positions.len() - 1);
+    nodes.push(Node::topology(0, positions.len() as u32, NO_PARENT, 0));
     let mut level_starts = vec![0u32];
     let mut level = 0..1usize;
     while !level.is_empty() {
@@ -101,14 +83,7 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
             nodes[id].child_count = child_sizes.len() as u8;
             let mut begin = parent.leaf_begin;
             for size in child_sizes {
-                nodes.push(ClusterNode {
-                    leaf_begin: begin,
-                    leaf_end: begin + size,
-                    parent: id as u32,
-                    first_child: 0,
-                    child_count: 0,
-                    depth: parent.depth + 1,
-                });
+                nodes.push(Node::topology(begin, begin + size, id as u32, parent.depth + 1));
                 begin += size;
             }
         }

@@ -45,6 +45,26 @@ impl Node {
     /// The parent id of the root.
     pub const NO_PARENT: u32 = NO_PARENT;
 
+    /// A node with its place in the tree set and every attribute empty.
+    pub(crate) fn topology(leaf_begin: u32, leaf_end: u32, parent: u32, depth: u16) -> Node {
+        Node {
+            parent,
+            first_child: 0,
+            child_count: 0,
+            depth,
+            leaf_begin,
+            leaf_end,
+            subtri_begin: 0,
+            subtri_end: 0,
+            proxy: [0.0; 3],
+            error_radius: 0.0,
+            sphere_center: [0.0; 3],
+            sphere_radius: 0.0,
+            cone_axis: [0.0, 0.0, 1.0],
+            cone_half_angle: -1.0,
+        }
+    }
+
     /// True for a leaf (an original vertex).
     pub fn is_leaf(&self) -> bool {
         self.child_count == 0

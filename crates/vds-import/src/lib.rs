@@ -81,7 +81,11 @@ pub fn read_file(path: &Path, soup: &mut MeshSoup) -> Result<(), ImportError> {
         Format::Stl => stl::read_stl(&bytes, &name, &mut file_soup),
     };
     result.map_err(|e| e.in_file(path))?;
-    soup.append(file_soup);
+    if soup.positions.is_empty() && soup.part_names.is_empty() {
+        *soup = file_soup; // The common single-file case: no copy.
+    } else {
+        soup.append(file_soup);
+    }
     Ok(())
 }
 

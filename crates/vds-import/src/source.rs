@@ -40,9 +40,9 @@ pub fn format_of(path: &Path) -> Option<(Format, bool)> {
 
 /// Reads a whole file, gunzipping it when `gz` is set.
 pub fn read_bytes(path: &Path, gz: bool) -> Result<Vec<u8>, ImportError> {
-    let io_error = |source| ImportError::Io {
+    let io_error = |cause| ImportError::Io {
         path: path.to_path_buf(),
-        source,
+        cause,
     };
     let raw = std::fs::read(path).map_err(io_error)?;
     if !gz {
