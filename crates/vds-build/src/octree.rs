@@ -70,7 +70,7 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
                 work.push((id, slice));
             }
         }
-        let splits: Vec<(usize, Vec<u32>)> = work
+        let splits: Vec<(usize, ChildSizes)> = work
             .into_par_iter()
             .map_init(Vec::new, |scratch, (id, slice)| {
                 (id, split(slice, positions, scratch))
@@ -82,7 +82,7 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
             nodes[id].first_child = nodes.len() as u32;
             nodes[id].child_count = child_sizes.len() as u8;
             let mut begin = parent.leaf_begin;
-            for size in child_sizes {
+            for &size in child_sizes.as_slice() {
                 nodes.push(Node::topology(begin, begin + size, id as u32, parent.depth + 1));
                 begin += size;
             }
@@ -97,8 +97,36 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
     }
 }
 
+/// Sizes of a node's children, in order (at most eight; no heap allocation per node).
+struct ChildSizes {
+    sizes: [u32; 8],
+    count: usize,
+}
+
+impl ChildSizes {
+    fn from_iter(sizes: impl Iterator<Item = u32>) -> ChildSizes {
+        let mut out = ChildSizes {
+            sizes: [0; 8],
+            count: 0,
+        };
+        for size in sizes {
+            out.sizes[out.count] = size;
+            out.count += 1;
+        }
+        out
+    }
+
+    fn len(&self) -> usize {
+        self.count
+    }
+
+    fn as_slice(&self) -> &[u32] {
+        &self.sizes[..self.count]
+    }
+}
+
 /// Reorders `slice` (≥ 2 vertex ids) into its children and returns their sizes, in order.
-fn split(slice: &mut [u32], positions: &[[f32; 3]], scratch: &mut Vec<u32>) -> Vec<u32> {
+fn split(slice: &mut [u32], positions: &[[f32; 3]], scratch: &mut Vec<u32>) -> ChildSizes {
     let mut min = [f32::INFINITY; 3];
     let mut max = [f32::NEG_INFINITY; 3];
     for &v in slice.iter() {
@@ -136,7 +164,7 @@ fn split(slice: &mut [u32], positions: &[[f32; 3]], scratch: &mut Vec<u32>) -> V
                 offsets[o] += 1;
             }
             slice.copy_from_slice(scratch);
-            return counts.into_iter().filter(|&c| c > 0).collect();
+            return ChildSizes::from_iter(counts.into_iter().filter(|&c| c > 0));
         }
     }
     // Coincident vertices, or a split plane that rounding put on a face: balanced chunks.
@@ -144,11 +172,9 @@ fn split(slice: &mut [u32], positions: &[[f32; 3]], scratch: &mut Vec<u32>) -> V
 }
 
 /// Sizes of at most eight nearly equal chunks of `n ≥ 2` items.
-fn balanced_chunks(n: u32) -> Vec<u32> {
+fn balanced_chunks(n: u32) -> ChildSizes {
     let parts = n.min(8);
-    (0..parts)
-        .map(|i| n / parts + u32::from(i < n % parts))
-        .collect()
+    ChildSizes::from_iter((0..parts).map(|i| n / parts + u32::from(i < n % parts)))
 }
 
 #[cfg(test)]

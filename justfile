@@ -1,0 +1,21 @@
+# Convenience recipes; each is a plain cargo command that works without `just` too.
+
+# Build the bundled demo assembly's vertex tree and print what was built.
+demo *ARGS:
+    cargo run --release -p vds-build -- {{ARGS}}
+
+# The whole test suite (what CI runs after fmt and clippy).
+test:
+    cargo test --workspace --release
+
+# Everything CI checks.
+ci:
+    bash .ci/run
+
+# Generate CAD-like scenes and print build throughput and memory (docs/benchmarks.md).
+bench:
+    cargo run --release -p vds-bench
+
+# Generate a CAD-like scene: just gen 1M out/cad-1M.ply
+gen COUNT OUT:
+    cargo run --release -p vds-gen -- --triangles {{COUNT}} --out {{OUT}}
