@@ -217,7 +217,13 @@ fn compute_attributes(
     }
     if nodes.len() == 1 {
         let vertex = leaf_vertex[0];
-        leaf_attributes(&mut nodes[0], vertex, scene, adjacency.of(vertex), &mut Vec::new());
+        leaf_attributes(
+            &mut nodes[0],
+            vertex,
+            scene,
+            adjacency.of(vertex),
+            &mut Vec::new(),
+        );
     }
 }
 
@@ -288,7 +294,12 @@ impl Accumulator {
     }
 }
 
-fn inner_attributes(node: &mut Node, children: &[Node], sum: &Accumulator, leaf_positions: &[[f32; 3]]) {
+fn inner_attributes(
+    node: &mut Node,
+    children: &[Node],
+    sum: &Accumulator,
+    leaf_positions: &[[f32; 3]],
+) {
     let count = f64::from(node.leaf_count());
     let mean = sum.position_sum.map(|c| c / count);
     // The proxy stays inside the cluster's vertex box, so inside the node's octree cell.

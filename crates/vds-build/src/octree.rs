@@ -83,7 +83,12 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
             nodes[id].child_count = child_sizes.len() as u8;
             let mut begin = parent.leaf_begin;
             for &size in child_sizes.as_slice() {
-                nodes.push(Node::topology(begin, begin + size, id as u32, parent.depth + 1));
+                nodes.push(Node::topology(
+                    begin,
+                    begin + size,
+                    id as u32,
+                    parent.depth + 1,
+                ));
                 begin += size;
             }
         }

@@ -50,7 +50,9 @@ fn build_and_verify(scene: &Scene) -> VertexTree {
 }
 
 fn shared(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(name)
 }
 
 fn coordinate() -> impl Strategy<Value = f32> {
@@ -132,7 +134,12 @@ fn a_hundred_coincident_distinct_vertices() {
 #[test]
 fn degenerate_triangles_are_not_subtris() {
     let scene = scene_from(
-        vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]],
+        vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+        ],
         vec![[0, 1, 2], [0, 1, 3], [2, 2, 1]],
     );
     assert_eq!(scene.triangles.len(), 1);
@@ -142,7 +149,13 @@ fn degenerate_triangles_are_not_subtris() {
 
 #[test]
 fn real_meshes_satisfy_all_invariants() {
-    for name in ["bunny.obj", "cow.obj", "airplane.obj", "bone.ply", "as1_assembly.obj"] {
+    for name in [
+        "bunny.obj",
+        "cow.obj",
+        "airplane.obj",
+        "bone.ply",
+        "as1_assembly.obj",
+    ] {
         let scene = vds_import::load_file(shared(name), &Default::default()).unwrap();
         let tree = build_and_verify(&scene);
         assert_eq!(tree.leaf_vertex.len(), scene.positions.len(), "{name}");
@@ -185,31 +198,54 @@ fn identical_trees_on_one_two_and_three_threads() {
 fn the_checker_rejects_broken_trees() {
     let scene = vds_import::load_file(shared("cow.obj"), &Default::default()).unwrap();
     let tree = build_and_verify(&scene);
-    let inner = tree.nodes.iter().position(|n| !n.is_leaf() && n.error_radius > 0.0).unwrap();
+    let inner = tree
+        .nodes
+        .iter()
+        .position(|n| !n.is_leaf() && n.error_radius > 0.0)
+        .unwrap();
 
     let mut shrunk = tree.clone();
     shrunk.nodes[inner].error_radius *= 0.5;
-    assert!(verify_tree(&shrunk, &scene).is_err(), "shrunk error radius accepted");
+    assert!(
+        verify_tree(&shrunk, &scene).is_err(),
+        "shrunk error radius accepted"
+    );
 
     let mut small_sphere = tree.clone();
     small_sphere.nodes[inner].sphere_radius *= 0.5;
-    assert!(verify_tree(&small_sphere, &scene).is_err(), "shrunk sphere accepted");
+    assert!(
+        verify_tree(&small_sphere, &scene).is_err(),
+        "shrunk sphere accepted"
+    );
 
     let mut narrow_cone = tree.clone();
     narrow_cone.nodes[0].cone_half_angle = 0.0;
-    assert!(verify_tree(&narrow_cone, &scene).is_err(), "narrowed cone accepted");
+    assert!(
+        verify_tree(&narrow_cone, &scene).is_err(),
+        "narrowed cone accepted"
+    );
 
     // Moving a subtri to its node's parent breaks the "deepest node" rule.
     let mut moved = tree.clone();
-    let owner = moved.nodes.iter().position(|n| n.subtri_end > n.subtri_begin && n.parent != u32::MAX).unwrap();
+    let owner = moved
+        .nodes
+        .iter()
+        .position(|n| n.subtri_end > n.subtri_begin && n.parent != u32::MAX)
+        .unwrap();
     let parent = moved.nodes[owner].parent as usize;
     moved.nodes[owner].subtri_end -= 1;
     moved.nodes[parent].subtri_begin = moved.nodes[owner].subtri_end;
-    assert!(verify_tree(&moved, &scene).is_err(), "misplaced subtri accepted");
+    assert!(
+        verify_tree(&moved, &scene).is_err(),
+        "misplaced subtri accepted"
+    );
 
     let mut duplicated = tree.clone();
     duplicated.leaf_vertex[1] = duplicated.leaf_vertex[0];
-    assert!(verify_tree(&duplicated, &scene).is_err(), "vertex as two leaves accepted");
+    assert!(
+        verify_tree(&duplicated, &scene).is_err(),
+        "vertex as two leaves accepted"
+    );
 }
 
 #[test]

@@ -13,12 +13,15 @@ fn read(bytes: &[u8], format: Format) -> Result<MeshSoup, vds_import::FormatErro
 }
 
 fn shared(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(name)
 }
 
 // ---------- OBJ ----------
 
-const TWO_OBJECTS: &str = "o plate\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\no bolt\nv 0 0 1\nf 1 2 5\n";
+const TWO_OBJECTS: &str =
+    "o plate\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\no bolt\nv 0 0 1\nf 1 2 5\n";
 
 #[test]
 fn obj_objects_become_named_parts_and_quads_are_triangulated() {
@@ -40,9 +43,19 @@ fn obj_rejects_non_finite_coordinate_with_its_line() {
 
 #[test]
 fn obj_rejects_out_of_range_index_with_its_line() {
-    let error = read(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n", Format::Obj).unwrap_err();
+    let error = read(
+        b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n",
+        Format::Obj,
+    )
+    .unwrap_err();
     assert_eq!(error.location, Location::Line(5));
-    assert!(matches!(error.problem, Problem::IndexOutOfRange { index: 9, vertex_count: 3 }));
+    assert!(matches!(
+        error.problem,
+        Problem::IndexOutOfRange {
+            index: 9,
+            vertex_count: 3
+        }
+    ));
 }
 
 #[test]
@@ -63,7 +76,10 @@ fn obj_reads_the_cad_assembly_as_eighteen_parts() {
     let scene = vds_import::load_file(shared("as1_assembly.obj"), &Default::default()).unwrap();
     assert_eq!(scene.part_names.len(), 18);
     assert_eq!(scene.stats.input_triangles, 10_896);
-    assert!(scene.stats.welded_vertices > 0, "B-rep seams are unwelded in the file");
+    assert!(
+        scene.stats.welded_vertices > 0,
+        "B-rep seams are unwelded in the file"
+    );
 }
 
 // ---------- PLY ----------
@@ -76,14 +92,41 @@ fn ply_header(format: &str, vertices: usize, faces: usize) -> String {
     )
 }
 
-const SQUARE: [[f32; 3]; 4] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+const SQUARE: [[f32; 3]; 4] = [
+    [0.0, 0.0, 0.0],
+    [1.0, 0.0, 0.0],
+    [1.0, 1.0, 0.0],
+    [0.0, 1.0, 0.0],
+];
 
 fn binary_ply(big_endian: bool, faces: &[&[i32]]) -> Vec<u8> {
-    let format = if big_endian { "binary_big_endian" } else { "binary_little_endian" };
+    let format = if big_endian {
+        "binary_big_endian"
+    } else {
+        "binary_little_endian"
+    };
     let mut out = ply_header(format, SQUARE.len(), faces.len()).into_bytes();
-    let f32b = |x: f32| if big_endian { x.to_be_bytes() } else { x.to_le_bytes() };
-    let f64b = |x: f64| if big_endian { x.to_be_bytes() } else { x.to_le_bytes() };
-    let i32b = |x: i32| if big_endian { x.to_be_bytes() } else { x.to_le_bytes() };
+    let f32b = |x: f32| {
+        if big_endian {
+            x.to_be_bytes()
+        } else {
+            x.to_le_bytes()
+        }
+    };
+    let f64b = |x: f64| {
+        if big_endian {
+            x.to_be_bytes()
+        } else {
+            x.to_le_bytes()
+        }
+    };
+    let i32b = |x: i32| {
+        if big_endian {
+            x.to_be_bytes()
+        } else {
+            x.to_le_bytes()
+        }
+    };
     for p in SQUARE {
         out.extend(f32b(p[0]));
         out.push(7);
@@ -127,23 +170,47 @@ fn ply_ascii_rejects_non_finite_vertex() {
     text += "0 0 0 0\n1 0 inf 0\n";
     let error = read(text.as_bytes(), Format::Ply).unwrap_err();
     assert_eq!(error.problem, Problem::NonFiniteCoordinate);
-    assert_eq!(error.location, Location::Element { kind: "vertex".into(), index: 1 });
+    assert_eq!(
+        error.location,
+        Location::Element {
+            kind: "vertex".into(),
+            index: 1
+        }
+    );
 }
 
 #[test]
 fn ply_rejects_out_of_range_index() {
     let error = read(&binary_ply(false, &[&[0, 1, 4]]), Format::Ply).unwrap_err();
-    assert_eq!(error.problem, Problem::IndexOutOfRange { index: 4, vertex_count: 4 });
-    assert_eq!(error.location, Location::Element { kind: "face".into(), index: 0 });
+    assert_eq!(
+        error.problem,
+        Problem::IndexOutOfRange {
+            index: 4,
+            vertex_count: 4
+        }
+    );
+    assert_eq!(
+        error.location,
+        Location::Element {
+            kind: "face".into(),
+            index: 0
+        }
+    );
     let error = read(&binary_ply(false, &[&[0, -1, 2]]), Format::Ply).unwrap_err();
-    assert!(matches!(error.problem, Problem::IndexOutOfRange { index: -1, .. }));
+    assert!(matches!(
+        error.problem,
+        Problem::IndexOutOfRange { index: -1, .. }
+    ));
 }
 
 #[test]
 fn ply_rejects_truncated_binary() {
     let bytes = binary_ply(false, &[&[0, 1, 2]]);
     let error = read(&bytes[..bytes.len() - 3], Format::Ply).unwrap_err();
-    assert!(matches!(error.problem, Problem::Truncated { .. }), "{error:?}");
+    assert!(
+        matches!(error.problem, Problem::Truncated { .. }),
+        "{error:?}"
+    );
 }
 
 #[test]
@@ -151,14 +218,26 @@ fn ply_rejects_count_larger_than_file_before_allocating() {
     let mut bytes = ply_header("binary_little_endian", 4_000_000_000, 0).into_bytes();
     bytes.extend([0u8; 64]);
     let error = read(&bytes, Format::Ply).unwrap_err();
-    assert!(matches!(error.problem, Problem::CountExceedsFile { count: 4_000_000_000, .. }), "{error:?}");
+    assert!(
+        matches!(
+            error.problem,
+            Problem::CountExceedsFile {
+                count: 4_000_000_000,
+                ..
+            }
+        ),
+        "{error:?}"
+    );
 }
 
 #[test]
 fn ply_reads_bone_with_extra_vertex_properties() {
     let scene = vds_import::load_file(shared("bone.ply"), &Default::default()).unwrap();
     assert_eq!(scene.stats.input_vertices, 1_872);
-    assert_eq!(scene.triangles.len() as u64 + scene.stats.degenerate_triangles_dropped, 3_022);
+    assert_eq!(
+        scene.triangles.len() as u64 + scene.stats.degenerate_triangles_dropped,
+        3_022
+    );
 }
 
 #[test]
@@ -192,7 +271,10 @@ const TWO_TRIANGLES: [[[f32; 3]; 3]; 2] = [
 
 #[test]
 fn stl_binary_welds_shared_corners() {
-    let scene = weld(read(&binary_stl(&TWO_TRIANGLES), Format::Stl).unwrap(), Weld::Exact);
+    let scene = weld(
+        read(&binary_stl(&TWO_TRIANGLES), Format::Stl).unwrap(),
+        Weld::Exact,
+    );
     assert_eq!(scene.positions.len(), 4);
     assert_eq!(scene.stats.welded_vertices, 2);
 }
@@ -211,7 +293,10 @@ fn stl_ascii_reads_solids_as_parts() {
 fn stl_rejects_truncated_binary() {
     let bytes = binary_stl(&TWO_TRIANGLES);
     let error = read(&bytes[..bytes.len() - 10], Format::Stl).unwrap_err();
-    assert!(matches!(error.problem, Problem::Truncated { .. }), "{error:?}");
+    assert!(
+        matches!(error.problem, Problem::Truncated { .. }),
+        "{error:?}"
+    );
 }
 
 #[test]
@@ -220,7 +305,13 @@ fn stl_rejects_non_finite_vertex_naming_the_triangle() {
     t[1][2][0] = f32::INFINITY;
     let error = read(&binary_stl(&t), Format::Stl).unwrap_err();
     assert_eq!(error.problem, Problem::NonFiniteCoordinate);
-    assert_eq!(error.location, Location::Element { kind: "triangle".into(), index: 1 });
+    assert_eq!(
+        error.location,
+        Location::Element {
+            kind: "triangle".into(),
+            index: 1
+        }
+    );
 }
 
 #[test]
@@ -275,35 +366,65 @@ fn gltf_applies_world_transforms_and_names_parts_after_nodes() {
 
 #[test]
 fn gltf_converts_strips_and_fans() {
-    let strip = read(gltf(&SQUARE, &[0, 1, 3, 2], 5, [0.0; 3]).as_bytes(), Format::Gltf).unwrap();
+    let strip = read(
+        gltf(&SQUARE, &[0, 1, 3, 2], 5, [0.0; 3]).as_bytes(),
+        Format::Gltf,
+    )
+    .unwrap();
     assert_eq!(strip.triangles, vec![[0, 1, 3], [3, 1, 2]]);
-    let fan = read(gltf(&SQUARE, &[0, 1, 2, 3], 6, [0.0; 3]).as_bytes(), Format::Gltf).unwrap();
+    let fan = read(
+        gltf(&SQUARE, &[0, 1, 2, 3], 6, [0.0; 3]).as_bytes(),
+        Format::Gltf,
+    )
+    .unwrap();
     assert_eq!(fan.triangles, vec![[0, 1, 2], [0, 2, 3]]);
 }
 
 #[test]
 fn gltf_rejects_line_primitives() {
-    let error = read(gltf(&SQUARE, &[0, 1, 1, 2], 1, [0.0; 3]).as_bytes(), Format::Gltf).unwrap_err();
-    assert!(matches!(error.problem, Problem::UnsupportedPrimitiveMode(_)), "{error:?}");
+    let error = read(
+        gltf(&SQUARE, &[0, 1, 1, 2], 1, [0.0; 3]).as_bytes(),
+        Format::Gltf,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(error.problem, Problem::UnsupportedPrimitiveMode(_)),
+        "{error:?}"
+    );
 }
 
 #[test]
 fn gltf_rejects_out_of_range_index() {
-    let error = read(gltf(&SQUARE, &[0, 1, 7], 4, [0.0; 3]).as_bytes(), Format::Gltf).unwrap_err();
-    assert!(matches!(error.problem, Problem::IndexOutOfRange { index: 7, vertex_count: 4 }));
+    let error = read(
+        gltf(&SQUARE, &[0, 1, 7], 4, [0.0; 3]).as_bytes(),
+        Format::Gltf,
+    )
+    .unwrap_err();
+    assert!(matches!(
+        error.problem,
+        Problem::IndexOutOfRange {
+            index: 7,
+            vertex_count: 4
+        }
+    ));
 }
 
 #[test]
 fn gltf_rejects_non_finite_position() {
     let mut square = SQUARE;
     square[2][1] = f32::NAN;
-    let error = read(gltf(&square, &[0, 1, 2], 4, [0.0; 3]).as_bytes(), Format::Gltf).unwrap_err();
+    let error = read(
+        gltf(&square, &[0, 1, 2], 4, [0.0; 3]).as_bytes(),
+        Format::Gltf,
+    )
+    .unwrap_err();
     assert_eq!(error.problem, Problem::NonFiniteCoordinate);
 }
 
 #[test]
 fn gltf_rejects_accessor_larger_than_its_buffer() {
-    let text = gltf(&SQUARE, &[0, 1, 2], 4, [0.0; 3]).replace(r#""count":4"#, r#""count":4000000000"#);
+    let text =
+        gltf(&SQUARE, &[0, 1, 2], 4, [0.0; 3]).replace(r#""count":4"#, r#""count":4000000000"#);
     assert!(read(text.as_bytes(), Format::Gltf).is_err());
 }
 
@@ -345,7 +466,11 @@ fn glb_reads_binary_chunk_and_rejects_truncation() {
         "accessors":[{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}]}"#;
     let bytes = glb(json, &bin);
     let soup = read(&bytes, Format::Gltf).unwrap();
-    assert_eq!(soup.triangles.len(), 1, "non-indexed: one triangle from four vertices");
+    assert_eq!(
+        soup.triangles.len(),
+        1,
+        "non-indexed: one triangle from four vertices"
+    );
     assert_eq!(soup.part_names, vec!["plate"]);
     assert!(read(&bytes[..bytes.len() - 20], Format::Gltf).is_err());
 }
@@ -362,16 +487,26 @@ fn degenerate_triangles_are_dropped_and_counted() {
 
 #[test]
 fn tolerance_weld_joins_near_vertices_only() {
-    let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1.0000001 0 0\nv 0 1.01 0\nv 0 0 1\nf 1 2 3\nf 4 5 6\n";
-    let scene = weld(read(text.as_bytes(), Format::Obj).unwrap(), Weld::Relative(1e-4));
-    assert_eq!(scene.stats.welded_vertices, 1, "1.0000001 joins 1.0; 1.01 stays apart");
+    let text =
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1.0000001 0 0\nv 0 1.01 0\nv 0 0 1\nf 1 2 3\nf 4 5 6\n";
+    let scene = weld(
+        read(text.as_bytes(), Format::Obj).unwrap(),
+        Weld::Relative(1e-4),
+    );
+    assert_eq!(
+        scene.stats.welded_vertices, 1,
+        "1.0000001 joins 1.0; 1.01 stays apart"
+    );
     assert_eq!(scene.positions.len(), 5);
 }
 
 #[test]
 fn unknown_extension_is_a_typed_error() {
     let error = vds_import::load_file("model.xyz", &Default::default()).unwrap_err();
-    assert!(matches!(error, vds_import::ImportError::UnknownFormat { .. }));
+    assert!(matches!(
+        error,
+        vds_import::ImportError::UnknownFormat { .. }
+    ));
     assert!(error.to_string().contains("model.xyz"));
 }
 
@@ -381,8 +516,13 @@ fn errors_name_the_file() {
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("broken.obj");
     std::fs::write(&path, "v 0 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\n").unwrap();
-    let message = vds_import::load_file(&path, &Default::default()).unwrap_err().to_string();
-    assert!(message.contains("broken.obj") && message.contains("line 2"), "{message}");
+    let message = vds_import::load_file(&path, &Default::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        message.contains("broken.obj") && message.contains("line 2"),
+        "{message}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -400,7 +540,10 @@ fn valid_inputs() -> Vec<(Vec<u8>, Format)> {
         (binary_ply(true, &[&[0, 1, 2]]), Format::Ply),
         (ascii_ply.into_bytes(), Format::Ply),
         (binary_stl(&TWO_TRIANGLES), Format::Stl),
-        (gltf(&SQUARE, &[0, 1, 2, 0, 2, 3], 4, [1.0; 3]).into_bytes(), Format::Gltf),
+        (
+            gltf(&SQUARE, &[0, 1, 2, 0, 2, 3], 4, [1.0; 3]).into_bytes(),
+            Format::Gltf,
+        ),
     ]
 }
 

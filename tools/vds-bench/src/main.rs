@@ -1,2 +1,222 @@
-//! placeholder
-fn main() {}
+//! `vds-bench`: the builder's benchmark driver. Prints figures; asserts nothing.
+//!
+//! - The bunny: whole vertex-tree build vs one meshoptimizer `simplify` LOD (and
+//!   `simplify_sloppy`) of the same mesh, medians of several runs in one process.
+//! - Generated CAD-like scenes (default 1M and 10M triangles): end-to-end `read + weld +
+//!   build` throughput and peak memory. Each run is a fresh child process (this binary with
+//!   the hidden `one` subcommand), so peak RSS (`VmHWM`) belongs to that run alone.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use serde::{Deserialize, Serialize};
+
+#[derive(Parser)]
+#[command(about = "Benchmark the vertex-tree builder")]
+struct Args {
+    #[command(subcommand)]
+    command: Option<Commands>,
+    /// Generated scene sizes in triangles (k and M suffixes accepted).
+    #[arg(long, value_delimiter = ',', default_value = "1M,10M")]
+    sizes: Vec<String>,
+    /// Runs per measurement (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    /// Where generated scenes are cached.
+    #[arg(long, default_value = "out/bench")]
+    dir: PathBuf,
+    /// Directory with the shared meshes (bunny.obj).
+    #[arg(long, default_value = "../shared/data")]
+    shared: PathBuf,
+}
+
+#[derive(Subcommand)]
+enum Commands {
+    /// (internal) Import and build one file, print a JSON line with times and peak memory.
+    #[command(hide = true)]
+    One { file: PathBuf },
+}
+
+#[derive(Serialize, Deserialize)]
+struct OneRun {
+    triangles: u64,
+    seconds: f64,
+    import_seconds: f64,
+    build_seconds: f64,
+    peak_rss_bytes: u64,
+}
+
+fn peak_rss_bytes() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        .map_or(0, |kib| kib * 1024)
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
+}
+
+fn parse_count(text: &str) -> Result<u64> {
+    let (digits, scale) = if let Some(d) = text.strip_suffix(['M', 'm']) {
+        (d, 1e6)
+    } else if let Some(d) = text.strip_suffix(['k', 'K']) {
+        (d, 1e3)
+    } else {
+        (text, 1.0)
+    };
+    Ok((digits
+        .parse::<f64>()
+        .with_context(|| format!("bad size '{text}'"))?
+        * scale) as u64)
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    if let Some(Commands::One { file }) = args.command {
+        return one(&file);
+    }
+    println!(
+        "vds-bench: {} cores, medians of {} runs\n",
+        std::thread::available_parallelism()?,
+        args.runs
+    );
+    bunny(&args.shared.join("bunny.obj"), args.runs)?;
+    for size in &args.sizes {
+        cad_scene(parse_count(size)?, &args.dir, args.runs)?;
+    }
+    Ok(())
+}
+
+/// The hidden subcommand: one end-to-end build in this process.
+fn one(file: &Path) -> Result<()> {
+    let start = Instant::now();
+    let scene = vds_import::load_file(file, &Default::default())?;
+    let import_seconds = start.elapsed().as_secs_f64();
+    let build = Instant::now();
+    let tree = vds_build::build_tree(&scene);
+    let build_seconds = build.elapsed().as_secs_f64();
+    let seconds = start.elapsed().as_secs_f64();
+    std::hint::black_box(&tree);
+    let run = OneRun {
+        triangles: scene.stats.input_triangles,
+        seconds,
+        import_seconds,
+        build_seconds,
+        peak_rss_bytes: peak_rss_bytes(),
+    };
+    println!("{}", serde_json::to_string(&run)?);
+    Ok(())
+}
+
+fn bunny(path: &Path, runs: usize) -> Result<()> {
+    let scene = vds_import::load_file(path, &Default::default())
+        .with_context(|| format!("the bunny is read from {}", path.display()))?;
+    let triangles = scene.triangles.len();
+    let time = |f: &mut dyn FnMut()| {
+        median(
+            (0..runs)
+                .map(|_| {
+                    let start = Instant::now();
+                    f();
+                    start.elapsed().as_secs_f64() * 1e3
+                })
+                .collect(),
+        )
+    };
+    let tree_ms = time(&mut || {
+        std::hint::black_box(vds_build::build_tree(&scene));
+    });
+    let indices: Vec<u32> = scene.triangles.iter().flatten().copied().collect();
+    let bytes: &[u8] = bytemuck::cast_slice(&scene.positions);
+    let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0)?;
+    let target = 5_000 * 3;
+    let simplify_ms = time(&mut || {
+        std::hint::black_box(meshopt::simplify(
+            &indices,
+            &adapter,
+            target,
+            1.0,
+            meshopt::SimplifyOptions::empty(),
+            None,
+        ));
+    });
+    let sloppy_ms = time(&mut || {
+        std::hint::black_box(meshopt::simplify_sloppy(
+            &indices, &adapter, target, 1.0, None,
+        ));
+    });
+    println!("bunny ({triangles} triangles)");
+    println!(
+        "  vds whole vertex tree      {tree_ms:8.2} ms  {:6.1} M triangles/s",
+        triangles as f64 / tree_ms / 1e3
+    );
+    println!(
+        "  meshopt simplify → 5,000   {simplify_ms:8.2} ms  {:6.1} M triangles/s",
+        triangles as f64 / simplify_ms / 1e3
+    );
+    println!("  meshopt simplify_sloppy    {sloppy_ms:8.2} ms");
+    println!(
+        "  tree / simplify            {:8.2}×\n",
+        tree_ms / simplify_ms
+    );
+    Ok(())
+}
+
+fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<()> {
+    std::fs::create_dir_all(dir)?;
+    let file = dir.join(format!("cad-{triangles}.ply"));
+    if !file.exists() {
+        let scene = vds_gen::generate(triangles);
+        let partial = file.with_extension("partial");
+        let mut out = std::io::BufWriter::new(std::fs::File::create(&partial)?);
+        vds_gen::write_ply(&scene, &mut out)?;
+        std::io::Write::flush(&mut out)?;
+        drop(out);
+        std::fs::rename(&partial, &file)?;
+    }
+    let exe = std::env::current_exe()?;
+    let mut results = Vec::new();
+    for _ in 0..runs {
+        let output = Command::new(&exe).arg("one").arg(&file).output()?;
+        if !output.status.success() {
+            bail!(
+                "{} failed: {}",
+                file.display(),
+                String::from_utf8_lossy(&output.stderr)
+            );
+        }
+        results.push(serde_json::from_slice::<OneRun>(&output.stdout)?);
+    }
+    let n = results[0].triangles as f64;
+    let seconds = median(results.iter().map(|r| r.seconds).collect());
+    let import = median(results.iter().map(|r| r.import_seconds).collect());
+    let build = median(results.iter().map(|r| r.build_seconds).collect());
+    let peak = median(results.iter().map(|r| r.peak_rss_bytes as f64).collect());
+    println!(
+        "generated CAD scene ({} triangles, {})",
+        results[0].triangles,
+        file.display()
+    );
+    println!(
+        "  end to end (read + weld + tree) {seconds:7.3} s  {:6.2} M triangles/s",
+        n / seconds / 1e6
+    );
+    println!("    read + weld                   {import:7.3} s");
+    println!(
+        "    vertex tree                   {build:7.3} s  {:6.2} M triangles/s",
+        n / build / 1e6
+    );
+    println!(
+        "  peak memory                     {:7.1} MB  {:6.1} bytes/triangle\n",
+        peak / 1e6,
+        peak / n
+    );
+    Ok(())
+}

@@ -56,7 +56,14 @@ impl GeneratedScene {
 
     /// A grid of `(rows+1) × (cols+1)` vertices from `point(u, v)`, triangulated; `wrap_u`
     /// closes the surface in u (a tube).
-    fn grid(&mut self, part: u32, rows: u32, cols: u32, wrap_u: bool, point: impl Fn(f32, f32) -> [f32; 3]) {
+    fn grid(
+        &mut self,
+        part: u32,
+        rows: u32,
+        cols: u32,
+        wrap_u: bool,
+        point: impl Fn(f32, f32) -> [f32; 3],
+    ) {
         let base = self.positions.len() as u32;
         let ring = if wrap_u { rows } else { rows + 1 };
         for j in 0..=cols {
@@ -83,7 +90,11 @@ impl GeneratedScene {
         let segments = detail.max(8);
         self.grid(part, segments, detail.max(2), true, |u, v| {
             let a = u * TAU;
-            [origin[0] + v * length, origin[1] + r * a.cos(), origin[2] + r * a.sin()]
+            [
+                origin[0] + v * length,
+                origin[1] + r * a.cos(),
+                origin[2] + r * a.sin(),
+            ]
         });
         for end in [0.0, length] {
             // The flange is an annulus touching the pipe without sharing vertices: a crack.
@@ -91,11 +102,19 @@ impl GeneratedScene {
             self.grid(flange, segments, 2, true, |u, v| {
                 let a = u * TAU;
                 let rr = r * (1.0 + v);
-                [origin[0] + end, origin[1] + rr * a.cos(), origin[2] + rr * a.sin()]
+                [
+                    origin[0] + end,
+                    origin[1] + rr * a.cos(),
+                    origin[2] + rr * a.sin(),
+                ]
             });
             for k in 0..6 {
                 let a = k as f32 * TAU / 6.0;
-                let centre = [origin[0] + end, origin[1] + 1.6 * r * a.cos(), origin[2] + 1.6 * r * a.sin()];
+                let centre = [
+                    origin[0] + end,
+                    origin[1] + 1.6 * r * a.cos(),
+                    origin[2] + 1.6 * r * a.sin(),
+                ];
                 self.bolt(centre, 0.12 * r, detail / 4);
             }
         }
@@ -108,7 +127,11 @@ impl GeneratedScene {
         self.grid(part, sides, 3, true, |u, v| {
             let a = u * TAU;
             let rr = if v < 0.5 { r } else { 0.6 * r };
-            [centre[0] - r + 4.0 * r * v, centre[1] + rr * a.cos(), centre[2] + rr * a.sin()]
+            [
+                centre[0] - r + 4.0 * r * v,
+                centre[1] + rr * a.cos(),
+                centre[2] + rr * a.sin(),
+            ]
         });
     }
 
@@ -120,7 +143,11 @@ impl GeneratedScene {
         for j in 0..n {
             for i in 0..n {
                 let s = size / cells as f32;
-                self.vertex([corner[0] + i as f32 * s, corner[1] + j as f32 * s, corner[2]]);
+                self.vertex([
+                    corner[0] + i as f32 * s,
+                    corner[1] + j as f32 * s,
+                    corner[2],
+                ]);
             }
         }
         for j in 0..cells {
@@ -142,7 +169,11 @@ impl GeneratedScene {
             // The inner sheet runs v the other way, so its triangles face the other side.
             self.grid(part, detail, detail, false, |u, v| {
                 let v = if flipped { 1.0 - v } else { v };
-                [corner[0] + u * size[0], corner[1] + v * size[1], corner[2] + offset]
+                [
+                    corner[0] + u * size[0],
+                    corner[1] + v * size[1],
+                    corner[2] + offset,
+                ]
             });
         }
         // Three fins sharing one edge: non-manifold.
@@ -151,7 +182,11 @@ impl GeneratedScene {
         let e1 = self.vertex([corner[0] + size[0], corner[1], corner[2] + size[2]]);
         for k in 0..3 {
             let a = k as f32 * 0.7;
-            let tip = self.vertex([corner[0] + 0.5 * size[0], corner[1] + 0.2 * size[1] * a.cos(), corner[2] + size[2] + 0.2 * size[1] * a.sin()]);
+            let tip = self.vertex([
+                corner[0] + 0.5 * size[0],
+                corner[1] + 0.2 * size[1] * a.cos(),
+                corner[2] + size[2] + 0.2 * size[1] * a.sin(),
+            ]);
             self.triangle(fins, [e0, e1, tip]);
         }
     }
@@ -182,15 +217,37 @@ pub fn generate(target_triangles: u64) -> GeneratedScene {
     let mut cell_index = 0u64;
     while (scene.triangles.len() as u64) < target_triangles {
         let c = cell_index;
-        let (x, y, z) = (c % u64::from(cells_per_side), (c / u64::from(cells_per_side)) % u64::from(cells_per_side), c / u64::from(cells_per_side).pow(2));
+        let (x, y, z) = (
+            c % u64::from(cells_per_side),
+            (c / u64::from(cells_per_side)) % u64::from(cells_per_side),
+            c / u64::from(cells_per_side).pow(2),
+        );
         let origin = [x as f32 * 12.0, y as f32 * 12.0, z as f32 * 12.0];
         let jitter = unit(c) * 2.0;
         scene.housing(origin, [10.0, 10.0, 6.0], detail * 2);
-        scene.pipe([origin[0] + 1.0, origin[1] + 3.0 + jitter, origin[2] + 2.0], 0.6, 8.0, detail);
-        scene.perforated_plate([origin[0] + 1.0, origin[1] + 1.0, origin[2] + 5.0], 6.0, detail * 2, c);
+        scene.pipe(
+            [origin[0] + 1.0, origin[1] + 3.0 + jitter, origin[2] + 2.0],
+            0.6,
+            8.0,
+            detail,
+        );
+        scene.perforated_plate(
+            [origin[0] + 1.0, origin[1] + 1.0, origin[2] + 5.0],
+            6.0,
+            detail * 2,
+            c,
+        );
         for k in 0..8 {
             let a = k as f32 / 8.0 * TAU;
-            scene.bolt([origin[0] + 5.0 + 2.0 * a.cos(), origin[1] + 7.0 + 2.0 * a.sin(), origin[2] + 1.0], 0.1, detail / 4);
+            scene.bolt(
+                [
+                    origin[0] + 5.0 + 2.0 * a.cos(),
+                    origin[1] + 7.0 + 2.0 * a.sin(),
+                    origin[2] + 1.0,
+                ],
+                0.1,
+                detail / 4,
+            );
         }
         scene.duplicate_last(40);
         cell_index += 1;

@@ -40,10 +40,12 @@ fn main() -> Result<()> {
         let file = std::fs::File::create(&temporary)
             .with_context(|| format!("cannot create {}", temporary.display()))?;
         let mut out = BufWriter::new(file);
-        vds_gen::write_ply(&scene, &mut out).with_context(|| format!("cannot write {}", temporary.display()))?;
+        vds_gen::write_ply(&scene, &mut out)
+            .with_context(|| format!("cannot write {}", temporary.display()))?;
         std::io::Write::flush(&mut out)?;
     }
-    std::fs::rename(&temporary, &args.out).with_context(|| format!("cannot write {}", args.out.display()))?;
+    std::fs::rename(&temporary, &args.out)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
     eprintln!(
         "{}: {} vertices, {} triangles, {} parts",
         args.out.display(),
