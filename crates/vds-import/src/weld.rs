@@ -25,68 +25,80 @@ pub enum Weld {
 
 /// Welds `soup` into a scene.
 pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
-    let input_vertices = soup.positions.len() as u64;
-    let input_triangles = soup.triangles.len() as u64;
+    let MeshSoup {
+        mut positions,
+        mut triangles,
+        mut triangle_parts,
+        part_names,
+        short_faces_dropped,
+    } = soup;
+    let input_vertices = positions.len() as u64;
+    let input_triangles = triangles.len() as u64;
     let representative = match weld {
-        Weld::Exact => exact_representatives(&soup.positions),
+        Weld::Exact => exact_representatives(&positions),
         Weld::Relative(fraction) => {
-            let tolerance = f64::from(fraction) * diagonal(&soup.positions);
+            let tolerance = f64::from(fraction) * diagonal(&positions);
             if tolerance > 0.0 {
-                tolerance_representatives(&soup.positions, tolerance)
+                tolerance_representatives(&positions, tolerance)
             } else {
-                exact_representatives(&soup.positions)
+                exact_representatives(&positions)
             }
         }
     };
-
-    // Remap corners to representatives and drop triangles with a repeated corner.
-    let mut triangles = Vec::with_capacity(soup.triangles.len());
-    let mut triangle_parts = Vec::with_capacity(soup.triangles.len());
-    for (t, &part) in soup.triangles.iter().zip(&soup.triangle_parts) {
-        let [a, b, c] = t.map(|v| representative[v as usize]);
-        if a != b && b != c && a != c {
-            triangles.push([a, b, c]);
-            triangle_parts.push(part);
-        }
-    }
-    let degenerate = input_triangles - triangles.len() as u64;
-
-    // Keep referenced representatives in input order.
-    const UNUSED: u32 = u32::MAX;
-    let mut new_index = vec![UNUSED; soup.positions.len()];
-    for t in &triangles {
-        for &v in t {
-            new_index[v as usize] = 0;
-        }
-    }
-    let mut positions = Vec::new();
-    for (old, slot) in new_index.iter_mut().enumerate() {
-        if *slot != UNUSED {
-            *slot = positions.len() as u32;
-            positions.push(soup.positions[old]);
-        }
-    }
-    for t in &mut triangles {
-        *t = t.map(|v| new_index[v as usize]);
-    }
     let distinct = representative
         .iter()
         .enumerate()
         .filter(|&(i, &r)| i as u32 == r)
         .count() as u64;
+
+    // Remap corners to representatives and drop triangles with a repeated corner, in place:
+    // the soup's arrays become the scene's, so no second copy of the mesh is ever touched.
+    let mut kept = 0;
+    for i in 0..triangles.len() {
+        let [a, b, c] = triangles[i].map(|v| representative[v as usize]);
+        if a != b && b != c && a != c {
+            triangles[kept] = [a, b, c];
+            triangle_parts[kept] = triangle_parts[i];
+            kept += 1;
+        }
+    }
+    triangles.truncate(kept);
+    triangle_parts.truncate(kept);
+    let degenerate = input_triangles - kept as u64;
+
+    // Keep referenced representatives in input order, compacting positions in place.
+    const UNUSED: u32 = u32::MAX;
+    let mut new_index = representative;
+    new_index.fill(UNUSED);
+    for t in &triangles {
+        for &v in t {
+            new_index[v as usize] = 0;
+        }
+    }
+    let mut count = 0usize;
+    for old in 0..new_index.len() {
+        if new_index[old] != UNUSED {
+            new_index[old] = count as u32;
+            positions[count] = positions[old];
+            count += 1;
+        }
+    }
+    positions.truncate(count);
+    positions.shrink_to_fit();
+    triangles.par_iter_mut().for_each(|t| *t = t.map(|v| new_index[v as usize]));
     Scene {
         stats: ImportStats {
             input_vertices,
             input_triangles,
             welded_vertices: input_vertices - distinct,
             degenerate_triangles_dropped: degenerate,
-            short_faces_dropped: soup.short_faces_dropped,
-            unreferenced_vertices_dropped: distinct - positions.len() as u64,
+            short_faces_dropped,
+            unreferenced_vertices_dropped: distinct - count as u64,
         },
         positions,
         triangles,
         triangle_parts,
-        part_names: soup.part_names,
+        part_names,
     }
 }
 
@@ -108,24 +120,24 @@ fn diagonal(positions: &[[f32; 3]]) -> f64 {
 
 /// For each vertex, the lowest index with bit-identical position.
 fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
-    let key = |p: &[f32; 3]| -> u128 {
-        // `+ 0.0` turns -0.0 into 0.0 so both weld; every other value keeps its bits.
-        let bits = p.map(|c| (c + 0.0).to_bits());
-        (u128::from(bits[0]) << 64) | (u128::from(bits[1]) << 32) | u128::from(bits[2])
-    };
-    let mut keyed: Vec<(u128, u32)> = positions
+    // `[x bits, y bits, z bits, index]` sorts like (position, index) in 16 bytes. `+ 0.0`
+    // turns -0.0 into 0.0 so both weld; every other value keeps its bits.
+    let mut keyed: Vec<[u32; 4]> = positions
         .par_iter()
         .enumerate()
-        .map(|(i, p)| (key(p), i as u32))
+        .map(|(i, p)| {
+            let bits = p.map(|c| (c + 0.0).to_bits());
+            [bits[0], bits[1], bits[2], i as u32]
+        })
         .collect();
     keyed.par_sort_unstable();
     let mut representative = vec![0u32; positions.len()];
     let mut group_start = 0;
     for i in 0..keyed.len() {
-        if keyed[i].0 != keyed[group_start].0 {
+        if keyed[i][..3] != keyed[group_start][..3] {
             group_start = i;
         }
-        representative[keyed[i].1 as usize] = keyed[group_start].1;
+        representative[keyed[i][3] as usize] = keyed[group_start][3];
     }
     representative
 }

@@ -18,6 +18,11 @@ const DEMO_MODEL: &str = concat!(
     "/../../testdata/as1_assembly.obj"
 );
 
+/// jemalloc, configured in `.cargo/config.toml`: a batch build allocates and frees gigabytes
+/// of arrays, and keeping freed pages for reuse avoids faulting them in again.
+#[global_allocator]
+static ALLOCATOR: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
+
 #[derive(Parser, Debug)]
 #[command(
     version,
