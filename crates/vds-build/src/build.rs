@@ -10,9 +10,9 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 use vds_import::Scene;
 
-use crate::bounds::{Aabb, NormalCone, round_up_f32, triangle_normal};
+use crate::bounds::{Aabb, NormalCone, round_up_f32};
 use crate::octree::cluster;
-use crate::quadric::{Quadric, dot, sub};
+use crate::quadric::{Quadric, cross, dot, sub};
 use crate::tree::{Node, VertexTree};
 
 /// Wall-clock time of each build phase.
@@ -249,21 +249,28 @@ fn leaf_attributes(
     for &t in incident {
         let corners = scene.triangles[t as usize].map(|v| widen(scene.positions[v as usize]));
         let [a, b, c] = corners;
-        quadric.add(&Quadric::from_triangle(a, b, c));
+        // One cross product gives both the plane for the quadric and the normal for the cone.
+        let n = cross(sub(b, a), sub(c, a));
+        let twice_area = dot(n, n).sqrt();
+        let normal = (twice_area > 0.0 && twice_area.is_finite()).then(|| {
+            let inverse = 1.0 / twice_area;
+            n.map(|x| x * inverse)
+        });
+        if let Some(normal) = normal {
+            quadric.add(&Quadric::from_plane(normal, a, 0.5 * twice_area));
+        }
         for q in corners {
             triangle_box.add_point(q);
         }
-        scratch.push(Incident {
-            corners,
-            normal: triangle_normal(a, b, c),
-        });
+        scratch.push(Incident { corners, normal });
     }
     let center = triangle_box.center().map(|c| c as f32);
     let radius = scratch
         .iter()
         .flat_map(|t| t.corners)
-        .map(|q| distance(widen(center), q))
-        .fold(distance(widen(center), p), f64::max);
+        .map(|q| distance_squared(widen(center), q))
+        .fold(distance_squared(widen(center), p), f64::max)
+        .sqrt();
     let cone = NormalCone::fit(scratch.iter().filter_map(|t| t.normal));
     node.proxy = position;
     node.error_radius = 0.0;
@@ -306,11 +313,8 @@ fn inner_attributes(
     let proxy = sum.vertex_box.clamp(sum.quadric.minimizer_near(mean));
     node.proxy = proxy.map(|c| c as f32);
     let proxy = widen(node.proxy);
-    let radius = leaf_positions[node.leaf_begin as usize..node.leaf_end as usize]
-        .iter()
-        .map(|&q| distance(proxy, widen(q)))
-        .fold(0.0, f64::max);
-    node.error_radius = round_up_f32(radius);
+    let leaves = &leaf_positions[node.leaf_begin as usize..node.leaf_end as usize];
+    node.error_radius = round_up_f32(farthest_squared(proxy, leaves).sqrt());
     let center = sum.triangle_box.center().map(|c| c as f32);
     let sphere_radius = children
         .iter()
@@ -328,6 +332,33 @@ fn store_cone(node: &mut Node, cone: &NormalCone) {
     } else {
         round_up_f32(cone.half_angle)
     };
+}
+
+/// The largest squared distance from `from` to any of `points`. The error radius is exact,
+/// so every node scans its whole leaf range (O(n · depth) over the tree); squared distances
+/// keep that scan to multiply-adds, and ranges near the root, too few nodes to keep both
+/// cores busy, are split across threads.
+fn farthest_squared(from: [f64; 3], points: &[[f32; 3]]) -> f64 {
+    const PARALLEL_ABOVE: usize = 1 << 16;
+    let scan = |points: &[[f32; 3]]| {
+        points
+            .iter()
+            .map(|&q| distance_squared(from, widen(q)))
+            .fold(0.0, f64::max)
+    };
+    if points.len() > PARALLEL_ABOVE {
+        points
+            .par_chunks(PARALLEL_ABOVE)
+            .map(scan)
+            .reduce(|| 0.0, f64::max)
+    } else {
+        scan(points)
+    }
+}
+
+fn distance_squared(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let d = sub(a, b);
+    dot(d, d)
 }
 
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {

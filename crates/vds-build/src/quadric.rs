@@ -25,16 +25,18 @@ const RELATIVE_EIGEN_CUTOFF: f64 = 1e-3;
 impl Quadric {
     /// The area-weighted quadric of the plane through a triangle (zero for a zero-area one).
     pub fn from_triangle(p0: [f64; 3], p1: [f64; 3], p2: [f64; 3]) -> Quadric {
-        let e1 = sub(p1, p0);
-        let e2 = sub(p2, p0);
-        let n = cross(e1, e2);
+        let n = cross(sub(p1, p0), sub(p2, p0));
         let twice_area = dot(n, n).sqrt();
         if twice_area == 0.0 {
             return Quadric::default();
         }
-        let n = n.map(|c| c / twice_area);
-        let d = -dot(n, p0);
-        let w = 0.5 * twice_area;
+        Quadric::from_plane(n.map(|c| c / twice_area), p0, 0.5 * twice_area)
+    }
+
+    /// The quadric of the plane with unit normal `n` through `point`, weighted by `area`.
+    pub fn from_plane(n: [f64; 3], point: [f64; 3], area: f64) -> Quadric {
+        let d = -dot(n, point);
+        let w = area;
         Quadric {
             a: [
                 w * n[0] * n[0],

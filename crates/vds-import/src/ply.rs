@@ -217,6 +217,12 @@ trait Values {
     fn remaining(&self) -> usize;
     /// Where the next value starts.
     fn location(&self) -> Location;
+    /// The unread bytes and their byte order, for binary bodies (the fixed-row fast paths).
+    fn raw(&self) -> Option<(&[u8], bool)> {
+        None
+    }
+    /// Skips `n` bytes that a fast path consumed.
+    fn skip_bytes(&mut self, _n: usize) {}
 }
 
 struct Binary<'a> {
@@ -249,6 +255,14 @@ impl Binary<'_> {
 }
 
 impl Values for Binary<'_> {
+    fn raw(&self) -> Option<(&[u8], bool)> {
+        Some((&self.data[self.position..], self.big_endian))
+    }
+
+    fn skip_bytes(&mut self, n: usize) {
+        self.position += n;
+    }
+
     fn real(&mut self, ty: Scalar) -> Result<f64, FormatError> {
         Ok(match ty {
             Scalar::F32 => f64::from(f32::from_le_bytes(self.take()?)),
@@ -412,10 +426,17 @@ fn read_body(
             ));
         }
         match element.name.as_str() {
-            "vertex" => read_vertices(element, values, soup)?,
+            "vertex" => {
+                if !fast::read_vertices(element, values, soup)? {
+                    read_vertices(element, values, soup)?;
+                }
+            }
             "face" => {
                 saw_faces = true;
-                read_faces(element, values, vertex_count, base, part, soup)?;
+                let mut parts = PartMap::new(name, part);
+                if !fast::read_faces(element, values, vertex_count, base, &mut parts, soup)? {
+                    read_faces(element, values, vertex_count, base, &mut parts, soup)?;
+                }
             }
             _ => skip_rows(element, values)?,
         }
@@ -469,14 +490,58 @@ fn read_vertices(
     Ok(())
 }
 
+/// Part ids from an optional per-face `part` property: each distinct value becomes a part,
+/// in order of first appearance; without the property every face is in the file's part.
+struct PartMap {
+    file_name: String,
+    file_part: u32,
+    by_value: rustc_hash::FxHashMap<i64, u32>,
+}
+
+impl PartMap {
+    fn new(file_name: &str, file_part: u32) -> PartMap {
+        PartMap {
+            file_name: file_name.to_string(),
+            file_part,
+            by_value: Default::default(),
+        }
+    }
+
+    fn part(&mut self, value: Option<i64>, soup: &mut MeshSoup) -> u32 {
+        let Some(value) = value else {
+            return self.file_part;
+        };
+        if let Some(&part) = self.by_value.get(&value) {
+            return part;
+        }
+        let part = if self.by_value.is_empty() {
+            // The first value takes over the file's (so far empty) part.
+            soup.part_names[self.file_part as usize] = format!("{} part {value}", self.file_name);
+            self.file_part
+        } else {
+            soup.begin_part(format!("{} part {value}", self.file_name))
+        };
+        self.by_value.insert(value, part);
+        part
+    }
+}
+
+/// The slot of the optional integer `part` property of a face element.
+fn part_slot(element: &Element) -> Option<usize> {
+    element.properties.iter().position(
+        |p| matches!(p, Property::Scalar { name, ty } if name == "part" && ty.is_integer()),
+    )
+}
+
 fn read_faces(
     element: &Element,
     values: &mut impl Values,
     vertex_count: u64,
     base: usize,
-    part: u32,
+    parts: &mut PartMap,
     soup: &mut MeshSoup,
 ) -> Result<(), FormatError> {
+    let part_slot = part_slot(element);
     let corners_slot = element
         .properties
         .iter()
@@ -494,6 +559,7 @@ fn read_faces(
     soup.triangle_parts.reserve(element.count as usize);
     let mut corners: Vec<u32> = Vec::new();
     for row in 0..element.count {
+        let mut part_value = None;
         for (index, property) in element.properties.iter().enumerate() {
             match property {
                 Property::List { count, item, .. } if index == corners_slot => {
@@ -518,21 +584,26 @@ fn read_faces(
                             ),
                             _ => e,
                         })?;
-                        let vertex =
-                            check_index(index, vertex_count as usize, || Location::Element {
+                        let vertex = check_index(index, vertex_count as usize, || {
+                            Location::Element {
                                 kind: "face".into(),
                                 index: row,
-                            })?;
+                            }
+                        })?;
                         corners.push(base as u32 + vertex);
                     }
-                    soup.push_polygon(part, &corners);
                 }
                 Property::List { count, item, .. } => skip_list(values, *count, *item)?,
+                Property::Scalar { ty, .. } if Some(index) == part_slot => {
+                    part_value = Some(values.integer(*ty)?);
+                }
                 Property::Scalar { ty, .. } => {
                     values.real(*ty)?;
                 }
             }
         }
+        let part = parts.part(part_value, soup);
+        soup.push_polygon(part, &corners);
     }
     Ok(())
 }
@@ -568,4 +639,199 @@ fn skip_rows(element: &Element, values: &mut impl Values) -> Result<(), FormatEr
         }
     }
     Ok(())
+}
+
+/// Fast paths for binary files whose rows have a fixed size: every vertex property a scalar,
+/// and every face a triangle. They decode rows in parallel straight from the bytes, and
+/// return `Ok(false)` without consuming anything when the layout does not qualify, so the
+/// general reader above handles (and reports on) everything else.
+mod fast {
+    use rayon::prelude::*;
+
+    use super::{Element, PartMap, Property, Scalar, Values, part_slot};
+    use crate::error::{FormatError, Problem};
+    use crate::soup::MeshSoup;
+
+    /// Rows decoded per parallel task.
+    const ROWS_PER_TASK: usize = 1 << 14;
+
+    fn scalar(bytes: &[u8], ty: Scalar, big_endian: bool) -> f64 {
+        let mut b = [0u8; 8];
+        let n = ty.size();
+        b[..n].copy_from_slice(&bytes[..n]);
+        if big_endian {
+            b[..n].reverse();
+        }
+        match ty {
+            Scalar::I8 => f64::from(b[0] as i8),
+            Scalar::U8 => f64::from(b[0]),
+            Scalar::I16 => f64::from(i16::from_le_bytes([b[0], b[1]])),
+            Scalar::U16 => f64::from(u16::from_le_bytes([b[0], b[1]])),
+            Scalar::I32 => f64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            Scalar::U32 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            Scalar::F32 => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            Scalar::F64 => f64::from_le_bytes(b),
+        }
+    }
+
+    fn integer(bytes: &[u8], ty: Scalar, big_endian: bool) -> i64 {
+        // Integer types up to 32 bits are exact in f64.
+        scalar(bytes, ty, big_endian) as i64
+    }
+
+    pub(super) fn read_vertices(
+        element: &Element,
+        values: &mut impl Values,
+        soup: &mut MeshSoup,
+    ) -> Result<bool, FormatError> {
+        let Some((raw, big_endian)) = values.raw() else {
+            return Ok(false);
+        };
+        let mut offsets = [None; 3];
+        let mut stride = 0;
+        for property in &element.properties {
+            let Property::Scalar { name, ty } = property else {
+                return Ok(false);
+            };
+            if let Some(axis) = ["x", "y", "z"].iter().position(|a| a == name) {
+                offsets[axis] = Some((stride, *ty));
+            }
+            stride += ty.size();
+        }
+        let (Some(x), Some(y), Some(z)) = (offsets[0], offsets[1], offsets[2]) else {
+            return Ok(false);
+        };
+        let bytes = element.count as usize * stride;
+        if stride == 0 || bytes > raw.len() {
+            return Ok(false);
+        }
+        let positions: Vec<[f32; 3]> = raw[..bytes]
+            .par_chunks_exact(stride)
+            .map(|row| {
+                [x, y, z].map(|(offset, ty)| scalar(&row[offset..], ty, big_endian) as f32)
+            })
+            .collect();
+        if let Some(bad) = positions.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(FormatError::at_element(
+                "vertex",
+                bad as u64,
+                Problem::NonFiniteCoordinate,
+            ));
+        }
+        if u32::try_from(soup.positions.len() + positions.len()).is_err() {
+            return Ok(false); // The general path reports the overflow.
+        }
+        if soup.positions.is_empty() {
+            soup.positions = positions;
+        } else {
+            soup.positions.extend(positions);
+        }
+        values.skip_bytes(bytes);
+        Ok(true)
+    }
+
+    pub(super) fn read_faces(
+        element: &Element,
+        values: &mut impl Values,
+        vertex_count: u64,
+        base: usize,
+        parts: &mut PartMap,
+        soup: &mut MeshSoup,
+    ) -> Result<bool, FormatError> {
+        let Some((raw, big_endian)) = values.raw() else {
+            return Ok(false);
+        };
+        // Layout: one integer corner list, any scalars; every list must hold 3 corners.
+        let mut list = None;
+        let mut stride = 0;
+        let part = part_slot(element);
+        let mut part_at = None;
+        for (index, property) in element.properties.iter().enumerate() {
+            match property {
+                Property::List { name, count, item }
+                    if list.is_none()
+                        && item.is_integer()
+                        && (name == "vertex_indices" || name == "vertex_index") =>
+                {
+                    list = Some((stride, *count, *item));
+                    stride += count.size() + 3 * item.size();
+                }
+                Property::List { .. } => return Ok(false),
+                Property::Scalar { ty, .. } => {
+                    if Some(index) == part {
+                        part_at = Some((stride, *ty));
+                    }
+                    stride += ty.size();
+                }
+            }
+        }
+        let Some((list_at, count_ty, item_ty)) = list else {
+            return Ok(false);
+        };
+        let bytes = (element.count as usize).saturating_mul(stride);
+        if bytes > raw.len() {
+            return Ok(false);
+        }
+        let base = base as u32;
+        /// Why a chunk could not be decoded here.
+        enum Stop {
+            NotTriangle,
+            BadIndex,
+            BadPart,
+        }
+        // Decode straight into the soup's arrays; on a fallback they are cut back.
+        let first = soup.triangles.len();
+        let count = element.count as usize;
+        soup.triangles.resize(first + count, [0; 3]);
+        soup.triangle_parts.resize(first + count, 0);
+        let outcome: Result<(), Stop> = raw[..bytes]
+            .par_chunks(stride * ROWS_PER_TASK)
+            .zip(soup.triangles[first..].par_chunks_mut(ROWS_PER_TASK))
+            .zip(soup.triangle_parts[first..].par_chunks_mut(ROWS_PER_TASK))
+            .try_for_each(|((rows, triangles), part_values)| {
+                let rows = rows.chunks_exact(stride);
+                for ((row, t), part_value) in rows.zip(triangles.iter_mut()).zip(part_values.iter_mut()) {
+                    if integer(&row[list_at..], count_ty, big_endian) != 3 {
+                        return Err(Stop::NotTriangle);
+                    }
+                    for (c, corner) in t.iter_mut().enumerate() {
+                        let at = list_at + count_ty.size() + c * item_ty.size();
+                        let index = integer(&row[at..], item_ty, big_endian);
+                        if index < 0 || index as u64 >= vertex_count {
+                            return Err(Stop::BadIndex);
+                        }
+                        *corner = base + index as u32;
+                    }
+                    if let Some((at, ty)) = part_at {
+                        // Raw values for now; mapped to part ids below.
+                        *part_value = u32::try_from(integer(&row[at..], ty, big_endian))
+                            .map_err(|_| Stop::BadPart)?;
+                    }
+                }
+                Ok(())
+            });
+        if outcome.is_err() {
+            // Not all triangles, or bad data: the general reader decodes the element again
+            // and reports the first problem in file order.
+            soup.triangles.truncate(first);
+            soup.triangle_parts.truncate(first);
+            return Ok(false);
+        }
+        let mut triangle_parts = std::mem::take(&mut soup.triangle_parts);
+        let mut last: Option<(u32, u32)> = None;
+        for value in &mut triangle_parts[first..] {
+            let raw = part_at.map(|_| *value);
+            *value = match (raw, last) {
+                (Some(v), Some((previous, part))) if v == previous => part,
+                _ => {
+                    let part = parts.part(raw.map(i64::from), soup);
+                    last = raw.map(|v| (v, part));
+                    part
+                }
+            };
+        }
+        soup.triangle_parts = triangle_parts;
+        values.skip_bytes(bytes);
+        Ok(true)
+    }
 }
