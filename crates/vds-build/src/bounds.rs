@@ -197,7 +197,7 @@ mod tests {
 
     #[test]
     fn round_up_never_shrinks() {
-        for x in [0.1f64, 1.0 / 3.0, 1e-30, 12345.678_901_234] {
+        for x in [0.1f64, 1.0 / 3.0, 1e-30, 12_345.678_901_234] {
             assert!(f64::from(round_up_f32(x)) >= x);
         }
     }

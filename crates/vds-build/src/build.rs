@@ -66,11 +66,7 @@ pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
             leaf_node[n.leaf_begin as usize] = id as u32;
         }
     }
-    let leaf_positions: Vec<[f32; 3]> = clustering
-        .leaf_vertex
-        .par_iter()
-        .map(|&v| scene.positions[v as usize])
-        .collect();
+    let leaf_positions = clustering.leaf_positions;
     let mut nodes = clustering.nodes;
     compute_attributes(
         scene,

@@ -35,8 +35,47 @@ pub struct Clustering {
     pub nodes: Vec<Node>,
     /// Vertex id of each leaf rank (depth-first leaf order).
     pub leaf_vertex: Vec<u32>,
+    /// Position of each leaf rank (the positions in depth-first leaf order).
+    pub leaf_positions: Vec<[f32; 3]>,
     /// Node ids where each depth starts, plus the total count at the end.
     pub level_starts: Vec<u32>,
+}
+
+/// A vertex being clustered: its position travels with its id, so partitioning streams
+/// through memory instead of gathering positions through an index array.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Item {
+    position: [f32; 3],
+    vertex: u32,
+}
+
+/// An axis-aligned box of `f32` positions (exact: it only ever holds input coordinates).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Bounds {
+    min: [f32; 3],
+    max: [f32; 3],
+}
+
+impl Bounds {
+    const EMPTY: Bounds = Bounds {
+        min: [f32::INFINITY; 3],
+        max: [f32::NEG_INFINITY; 3],
+    };
+
+    fn add(&mut self, p: [f32; 3]) {
+        for k in 0..3 {
+            self.min[k] = self.min[k].min(p[k]);
+            self.max[k] = self.max[k].max(p[k]);
+        }
+    }
+
+    fn of(items: &[Item]) -> Bounds {
+        let mut b = Bounds::EMPTY;
+        for item in items {
+            b.add(item.position);
+        }
+        b
+    }
 }
 
 /// Clusters `positions` (at least one) into a tight octree.
@@ -46,113 +85,115 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
         positions.len() < u32::MAX as usize,
         "vertex ids must fit in u32"
     );
-    let mut order: Vec<u32> = (0..positions.len() as u32).collect();
+    let mut items: Vec<Item> = positions
+        .par_iter()
+        .enumerate()
+        .map(|(i, &position)| Item {
+            position,
+            vertex: i as u32,
+        })
+        .collect();
+    // Levels alternate between two buffers: a level reads its nodes' items from one and
+    // scatters them into the other, so nothing is copied back. A leaf's range is never
+    // touched again once it is a leaf, so leaves found while reading the second buffer are
+    // copied into the first, which ends up holding every leaf.
+    let mut second = items.clone();
     // An inner node has at least two children, so there are at most 2V - 1 nodes; reserving
     // that (untouched pages cost nothing) avoids copying the node array as it grows.
     let mut nodes = Vec::with_capacity(2 * positions.len() - 1);
     nodes.push(Node::topology(0, positions.len() as u32, NO_PARENT, 0));
     let mut level_starts = vec![0u32];
     let mut level = 0..1usize;
+    // The bounds of each node of the current level, filled by its parent's split.
+    let mut level_bounds = vec![Bounds::of(&items)];
+    let mut reading_first = true;
     while !level.is_empty() {
-        // Hand each splittable node of this level its own slice of the order array.
-        let mut work: Vec<(usize, &mut [u32])> = Vec::new();
-        let mut rest: &mut [u32] = &mut order;
+        // Hand each splittable node of this level its own slices of both buffers.
+        let mut work: Vec<(usize, Bounds, &mut [Item], &mut [Item])> =
+            Vec::with_capacity(level.len());
+        let mut rest_first: &mut [Item] = &mut items;
+        let mut rest_second: &mut [Item] = &mut second;
         let mut consumed = 0usize;
-        for id in level.clone() {
+        for (id, bounds) in level.clone().zip(&level_bounds) {
             let node = nodes[id];
             let (begin, end) = (node.leaf_begin as usize, node.leaf_end as usize);
-            let tail = std::mem::take(&mut rest);
-            let (_, tail) = tail.split_at_mut(begin - consumed);
-            let (slice, tail) = tail.split_at_mut(end - begin);
-            rest = tail;
+            let (_, tail) = std::mem::take(&mut rest_first).split_at_mut(begin - consumed);
+            let (first, tail) = tail.split_at_mut(end - begin);
+            rest_first = tail;
+            let (_, tail) = std::mem::take(&mut rest_second).split_at_mut(begin - consumed);
+            let (second, tail) = tail.split_at_mut(end - begin);
+            rest_second = tail;
             consumed = end;
             if end - begin > 1 {
-                work.push((id, slice));
+                let (from, to) = if reading_first {
+                    (first, second)
+                } else {
+                    (second, first)
+                };
+                work.push((id, *bounds, from, to));
+            } else if !reading_first {
+                first[0] = second[0];
             }
         }
-        let splits: Vec<(usize, ChildSizes)> = work
+        let splits: Vec<(usize, Children)> = work
             .into_par_iter()
-            .map_init(Vec::new, |scratch, (id, slice)| {
-                (id, split(slice, positions, scratch))
-            })
+            .map(|(id, bounds, from, to)| (id, split(from, to, &bounds)))
             .collect();
+        reading_first = !reading_first;
         let next_start = nodes.len();
-        for (id, child_sizes) in splits {
+        level_bounds.clear();
+        level_bounds.reserve(splits.iter().map(|(_, c)| c.count).sum());
+        for (id, children) in splits {
             let parent = nodes[id];
             nodes[id].first_child = nodes.len() as u32;
-            nodes[id].child_count = child_sizes.len() as u8;
+            nodes[id].child_count = children.count as u8;
             let mut begin = parent.leaf_begin;
-            for &size in child_sizes.as_slice() {
+            for k in 0..children.count {
+                let size = children.sizes[k];
                 nodes.push(Node::topology(
                     begin,
                     begin + size,
                     id as u32,
                     parent.depth + 1,
                 ));
+                level_bounds.push(children.bounds[k]);
                 begin += size;
             }
         }
         level = next_start..nodes.len();
         level_starts.push(next_start as u32);
     }
+    drop(second);
     Clustering {
         nodes,
-        leaf_vertex: order,
+        leaf_vertex: items.par_iter().map(|item| item.vertex).collect(),
+        leaf_positions: items.par_iter().map(|item| item.position).collect(),
         level_starts,
     }
 }
 
-/// Sizes of a node's children, in order (at most eight; no heap allocation per node).
-struct ChildSizes {
+/// A node's children, in order: sizes and bounds (at most eight; no heap allocation).
+struct Children {
     sizes: [u32; 8],
+    bounds: [Bounds; 8],
     count: usize,
 }
 
-impl ChildSizes {
-    fn from_iter(sizes: impl Iterator<Item = u32>) -> ChildSizes {
-        let mut out = ChildSizes {
-            sizes: [0; 8],
-            count: 0,
-        };
-        for size in sizes {
-            out.sizes[out.count] = size;
-            out.count += 1;
-        }
-        out
-    }
-
-    fn len(&self) -> usize {
-        self.count
-    }
-
-    fn as_slice(&self) -> &[u32] {
-        &self.sizes[..self.count]
-    }
-}
-
-/// Reorders `slice` (≥ 2 vertex ids) into its children and returns their sizes, in order.
-fn split(slice: &mut [u32], positions: &[[f32; 3]], scratch: &mut Vec<u32>) -> ChildSizes {
-    let mut min = [f32::INFINITY; 3];
-    let mut max = [f32::NEG_INFINITY; 3];
-    for &v in slice.iter() {
-        let p = positions[v as usize];
-        for k in 0..3 {
-            min[k] = min[k].min(p[k]);
-            max[k] = max[k].max(p[k]);
-        }
-    }
+/// Writes `from` (≥ 2 items, with bounds `bounds`) into `to`, grouped by child in order,
+/// and returns the children.
+fn split(from: &[Item], to: &mut [Item], bounds: &Bounds) -> Children {
+    let (min, max) = (bounds.min, bounds.max);
     let side = (0..3).map(|k| max[k] - min[k]).fold(0.0f32, f32::max);
     if side > 0.0 {
         let mid = [0, 1, 2].map(|k| min[k] + 0.5 * side);
-        let octant = |v: u32| {
-            let p = positions[v as usize];
+        let octant = |p: [f32; 3]| {
             usize::from(p[0] >= mid[0])
                 | usize::from(p[1] >= mid[1]) << 1
                 | usize::from(p[2] >= mid[2]) << 2
         };
         let mut counts = [0u32; 8];
-        for &v in slice.iter() {
-            counts[octant(v)] += 1;
+        for item in from {
+            counts[octant(item.position)] += 1;
         }
         if counts.iter().filter(|&&c| c > 0).count() >= 2 {
             let mut offsets = [0u32; 8];
@@ -161,25 +202,47 @@ fn split(slice: &mut [u32], positions: &[[f32; 3]], scratch: &mut Vec<u32>) -> C
                 offsets[k] = total;
                 total += counts[k];
             }
-            scratch.clear();
-            scratch.resize(slice.len(), 0);
-            for &v in slice.iter() {
-                let o = octant(v);
-                scratch[offsets[o] as usize] = v;
+            // Stable scatter by octant; each child's bounds are gathered on the way, so the
+            // next level needs no separate pass to find them.
+            let mut child_bounds = [Bounds::EMPTY; 8];
+            for item in from {
+                let o = octant(item.position);
+                to[offsets[o] as usize] = *item;
                 offsets[o] += 1;
+                child_bounds[o].add(item.position);
             }
-            slice.copy_from_slice(scratch);
-            return ChildSizes::from_iter(counts.into_iter().filter(|&c| c > 0));
+            let mut children = Children {
+                sizes: [0; 8],
+                bounds: [Bounds::EMPTY; 8],
+                count: 0,
+            };
+            for k in 0..8 {
+                if counts[k] > 0 {
+                    children.sizes[children.count] = counts[k];
+                    children.bounds[children.count] = child_bounds[k];
+                    children.count += 1;
+                }
+            }
+            return children;
         }
     }
     // Coincident vertices, or a split plane that rounding put on a face: balanced chunks.
-    balanced_chunks(slice.len() as u32)
-}
-
-/// Sizes of at most eight nearly equal chunks of `n ≥ 2` items.
-fn balanced_chunks(n: u32) -> ChildSizes {
+    to.copy_from_slice(from);
+    let n = from.len() as u32;
     let parts = n.min(8);
-    ChildSizes::from_iter((0..parts).map(|i| n / parts + u32::from(i < n % parts)))
+    let mut children = Children {
+        sizes: [0; 8],
+        bounds: [Bounds::EMPTY; 8],
+        count: parts as usize,
+    };
+    let mut begin = 0usize;
+    for k in 0..parts as usize {
+        let size = n / parts + u32::from((k as u32) < n % parts);
+        children.sizes[k] = size;
+        children.bounds[k] = Bounds::of(&from[begin..begin + size as usize]);
+        begin += size as usize;
+    }
+    children
 }
 
 #[cfg(test)]

@@ -260,10 +260,10 @@ fn verify_bounds(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
                         )));
                     }
                 }
-                if let Some(normal) = triangle_normal(a, b, c) {
-                    if !cone.contains(normal, ANGLE_SLACK) {
-                        return Err(bound(format!("normal of triangle {t} is outside the cone")));
-                    }
+                if let Some(normal) = triangle_normal(a, b, c)
+                    && !cone.contains(normal, ANGLE_SLACK)
+                {
+                    return Err(bound(format!("normal of triangle {t} is outside the cone")));
                 }
             }
         }

@@ -53,7 +53,6 @@ pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<
         single_index: false,
         ignore_points: true,
         ignore_lines: true,
-        ..Default::default()
     };
     let mut reader = CountingReader { data, position: 0 };
     let loaded = tobj::load_obj_buf(&mut reader, &options, |_| {

@@ -584,12 +584,11 @@ fn read_faces(
                             ),
                             _ => e,
                         })?;
-                        let vertex = check_index(index, vertex_count as usize, || {
-                            Location::Element {
+                        let vertex =
+                            check_index(index, vertex_count as usize, || Location::Element {
                                 kind: "face".into(),
                                 index: row,
-                            }
-                        })?;
+                            })?;
                         corners.push(base as u32 + vertex);
                     }
                 }
@@ -707,11 +706,12 @@ mod fast {
         }
         let positions: Vec<[f32; 3]> = raw[..bytes]
             .par_chunks_exact(stride)
-            .map(|row| {
-                [x, y, z].map(|(offset, ty)| scalar(&row[offset..], ty, big_endian) as f32)
-            })
+            .map(|row| [x, y, z].map(|(offset, ty)| scalar(&row[offset..], ty, big_endian) as f32))
             .collect();
-        if let Some(bad) = positions.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        if let Some(bad) = positions
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
             return Err(FormatError::at_element(
                 "vertex",
                 bad as u64,
@@ -790,7 +790,9 @@ mod fast {
             .zip(soup.triangle_parts[first..].par_chunks_mut(ROWS_PER_TASK))
             .try_for_each(|((rows, triangles), part_values)| {
                 let rows = rows.chunks_exact(stride);
-                for ((row, t), part_value) in rows.zip(triangles.iter_mut()).zip(part_values.iter_mut()) {
+                for ((row, t), part_value) in
+                    rows.zip(triangles.iter_mut()).zip(part_values.iter_mut())
+                {
                     if integer(&row[list_at..], count_ty, big_endian) != 3 {
                         return Err(Stop::NotTriangle);
                     }

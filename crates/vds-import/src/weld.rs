@@ -85,7 +85,9 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
     }
     positions.truncate(count);
     positions.shrink_to_fit();
-    triangles.par_iter_mut().for_each(|t| *t = t.map(|v| new_index[v as usize]));
+    triangles
+        .par_iter_mut()
+        .for_each(|t| *t = t.map(|v| new_index[v as usize]));
     Scene {
         stats: ImportStats {
             input_vertices,
