@@ -200,6 +200,7 @@ fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<()> {
     }
     let n = results[0].triangles as f64;
     let seconds = median(results.iter().map(|r| r.seconds).collect());
+    let slowest = results.iter().map(|r| r.seconds).fold(0.0, f64::max);
     let import = median(results.iter().map(|r| r.import_seconds).collect());
     let build = median(results.iter().map(|r| r.build_seconds).collect());
     let peak = median(results.iter().map(|r| r.peak_rss_bytes as f64).collect());
@@ -212,6 +213,7 @@ fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<()> {
         "  end to end (read + weld + tree) {seconds:7.3} s  {:6.2} M triangles/s",
         n / seconds / 1e6
     );
+    println!("    slowest of {runs} runs             {slowest:7.3} s");
     println!("    read + weld                   {import:7.3} s");
     println!(
         "    vertex tree                   {build:7.3} s  {:6.2} M triangles/s",
