@@ -15,8 +15,10 @@ mod build;
 pub mod octree;
 pub mod quadric;
 mod tree;
+mod vdt;
 mod verify;
 
 pub use build::{BuildTimings, build_tree, build_tree_timed};
 pub use tree::{Node, VertexTree};
+pub use vdt::{tree_content, tree_from_file};
 pub use verify::{TreeError, verify_tree};

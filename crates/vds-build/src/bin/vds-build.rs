@@ -1,7 +1,9 @@
 //! `vds-build`: reads meshes (OBJ, glTF/GLB, PLY, STL), builds the global vertex tree and
-//! reports what it built. With no input it builds the bundled demo assembly.
+//! writes it as a `.vdt` file (`-o`), or one file per input (`--batch --out-dir`). With no
+//! input it builds the bundled demo assembly and reports what it built.
 //!
-//! Exit codes: 0 success, 1 an input could not be read or built, 2 bad command line.
+//! Exit codes: 0 success, 1 an input could not be read, built or written (in batch mode: any
+//! input), 2 bad command line.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -32,6 +34,18 @@ struct Args {
     /// Input meshes (.obj, .gltf, .glb, .ply, .stl, optionally .gz); all merge into one scene.
     /// Without inputs, the bundled demo assembly is built.
     inputs: Vec<PathBuf>,
+    /// Write the vertex tree to this .vdt file.
+    #[arg(short, long, value_name = "OUT.vdt", conflicts_with = "batch")]
+    output: Option<PathBuf>,
+    /// Build each input on its own into DIR/NAME.vdt, going on past failures.
+    #[arg(long, requires = "out_dir")]
+    batch: bool,
+    /// Output directory for --batch.
+    #[arg(long, value_name = "DIR")]
+    out_dir: Option<PathBuf>,
+    /// zstd level of the pages (1-22).
+    #[arg(long, default_value_t = vds_format::DEFAULT_ZSTD_LEVEL, value_parser = clap::value_parser!(i32).range(1..=22))]
+    zstd_level: i32,
     /// Weld vertices closer than this fraction of the bounding-box diagonal (default: exact).
     #[arg(long, value_name = "EPS")]
     weld: Option<f32>,
@@ -65,6 +79,19 @@ struct Report {
     seconds: Phases,
     triangles_per_second: f64,
     peak_rss_bytes: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    output: Option<FileReport>,
+}
+
+#[derive(Serialize)]
+struct FileReport {
+    path: String,
+    bytes: u64,
+    pages: u32,
+    raw_page_bytes: u64,
+    compressed_page_bytes: u64,
+    bytes_per_input_triangle: f64,
+    write_seconds: f64,
 }
 
 #[derive(Serialize)]
@@ -108,11 +135,92 @@ fn run(args: Args) -> Result<()> {
             .build_global()
             .context("cannot set up the thread pool")?;
     }
+    if args.batch {
+        return run_batch(&args);
+    }
     let inputs = if args.inputs.is_empty() {
         vec![PathBuf::from(DEMO_MODEL)]
     } else {
         args.inputs.clone()
     };
+    let report = build_one(&args, &inputs, args.output.as_deref())?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else if !args.quiet {
+        print_summary(&report, args.verify);
+    }
+    Ok(())
+}
+
+/// `--batch`: one file per input; failures are reported and counted, not fatal.
+fn run_batch(args: &Args) -> Result<()> {
+    let out_dir = args
+        .out_dir
+        .as_ref()
+        .expect("clap requires --out-dir with --batch");
+    std::fs::create_dir_all(out_dir)
+        .with_context(|| format!("cannot create {}", out_dir.display()))?;
+    let mut reports = Vec::new();
+    let mut failed = 0usize;
+    for input in &args.inputs {
+        let stem = input
+            .file_name()
+            .map_or_else(|| "model".into(), |n| n.to_string_lossy().into_owned());
+        let stem = stem.strip_suffix(".gz").unwrap_or(&stem);
+        let stem = stem.rsplit_once('.').map_or(stem, |(s, _)| s);
+        let output = out_dir.join(format!("{stem}.vdt"));
+        match build_one(args, std::slice::from_ref(input), Some(&output)) {
+            Ok(report) => {
+                if !args.json && !args.quiet {
+                    print_summary(&report, args.verify);
+                }
+                reports.push(serde_json::to_value(&report)?);
+            }
+            Err(error) => {
+                failed += 1;
+                eprintln!("vds-build: error: {error:#}");
+                reports.push(serde_json::json!({
+                    "inputs": [input.display().to_string()],
+                    "error": format!("{error:#}"),
+                }));
+            }
+        }
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    }
+    if !args.quiet {
+        eprintln!(
+            "vds-build: {} built, {failed} failed",
+            args.inputs.len() - failed
+        );
+    }
+    if failed > 0 {
+        std::process::exit(1);
+    }
+    Ok(())
+}
+
+/// XXH3-64 and size of a file, streamed.
+fn hash_file(path: &std::path::Path) -> Result<(u64, u64)> {
+    use std::io::Read;
+    let mut file =
+        std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+    let mut buffer = vec![0u8; 1 << 20];
+    let mut total = 0u64;
+    loop {
+        let n = file.read(&mut buffer)?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buffer[..n]);
+        total += n as u64;
+    }
+    Ok((hasher.digest(), total))
+}
+
+fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) -> Result<Report> {
     let show_progress = !args.quiet && !args.json && std::io::stderr().is_terminal();
     let options = ImportOptions {
         weld: args.weld.map_or(Weld::Exact, Weld::Relative),
@@ -120,20 +228,75 @@ fn run(args: Args) -> Result<()> {
 
     let start = Instant::now();
     let bar = spinner(show_progress, "reading meshes");
-    let scene = vds_import::load_files(&inputs, &options)?;
+    let scene = vds_import::load_files(inputs, &options)?;
     let import_seconds = start.elapsed().as_secs_f64();
     if let Some(bar) = &bar {
         bar.set_message("building the vertex tree");
     }
     let (tree, timings) = vds_build::build_tree_timed(&scene);
+    if args.verify {
+        if let Some(bar) = &bar {
+            bar.set_message("verifying the tree");
+        }
+        vds_build::verify_tree(&tree, &scene).context("tree invariant broken")?;
+    }
+    let file_report = match output {
+        Some(path) => {
+            if let Some(bar) = &bar {
+                bar.set_message("compressing and writing pages");
+            }
+            let write_start = Instant::now();
+            let mut metadata = vds_format::Metadata {
+                tool: format!("vds-build {}", env!("CARGO_PKG_VERSION")),
+                build: vds_format::BuildInfo {
+                    weld: args.weld,
+                    zstd_level: args.zstd_level,
+                    page_bytes: vds_format::DEFAULT_PAGE_BYTES,
+                },
+                part_names: scene.part_names.clone(),
+                input_vertices: scene.stats.input_vertices,
+                input_triangles: scene.stats.input_triangles,
+                degree_histogram: tree.degree_histogram(),
+                ..Default::default()
+            };
+            for input in inputs {
+                let (content_hash, bytes) = hash_file(input)?;
+                metadata.inputs.push(vds_format::InputInfo {
+                    name: input.display().to_string(),
+                    bytes,
+                    content_hash,
+                });
+            }
+            if let Some(root) = tree.nodes.first() {
+                let r = root.sphere_radius;
+                metadata.bounds_min = [0, 1, 2].map(|k| root.sphere_center[k] - r);
+                metadata.bounds_max = [0, 1, 2].map(|k| root.sphere_center[k] + r);
+            }
+            let content = vds_build::tree_content(&tree, &scene, metadata);
+            let write_options = vds_format::WriteOptions {
+                zstd_level: args.zstd_level,
+                ..Default::default()
+            };
+            let written = vds_format::write_file(path, &content, &write_options)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+            Some(FileReport {
+                path: path.display().to_string(),
+                bytes: written.file_bytes,
+                pages: written.pages,
+                raw_page_bytes: written.raw_page_bytes,
+                compressed_page_bytes: written.compressed_page_bytes,
+                bytes_per_input_triangle: written.file_bytes as f64
+                    / scene.stats.input_triangles.max(1) as f64,
+                write_seconds: write_start.elapsed().as_secs_f64(),
+            })
+        }
+        None => None,
+    };
     if let Some(bar) = bar {
         bar.finish_and_clear();
     }
     let total = start.elapsed().as_secs_f64();
-    if args.verify {
-        vds_build::verify_tree(&tree, &scene).context("tree invariant broken")?;
-    }
-    let report = Report {
+    Ok(Report {
         inputs: inputs.iter().map(|p| p.display().to_string()).collect(),
         vertices: scene.positions.len(),
         triangles: scene.triangles.len(),
@@ -155,39 +318,44 @@ fn run(args: Args) -> Result<()> {
         },
         triangles_per_second: scene.stats.input_triangles as f64 / total,
         peak_rss_bytes: peak_rss_bytes(),
-    };
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    } else if !args.quiet {
+        output: file_report,
+    })
+}
+
+fn print_summary(report: &Report, verified: bool) {
+    println!(
+        "{}: {} vertices, {} triangles, {} parts ({} vertices welded, {} degenerate triangles dropped)",
+        report.inputs.join(", "),
+        report.vertices,
+        report.triangles,
+        report.parts,
+        report.welded_vertices,
+        report.degenerate_triangles_dropped,
+    );
+    println!(
+        "vertex tree: {} nodes, depth {}, degrees {:?}{}",
+        report.nodes,
+        report.depth,
+        &report.degree_histogram[..],
+        if verified {
+            ", all invariants hold"
+        } else {
+            ""
+        }
+    );
+    if let Some(file) = &report.output {
         println!(
-            "{}: {} vertices, {} triangles, {} parts ({} vertices welded, {} degenerate triangles dropped)",
-            report.inputs.join(", "),
-            report.vertices,
-            report.triangles,
-            report.parts,
-            report.welded_vertices,
-            report.degenerate_triangles_dropped,
-        );
-        println!(
-            "vertex tree: {} nodes, depth {}, degrees {:?}{}",
-            report.nodes,
-            report.depth,
-            &report.degree_histogram[..],
-            if args.verify {
-                ", all invariants hold"
-            } else {
-                ""
-            }
-        );
-        println!(
-            "time: import {:.3} s, cluster {:.3} s, attributes {:.3} s, subtris {:.3} s, total {:.3} s ({:.2} M triangles/s)",
-            report.seconds.import,
-            report.seconds.cluster,
-            report.seconds.attributes,
-            report.seconds.subtris,
-            report.seconds.total,
-            report.triangles_per_second / 1e6
+            "wrote {}: {} bytes in {} pages ({:.1} bytes per input triangle)",
+            file.path, file.bytes, file.pages, file.bytes_per_input_triangle
         );
     }
-    Ok(())
+    println!(
+        "time: import {:.3} s, cluster {:.3} s, attributes {:.3} s, subtris {:.3} s, total {:.3} s ({:.2} M triangles/s)",
+        report.seconds.import,
+        report.seconds.cluster,
+        report.seconds.attributes,
+        report.seconds.subtris,
+        report.seconds.total,
+        report.triangles_per_second / 1e6
+    );
 }

@@ -1,0 +1,153 @@
+//! Between the in-memory [`VertexTree`] and the `.vdt` file: turning a built tree into the
+//! format's records, and a file's pages back into a tree and the scene it encodes (leaf
+//! positions and triangles by leaf rank), which is what `vds-info --verify` checks.
+
+use vds_format::{NO_NODE, NodeRecord, TreeContent, TriangleRecord, VdtError, VdtFile};
+use vds_import::Scene;
+use zerocopy::little_endian::{F32, U16, U32};
+
+use crate::tree::{Node, VertexTree};
+
+fn record(node: &Node) -> NodeRecord {
+    let f = |x: f32| F32::new(x);
+    NodeRecord {
+        parent: U32::new(node.parent),
+        first_child: U32::new(if node.is_leaf() {
+            NO_NODE
+        } else {
+            node.first_child
+        }),
+        child_count: node.child_count,
+        reserved: 0,
+        depth: U16::new(node.depth),
+        leaf_begin: U32::new(node.leaf_begin),
+        leaf_end: U32::new(node.leaf_end),
+        subtri_begin: U32::new(node.subtri_begin),
+        subtri_count: U32::new(node.subtri_end - node.subtri_begin),
+        proxy: node.proxy.map(f),
+        error_radius: f(node.error_radius),
+        sphere: [
+            node.sphere_center[0],
+            node.sphere_center[1],
+            node.sphere_center[2],
+            node.sphere_radius,
+        ]
+        .map(f),
+        cone: [
+            node.cone_axis[0],
+            node.cone_axis[1],
+            node.cone_axis[2],
+            node.cone_half_angle,
+        ]
+        .map(f),
+    }
+}
+
+/// The format's view of a built tree: node records, and triangles grouped by node with
+/// corners as leaf ranks. `metadata` is stored as given.
+pub fn tree_content(
+    tree: &VertexTree,
+    scene: &Scene,
+    metadata: vds_format::Metadata,
+) -> TreeContent {
+    let triangles = tree
+        .subtris
+        .iter()
+        .map(|&t| {
+            let corners =
+                scene.triangles[t as usize].map(|v| U32::new(tree.vertex_rank[v as usize]));
+            TriangleRecord {
+                corners,
+                part: U32::new(scene.triangle_parts[t as usize]),
+            }
+        })
+        .collect();
+    TreeContent {
+        nodes: tree.nodes.iter().map(record).collect(),
+        triangles,
+        vertex_count: tree.leaf_vertex.len() as u64,
+        max_depth: tree.max_depth() as u32,
+        metadata,
+    }
+}
+
+/// Decodes every page of a file into a tree and the scene it encodes. In that scene, vertex
+/// ids are leaf ranks (positions come from the leaves' proxies) and triangle ids follow the
+/// file's node order, so [`crate::verify_tree`] can check the file's tree against it.
+pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
+    file: &VdtFile<B>,
+) -> Result<(VertexTree, Scene), VdtError> {
+    let header = file.header();
+    let vertex_count = header.vertex_count.get() as usize;
+    let pages = file.read_all_pages()?;
+    let mut nodes = Vec::with_capacity(header.node_count.get() as usize);
+    let mut triangles = Vec::with_capacity(header.triangle_count.get() as usize);
+    let mut triangle_parts = Vec::with_capacity(header.triangle_count.get() as usize);
+    for page in pages {
+        for n in &page.nodes {
+            let cone = n.cone.map(|c| c.get());
+            let sphere = n.sphere.map(|c| c.get());
+            nodes.push(Node {
+                parent: n.parent.get(),
+                first_child: if n.child_count == 0 {
+                    0
+                } else {
+                    n.first_child.get()
+                },
+                child_count: n.child_count,
+                depth: n.depth.get(),
+                leaf_begin: n.leaf_begin.get(),
+                leaf_end: n.leaf_end.get(),
+                subtri_begin: n.subtri_begin.get(),
+                subtri_end: n.subtri_begin.get() + n.subtri_count.get(),
+                proxy: n.proxy.map(|c| c.get()),
+                error_radius: n.error_radius.get(),
+                sphere_center: [sphere[0], sphere[1], sphere[2]],
+                sphere_radius: sphere[3],
+                cone_axis: [cone[0], cone[1], cone[2]],
+                cone_half_angle: cone[3],
+            });
+        }
+        for t in &page.triangles {
+            triangles.push(t.corners.map(|c| c.get()));
+            triangle_parts.push(t.part.get());
+        }
+    }
+    let mut positions = vec![[f32::NAN; 3]; vertex_count];
+    let mut leaf_node = vec![u32::MAX; vertex_count];
+    for (id, n) in nodes.iter().enumerate() {
+        if n.is_leaf() {
+            if n.leaf_count() != 1 || leaf_node[n.leaf_begin as usize] != u32::MAX {
+                return Err(VdtError::Invalid {
+                    what: format!("node {id}"),
+                    message: "leaf does not own exactly one new leaf rank".into(),
+                });
+            }
+            positions[n.leaf_begin as usize] = n.proxy;
+            leaf_node[n.leaf_begin as usize] = id as u32;
+        }
+    }
+    if leaf_node.contains(&u32::MAX) {
+        return Err(VdtError::Invalid {
+            what: "tree".into(),
+            message: "some leaf rank has no leaf node".into(),
+        });
+    }
+    let identity: Vec<u32> = (0..vertex_count as u32).collect();
+    let tree = VertexTree {
+        subtris: (0..triangles.len() as u32).collect(),
+        nodes,
+        leaf_vertex: identity.clone(),
+        vertex_rank: identity,
+        leaf_node,
+        level_starts: Vec::new(),
+    };
+    let scene = Scene {
+        positions,
+        triangles,
+        triangle_parts,
+        part_names: file.metadata().part_names.clone(),
+        stats: Default::default(),
+    };
+    Ok((tree, scene))
+}

@@ -1,0 +1,75 @@
+//! Errors of reading and writing `.vdt` files. Reading treats every file as hostile: each
+//! variant says what was wrong and where, so a user can tell a truncated download from a
+//! file of a newer version.
+
+use std::path::PathBuf;
+
+/// A `.vdt` file could not be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum VdtError {
+    /// The operating system refused.
+    #[error("{path}: {cause}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        cause: std::io::Error,
+    },
+    /// Not a `.vdt` file.
+    #[error("not a .vdt file (bad magic bytes)")]
+    Magic,
+    /// A version this reader does not know.
+    #[error("unsupported .vdt version {got} (this reader knows version {expected})")]
+    Version {
+        /// What this reader knows.
+        expected: u32,
+        /// What the file says.
+        got: u32,
+    },
+    /// The file is shorter than its own offsets say.
+    #[error("{what}: needs bytes up to {needed}, file has {available}")]
+    Truncated {
+        /// Which part of the file.
+        what: String,
+        /// The end offset it needs.
+        needed: u64,
+        /// The file size.
+        available: u64,
+    },
+    /// A checksum does not match.
+    #[error("{what}: checksum mismatch (stored {expected:#018x}, computed {got:#018x})")]
+    Checksum {
+        /// Which part of the file.
+        what: String,
+        /// Stored.
+        expected: u64,
+        /// Computed.
+        got: u64,
+    },
+    /// A field has an impossible value.
+    #[error("{what}: {message}")]
+    Invalid {
+        /// Which part of the file.
+        what: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A page failed to decompress.
+    #[error("page {page}: zstd: {message}")]
+    Decompress {
+        /// The page.
+        page: u32,
+        /// zstd's message.
+        message: String,
+    },
+}
+
+impl VdtError {
+    /// An invalid-field error.
+    pub(crate) fn invalid(what: impl Into<String>, message: impl Into<String>) -> VdtError {
+        VdtError::Invalid {
+            what: what.into(),
+            message: message.into(),
+        }
+    }
+}

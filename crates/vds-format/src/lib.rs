@@ -1,0 +1,30 @@
+//! The `.vdt` vertex-tree file of vds: one file per scene, read a page at a time.
+//!
+//! ```text
+//! VDT := HEADER (128 B) METADATA (rkyv) DIRECTORY (PageEntry × page_count) PAGE*
+//! PAGE := zstd( NodeRecord × node_count  TriangleRecord × triangle_count )
+//! ```
+//!
+//! The byte-level specification is `docs/format.md`. [`write_file`] lays a tree out in pages
+//! and writes it atomically and deterministically; [`VdtFile`] opens one (header, metadata
+//! and directory only), validating everything before use, and decodes pages on demand.
+
+#![deny(missing_docs)]
+
+mod error;
+pub mod layout;
+mod metadata;
+mod read;
+mod write;
+
+pub use error::VdtError;
+pub use layout::{
+    HEADER_BYTES, Header, NO_NODE, NODE_BYTES, NodeRecord, PageEntry, TRIANGLE_BYTES,
+    TriangleRecord, VDT_MAGIC, VDT_VERSION,
+};
+pub use metadata::{BuildInfo, InputInfo, Metadata};
+pub use read::{MAX_PAGE_RAW_BYTES, Page, VdtFile};
+pub use write::{
+    DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, TreeContent, WriteOptions, WriteReport, encode,
+    write_file,
+};

@@ -1,0 +1,364 @@
+//! Reading `.vdt` files. Every file is hostile until checked: opening validates the header,
+//! the metadata and the directory (sizes, offsets, counts, checksums) before anything else is
+//! used, and each page is checksummed, decompressed into a buffer of the size the directory
+//! promised (never more) and its records validated before they are returned. Nothing here
+//! panics on bad input or allocates from a count that was not checked against the file.
+
+use std::path::Path;
+
+use xxhash_rust::xxh3::xxh3_64;
+use zerocopy::FromBytes;
+
+use crate::layout::*;
+use crate::{Metadata, VdtError};
+
+/// A page may decode to at most this many bytes: well above what the writer produces, and a
+/// bound on what a hostile directory can make the reader allocate per page.
+pub const MAX_PAGE_RAW_BYTES: u32 = 256 << 20;
+
+/// An open `.vdt` file over any bytes: a memory map in use, a `Vec` in tests.
+pub struct VdtFile<B> {
+    bytes: B,
+    header: Header,
+    directory: Vec<PageEntry>,
+    metadata: Metadata,
+}
+
+/// One decoded page: a contiguous range of nodes and their subtris.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Page {
+    /// Id of the first node.
+    pub first_node: u32,
+    /// Index of the first triangle.
+    pub first_triangle: u32,
+    /// The nodes, ids `first_node ..`.
+    pub nodes: Vec<NodeRecord>,
+    /// The triangles, indices `first_triangle ..`.
+    pub triangles: Vec<TriangleRecord>,
+}
+
+impl Page {
+    /// The node with global id `id`, if it is in this page.
+    pub fn node(&self, id: u32) -> Option<&NodeRecord> {
+        self.nodes.get(id.checked_sub(self.first_node)? as usize)
+    }
+
+    /// The subtris of a node of this page.
+    pub fn subtris(&self, node: &NodeRecord) -> &[TriangleRecord] {
+        let begin = (node.subtri_begin.get() - self.first_triangle) as usize;
+        &self.triangles[begin..begin + node.subtri_count.get() as usize]
+    }
+}
+
+impl VdtFile<memmap2::Mmap> {
+    /// Opens and memory-maps a file. Only the header, metadata and directory are read.
+    pub fn open(path: &Path) -> Result<Self, VdtError> {
+        let io = |cause| VdtError::Io {
+            path: path.to_path_buf(),
+            cause,
+        };
+        let file = std::fs::File::open(path).map_err(io)?;
+        VdtFile::from_bytes(map(&file).map_err(io)?)
+    }
+}
+
+#[allow(unsafe_code)]
+fn map(file: &std::fs::File) -> std::io::Result<memmap2::Mmap> {
+    // SAFETY: a mapped file can change underneath us if another process writes it. The
+    // reader copies what it keeps (header, directory, metadata) after validating it, reads
+    // pages through checksums and bounds-checked slices, and never creates references that
+    // assume the bytes stay fixed beyond one checked read; a concurrent writer can therefore
+    // only produce a checksum or validation error (or SIGBUS on truncation), not undefined
+    // behaviour in this code. `vds-build` never rewrites a file in place: it renames a new
+    // file over the old one, which leaves existing maps of the old file intact.
+    unsafe { memmap2::Mmap::map(file) }
+}
+
+fn check_range(
+    what: &str,
+    offset: u64,
+    length: u64,
+    file_size: u64,
+) -> Result<(usize, usize), VdtError> {
+    let end = offset
+        .checked_add(length)
+        .ok_or_else(|| VdtError::invalid(what, "offset + length overflows"))?;
+    if end > file_size {
+        return Err(VdtError::Truncated {
+            what: what.to_string(),
+            needed: end,
+            available: file_size,
+        });
+    }
+    Ok((offset as usize, end as usize))
+}
+
+fn check_sum(what: &str, bytes: &[u8], expected: u64) -> Result<(), VdtError> {
+    let got = xxh3_64(bytes);
+    if got != expected {
+        return Err(VdtError::Checksum {
+            what: what.to_string(),
+            expected,
+            got,
+        });
+    }
+    Ok(())
+}
+
+impl<B: AsRef<[u8]>> VdtFile<B> {
+    /// Validates and opens a file held in `bytes`.
+    pub fn from_bytes(bytes: B) -> Result<Self, VdtError> {
+        let data = bytes.as_ref();
+        let file_size = data.len() as u64;
+        if data.len() < 8 || data[..8] != VDT_MAGIC {
+            return Err(VdtError::Magic);
+        }
+        let (header, _) = Header::read_from_prefix(data).map_err(|_| VdtError::Truncated {
+            what: "header".into(),
+            needed: HEADER_BYTES as u64,
+            available: file_size,
+        })?;
+        if header.version.get() != VDT_VERSION {
+            return Err(VdtError::Version {
+                expected: VDT_VERSION,
+                got: header.version.get(),
+            });
+        }
+        check_sum(
+            "header",
+            &data[..HEADER_BYTES - 8],
+            header.header_checksum.get(),
+        )?;
+        if header.header_size.get() as usize != HEADER_BYTES || header.file_size.get() != file_size
+        {
+            return Err(VdtError::invalid(
+                "header",
+                format!(
+                    "declares file size {}, file has {file_size}",
+                    header.file_size.get()
+                ),
+            ));
+        }
+
+        let section = header.metadata;
+        let (start, end) = check_range(
+            "metadata",
+            section.offset.get(),
+            section.length.get(),
+            file_size,
+        )?;
+        check_sum("metadata", &data[start..end], section.checksum.get())?;
+        let mut aligned = rkyv::util::AlignedVec::<16>::with_capacity(end - start);
+        aligned.extend_from_slice(&data[start..end]);
+        let metadata = rkyv::from_bytes::<Metadata, rkyv::rancor::Error>(&aligned)
+            .map_err(|e| VdtError::invalid("metadata", format!("does not decode: {e}")))?;
+
+        let section = header.directory;
+        let (start, end) = check_range(
+            "directory",
+            section.offset.get(),
+            section.length.get(),
+            file_size,
+        )?;
+        let page_count = header.page_count.get() as u64;
+        if page_count == 0 || (end - start) as u64 != page_count * PAGE_ENTRY_BYTES as u64 {
+            return Err(VdtError::invalid(
+                "directory",
+                format!("{} bytes cannot hold {page_count} pages", end - start),
+            ));
+        }
+        check_sum("directory", &data[start..end], section.checksum.get())?;
+        let directory = <[PageEntry]>::ref_from_bytes(&data[start..end])
+            .map_err(|_| VdtError::invalid("directory", "misaligned entries"))?
+            .to_vec();
+        let file = VdtFile {
+            bytes,
+            header,
+            directory,
+            metadata,
+        };
+        file.check_directory()?;
+        Ok(file)
+    }
+
+    fn check_directory(&self) -> Result<(), VdtError> {
+        let h = &self.header;
+        if h.node_count.get() == 0
+            || h.node_count.get() > u64::from(u32::MAX)
+            || h.triangle_count.get() > u64::from(u32::MAX)
+        {
+            return Err(VdtError::invalid(
+                "header",
+                "node or triangle count out of range",
+            ));
+        }
+        let (mut nodes, mut triangles) = (0u64, 0u64);
+        for (i, page) in self.directory.iter().enumerate() {
+            let what = format!("page {i}");
+            check_range(
+                &what,
+                page.offset.get(),
+                u64::from(page.compressed_length.get()),
+                h.file_size.get(),
+            )?;
+            let raw = u64::from(page.node_count.get()) * NODE_BYTES as u64
+                + u64::from(page.triangle_count.get()) * TRIANGLE_BYTES as u64;
+            if page.node_count.get() == 0
+                || u64::from(page.raw_length.get()) != raw
+                || page.raw_length.get() > MAX_PAGE_RAW_BYTES
+                || u64::from(page.first_node.get()) != nodes
+                || u64::from(page.first_triangle.get()) != triangles
+            {
+                return Err(VdtError::invalid(&what, "directory entry is inconsistent"));
+            }
+            nodes += u64::from(page.node_count.get());
+            triangles += u64::from(page.triangle_count.get());
+        }
+        if nodes != h.node_count.get() || triangles != h.triangle_count.get() {
+            return Err(VdtError::invalid(
+                "directory",
+                "pages do not cover every node and triangle",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The header.
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    /// The metadata.
+    pub fn metadata(&self) -> &Metadata {
+        &self.metadata
+    }
+
+    /// The page directory.
+    pub fn directory(&self) -> &[PageEntry] {
+        &self.directory
+    }
+
+    /// The page holding node `id`.
+    pub fn page_of_node(&self, id: u32) -> Result<u32, VdtError> {
+        if u64::from(id) >= self.header.node_count.get() {
+            return Err(VdtError::invalid(
+                "node id",
+                format!("{id} is out of range"),
+            ));
+        }
+        let after = self.directory.partition_point(|p| p.first_node.get() <= id);
+        Ok(after as u32 - 1)
+    }
+
+    /// Checksums, decompresses and validates page `index`.
+    pub fn read_page(&self, index: u32) -> Result<Page, VdtError> {
+        let entry = self
+            .directory
+            .get(index as usize)
+            .ok_or_else(|| VdtError::invalid("page index", format!("{index} is out of range")))?;
+        let what = format!("page {index}");
+        let start = entry.offset.get() as usize;
+        let frame = &self.bytes.as_ref()[start..start + entry.compressed_length.get() as usize];
+        check_sum(&what, frame, entry.checksum.get())?;
+        let raw = zstd::bulk::decompress(frame, entry.raw_length.get() as usize).map_err(|e| {
+            VdtError::Decompress {
+                page: index,
+                message: e.to_string(),
+            }
+        })?;
+        if raw.len() != entry.raw_length.get() as usize {
+            return Err(VdtError::invalid(&what, "decodes to the wrong size"));
+        }
+        let node_bytes = entry.node_count.get() as usize * NODE_BYTES;
+        let nodes = <[NodeRecord]>::ref_from_bytes(&raw[..node_bytes])
+            .map_err(|_| VdtError::invalid(&what, "node records"))?
+            .to_vec();
+        let triangles = <[TriangleRecord]>::ref_from_bytes(&raw[node_bytes..])
+            .map_err(|_| VdtError::invalid(&what, "triangle records"))?
+            .to_vec();
+        let page = Page {
+            first_node: entry.first_node.get(),
+            first_triangle: entry.first_triangle.get(),
+            nodes,
+            triangles,
+        };
+        self.check_page(&what, &page)?;
+        Ok(page)
+    }
+
+    fn check_page(&self, what: &str, page: &Page) -> Result<(), VdtError> {
+        let h = &self.header;
+        let node_count = h.node_count.get();
+        let vertex_count = h.vertex_count.get();
+        let triangle_end = u64::from(page.first_triangle) + page.triangles.len() as u64;
+        for (k, n) in page.nodes.iter().enumerate() {
+            let id = u64::from(page.first_node) + k as u64;
+            let bad = |message: &str| VdtError::invalid(format!("{what} node {id}"), message);
+            let parent = n.parent.get();
+            if (id == 0) != (parent == NO_NODE) || (parent != NO_NODE && u64::from(parent) >= id) {
+                return Err(bad("parent out of range"));
+            }
+            let children = u64::from(n.child_count);
+            if children > 8
+                || (children > 0
+                    && (u64::from(n.first_child.get()) <= id
+                        || u64::from(n.first_child.get()) + children > node_count))
+            {
+                return Err(bad("children out of range"));
+            }
+            if n.leaf_begin.get() >= n.leaf_end.get() || u64::from(n.leaf_end.get()) > vertex_count
+            {
+                return Err(bad("leaf range out of range"));
+            }
+            if u64::from(n.depth.get()) > u64::from(h.max_depth.get()) {
+                return Err(bad("depth exceeds the header's"));
+            }
+            let begin = u64::from(n.subtri_begin.get());
+            if begin < u64::from(page.first_triangle)
+                || begin + u64::from(n.subtri_count.get()) > triangle_end
+            {
+                return Err(bad("subtris outside the page"));
+            }
+            let floats = n
+                .proxy
+                .iter()
+                .chain(&n.sphere)
+                .chain(&n.cone)
+                .chain([&n.error_radius]);
+            if floats.map(|f| f.get()).any(|f| !f.is_finite())
+                || n.error_radius.get() < 0.0
+                || n.sphere[3].get() < 0.0
+            {
+                return Err(bad("non-finite or negative bound"));
+            }
+        }
+        let parts = self.metadata.part_names.len() as u64;
+        for (k, t) in page.triangles.iter().enumerate() {
+            if t.corners.iter().any(|c| u64::from(c.get()) >= vertex_count)
+                || u64::from(t.part.get()) >= parts.max(1)
+            {
+                return Err(VdtError::invalid(
+                    format!(
+                        "{what} triangle {}",
+                        u64::from(page.first_triangle) + k as u64
+                    ),
+                    "corner or part out of range",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Decodes every page in parallel, checking every checksum and record. Returns the pages
+    /// in order.
+    pub fn read_all_pages(&self) -> Result<Vec<Page>, VdtError>
+    where
+        B: Sync,
+    {
+        use rayon::prelude::*;
+        (0..self.directory.len() as u32)
+            .into_par_iter()
+            .map(|i| self.read_page(i))
+            .collect()
+    }
+}

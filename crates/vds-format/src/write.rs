@@ -1,0 +1,310 @@
+//! Writing `.vdt` files: page layout, parallel compression, and an atomic, deterministic
+//! write (a temporary file beside the target, renamed into place).
+//!
+//! Page layout: the tree is cut into *treelets*. A page starts from a group of siblings and
+//! takes child groups breadth-first until its byte budget is reached; the groups that did
+//! not fit start later pages, taken depth-first (last in, first out), so a root-to-leaf path
+//! crosses about `depth / treelet depth` pages and neighbouring treelets sit next to each other
+//! in the file. A treelet that ends before its page is full (near the leaves) leaves the rest
+//! of the page to the next pending treelet, which is its nearest neighbour in the tree. The first page, the top of the tree, has a quarter of the budget so opening a
+//! file decodes little. Nodes are renumbered in page order: every page holds a contiguous
+//! node range, siblings stay contiguous, and parents precede children.
+
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use xxhash_rust::xxh3::xxh3_64;
+use zerocopy::IntoBytes;
+use zerocopy::little_endian::{U32, U64};
+
+use crate::layout::*;
+use crate::{Metadata, VdtError};
+
+/// Default raw bytes per page: large enough to compress well, small enough to page in fast.
+pub const DEFAULT_PAGE_BYTES: u32 = 64 * 1024;
+/// Default zstd level.
+pub const DEFAULT_ZSTD_LEVEL: i32 = 9;
+
+/// A tree to write, with nodes in any order where children are contiguous and node 0 is the
+/// root. Each node's subtris are `triangles[subtri_begin .. subtri_begin + subtri_count]`.
+#[derive(Debug, Clone, Default)]
+pub struct TreeContent {
+    /// Nodes; ids are indices. Rewritten into page order by the writer.
+    pub nodes: Vec<NodeRecord>,
+    /// Triangles grouped by node.
+    pub triangles: Vec<TriangleRecord>,
+    /// Number of leaves (original vertices).
+    pub vertex_count: u64,
+    /// Depth of the deepest node.
+    pub max_depth: u32,
+    /// The metadata section.
+    pub metadata: Metadata,
+}
+
+/// Options for [`write_file`].
+#[derive(Debug, Clone, Copy)]
+pub struct WriteOptions {
+    /// zstd level (1..=22).
+    pub zstd_level: i32,
+    /// Target raw bytes per page.
+    pub page_bytes: u32,
+}
+
+impl Default for WriteOptions {
+    fn default() -> Self {
+        WriteOptions {
+            zstd_level: DEFAULT_ZSTD_LEVEL,
+            page_bytes: DEFAULT_PAGE_BYTES,
+        }
+    }
+}
+
+/// What was written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct WriteReport {
+    /// Total file size.
+    pub file_bytes: u64,
+    /// Decoded size of all pages.
+    pub raw_page_bytes: u64,
+    /// Compressed size of all pages.
+    pub compressed_page_bytes: u64,
+    /// Number of pages.
+    pub pages: u32,
+}
+
+/// A sibling group: `count` nodes from `first`.
+#[derive(Debug, Clone, Copy)]
+struct Group {
+    first: u32,
+    count: u32,
+}
+
+/// Plans pages: the list of sibling groups of each page.
+fn plan_pages(nodes: &[NodeRecord], page_bytes: u32) -> Vec<Vec<Group>> {
+    let group_bytes = |g: &Group| -> u64 {
+        (g.first..g.first + g.count)
+            .map(|id| {
+                NODE_BYTES as u64
+                    + TRIANGLE_BYTES as u64 * u64::from(nodes[id as usize].subtri_count.get())
+            })
+            .sum()
+    };
+    let mut pages = Vec::new();
+    let mut stack = vec![Group { first: 0, count: 1 }];
+    while let Some(start) = stack.pop() {
+        let budget = if pages.is_empty() {
+            page_bytes / 4
+        } else {
+            page_bytes
+        };
+        let mut page = Vec::new();
+        let mut bytes = 0u64;
+        let mut queue = VecDeque::from([start]);
+        loop {
+            // When this treelet is exhausted, keep filling the page with the next pending
+            // treelet: the stack's top is the nearest unfinished part of the tree.
+            if queue.is_empty() {
+                match stack.pop() {
+                    Some(next) if !pages.is_empty() => queue.push_back(next),
+                    Some(next) => {
+                        stack.push(next);
+                        break;
+                    }
+                    None => break,
+                }
+            }
+            let group = queue[0];
+            let size = group_bytes(&group);
+            if !page.is_empty() && bytes + size > u64::from(budget) {
+                break;
+            }
+            queue.pop_front();
+            page.push(group);
+            bytes += size;
+            for id in group.first..group.first + group.count {
+                let n = &nodes[id as usize];
+                if n.child_count > 0 {
+                    queue.push_back(Group {
+                        first: n.first_child.get(),
+                        count: u32::from(n.child_count),
+                    });
+                }
+            }
+        }
+        stack.extend(queue.into_iter().rev());
+        pages.push(page);
+    }
+    pages
+}
+
+/// Lays the tree out in pages and encodes the whole file in memory.
+pub fn encode(
+    content: &TreeContent,
+    options: &WriteOptions,
+) -> Result<(Vec<u8>, WriteReport), VdtError> {
+    let nodes = &content.nodes;
+    if nodes.is_empty() {
+        return Err(VdtError::invalid(
+            "tree",
+            "a .vdt file needs at least one node",
+        ));
+    }
+    let plan = plan_pages(nodes, options.page_bytes.max(NODE_BYTES as u32));
+
+    // Renumber nodes and triangles in page order.
+    let mut new_id = vec![NO_NODE; nodes.len()];
+    let mut order = Vec::with_capacity(nodes.len());
+    for page in &plan {
+        for group in page {
+            for old in group.first..group.first + group.count {
+                new_id[old as usize] = order.len() as u32;
+                order.push(old);
+            }
+        }
+    }
+    if order.len() != nodes.len() {
+        return Err(VdtError::invalid(
+            "tree",
+            "some nodes are not reachable from the root",
+        ));
+    }
+    let map = |id: U32| -> U32 {
+        if id.get() == NO_NODE {
+            id
+        } else {
+            U32::new(new_id[id.get() as usize])
+        }
+    };
+    let mut records = Vec::with_capacity(nodes.len());
+    let mut triangles = Vec::with_capacity(content.triangles.len());
+    for &old in &order {
+        let mut n = nodes[old as usize];
+        n.parent = map(n.parent);
+        n.first_child = map(n.first_child);
+        let begin = n.subtri_begin.get() as usize;
+        let count = n.subtri_count.get() as usize;
+        n.subtri_begin = U32::new(triangles.len() as u32);
+        triangles.extend_from_slice(&content.triangles[begin..begin + count]);
+        records.push(n);
+    }
+
+    // Page bodies: node records, then triangle records; compressed in parallel.
+    let mut spans = Vec::with_capacity(plan.len());
+    let (mut node_at, mut triangle_at) = (0usize, 0usize);
+    for page in &plan {
+        let node_count: usize = page.iter().map(|g| g.count as usize).sum();
+        let triangle_count: usize = records[node_at..node_at + node_count]
+            .iter()
+            .map(|n| n.subtri_count.get() as usize)
+            .sum();
+        spans.push((node_at, node_count, triangle_at, triangle_count));
+        node_at += node_count;
+        triangle_at += triangle_count;
+    }
+    let frames: Vec<(Vec<u8>, usize)> = spans
+        .par_iter()
+        .map(|&(n0, nc, t0, tc)| {
+            let mut raw = Vec::with_capacity(nc * NODE_BYTES + tc * TRIANGLE_BYTES);
+            raw.extend_from_slice(records[n0..n0 + nc].as_bytes());
+            raw.extend_from_slice(triangles[t0..t0 + tc].as_bytes());
+            let frame = zstd::bulk::compress(&raw, options.zstd_level)
+                .expect("zstd compression of an in-memory buffer cannot fail");
+            (frame, raw.len())
+        })
+        .collect();
+
+    let metadata = rkyv::to_bytes::<rkyv::rancor::Error>(&content.metadata)
+        .map_err(|e| VdtError::invalid("metadata", e.to_string()))?;
+    let metadata_offset = HEADER_BYTES as u64;
+    let directory_offset = metadata_offset + metadata.len() as u64;
+    let directory_length = (plan.len() * PAGE_ENTRY_BYTES) as u64;
+    let mut offset = directory_offset + directory_length;
+    let mut directory = Vec::with_capacity(plan.len());
+    for (&(n0, nc, t0, tc), (frame, raw_length)) in spans.iter().zip(&frames) {
+        directory.push(PageEntry {
+            offset: U64::new(offset),
+            compressed_length: U32::new(frame.len() as u32),
+            raw_length: U32::new(*raw_length as u32),
+            first_node: U32::new(n0 as u32),
+            node_count: U32::new(nc as u32),
+            first_triangle: U32::new(t0 as u32),
+            triangle_count: U32::new(tc as u32),
+            checksum: U64::new(xxh3_64(frame)),
+        });
+        offset += frame.len() as u64;
+    }
+    let mut header = Header {
+        magic: VDT_MAGIC,
+        version: U32::new(VDT_VERSION),
+        header_size: U32::new(HEADER_BYTES as u32),
+        file_size: U64::new(offset),
+        node_count: U64::new(nodes.len() as u64),
+        triangle_count: U64::new(triangles.len() as u64),
+        vertex_count: U64::new(content.vertex_count),
+        page_count: U32::new(plan.len() as u32),
+        max_depth: U32::new(content.max_depth),
+        metadata: SectionRef {
+            offset: U64::new(metadata_offset),
+            length: U64::new(metadata.len() as u64),
+            checksum: U64::new(xxh3_64(&metadata)),
+        },
+        directory: SectionRef {
+            offset: U64::new(directory_offset),
+            length: U64::new(directory_length),
+            checksum: U64::new(xxh3_64(directory.as_bytes())),
+        },
+        reserved: [0; 16],
+        header_checksum: U64::new(0),
+    };
+    header.header_checksum = U64::new(xxh3_64(&header.as_bytes()[..HEADER_BYTES - 8]));
+
+    let mut out = Vec::with_capacity(offset as usize);
+    out.extend_from_slice(header.as_bytes());
+    out.extend_from_slice(&metadata);
+    out.extend_from_slice(directory.as_bytes());
+    let raw_page_bytes = frames.iter().map(|(_, r)| *r as u64).sum();
+    let compressed_page_bytes = frames.iter().map(|(f, _)| f.len() as u64).sum();
+    for (frame, _) in frames {
+        out.extend_from_slice(&frame);
+    }
+    let report = WriteReport {
+        file_bytes: out.len() as u64,
+        raw_page_bytes,
+        compressed_page_bytes,
+        pages: plan.len() as u32,
+    };
+    Ok((out, report))
+}
+
+/// Encodes the tree and writes it to `path` atomically: the bytes go to a temporary file in
+/// the same directory, which is renamed over `path` only once complete, so an interrupted
+/// or failed write never leaves a partial `.vdt`.
+pub fn write_file(
+    path: &Path,
+    content: &TreeContent,
+    options: &WriteOptions,
+) -> Result<WriteReport, VdtError> {
+    let (bytes, report) = encode(content, options)?;
+    let io = |cause| VdtError::Io {
+        path: path.to_path_buf(),
+        cause,
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let temporary: PathBuf = path.with_file_name(format!(".{name}.{}.partial", std::process::id()));
+    let result = (|| {
+        let mut file = std::fs::File::create(&temporary)?;
+        file.write_all(&bytes)?;
+        file.sync_all()?;
+        std::fs::rename(&temporary, path)
+    })();
+    if let Err(cause) = result {
+        let _ = std::fs::remove_file(&temporary);
+        return Err(io(cause));
+    }
+    Ok(report)
+}
