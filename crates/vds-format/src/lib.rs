@@ -23,7 +23,7 @@ pub use layout::{
     TriangleRecord, VDT_MAGIC, VDT_VERSION,
 };
 pub use metadata::{BuildInfo, InputInfo, Metadata};
-pub use read::{MAX_PAGE_RAW_BYTES, Page, VdtFile};
+pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};
 pub use write::{
     DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, TreeContent, WriteOptions, WriteReport, encode,
     write_file,

@@ -16,6 +16,12 @@ use crate::{Metadata, VdtError};
 /// bound on what a hostile directory can make the reader allocate per page.
 pub const MAX_PAGE_RAW_BYTES: u32 = 256 << 20;
 
+/// A page may decode to at most this many times its compressed size. Records carry distinct
+/// ids, ranges and coordinates, so real pages compress 1.5–10×; the bound caps what a
+/// decompression bomb can make a reader allocate at 1024 × the file's size. The writer
+/// refuses to produce a page beyond it.
+pub const MAX_COMPRESSION_RATIO: u64 = 1024;
+
 /// An open `.vdt` file over any bytes: a memory map in use, a `Vec` in tests.
 pub struct VdtFile<B> {
     bytes: B,
@@ -206,6 +212,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             if page.node_count.get() == 0
                 || u64::from(page.raw_length.get()) != raw
                 || page.raw_length.get() > MAX_PAGE_RAW_BYTES
+                || raw > MAX_COMPRESSION_RATIO * u64::from(page.compressed_length.get())
                 || u64::from(page.first_node.get()) != nodes
                 || u64::from(page.first_triangle.get()) != triangles
             {
@@ -218,6 +225,16 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             return Err(VdtError::invalid(
                 "directory",
                 "pages do not cover every node and triangle",
+            ));
+        }
+        // Every vertex is a leaf node, and every level holds at least one node.
+        if h.vertex_count.get() == 0
+            || h.vertex_count.get() > h.node_count.get()
+            || u64::from(h.max_depth.get()) >= h.node_count.get()
+        {
+            return Err(VdtError::invalid(
+                "header",
+                "vertex count or depth inconsistent with the node count",
             ));
         }
         Ok(())

@@ -215,6 +215,14 @@ pub fn encode(
         })
         .collect();
 
+    for (i, (frame, raw_length)) in frames.iter().enumerate() {
+        if *raw_length as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
+            return Err(VdtError::invalid(
+                format!("page {i}"),
+                "compresses beyond the ratio readers accept as a decompression bomb",
+            ));
+        }
+    }
     let metadata = rkyv::to_bytes::<rkyv::rancor::Error>(&content.metadata)
         .map_err(|e| VdtError::invalid("metadata", e.to_string()))?;
     let metadata_offset = HEADER_BYTES as u64;

@@ -1,0 +1,304 @@
+//! The `.vdt` file: build → write → read round trips keep every invariant, output is
+//! byte-identical whatever the thread count, writes are atomic, and hostile files (bit flips,
+//! truncation, spliced sections, huge counts with valid checksums) yield errors, never panics.
+
+use std::path::PathBuf;
+
+use proptest::prelude::*;
+use vds_build::{build_tree, tree_content, tree_from_file, verify_tree};
+use vds_format::{VdtError, VdtFile, WriteOptions, encode, write_file};
+use xxhash_rust::xxh3::xxh3_64;
+
+fn shared(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(name)
+}
+
+fn encoded(name: &str, options: &WriteOptions) -> Vec<u8> {
+    let scene = vds_import::load_file(shared(name), &Default::default()).unwrap();
+    let tree = build_tree(&scene);
+    let metadata = vds_format::Metadata {
+        tool: "test".into(),
+        part_names: scene.part_names.clone(),
+        ..Default::default()
+    };
+    encode(&tree_content(&tree, &scene, metadata), options)
+        .unwrap()
+        .0
+}
+
+/// Small pages, so even small meshes span many pages.
+fn small_pages() -> WriteOptions {
+    WriteOptions {
+        zstd_level: 3,
+        page_bytes: 4096,
+    }
+}
+
+#[test]
+fn round_trip_keeps_every_invariant_and_triangle() {
+    for name in ["cow.obj", "as1_assembly.obj", "bone.ply"] {
+        let scene = vds_import::load_file(shared(name), &Default::default()).unwrap();
+        let tree = build_tree(&scene);
+        let content = tree_content(
+            &tree,
+            &scene,
+            vds_format::Metadata {
+                part_names: scene.part_names.clone(),
+                ..Default::default()
+            },
+        );
+        let (bytes, report) = encode(&content, &small_pages()).unwrap();
+        assert!(report.pages > 3, "{name}: {} pages", report.pages);
+        let file = VdtFile::from_bytes(bytes).unwrap();
+        let (read_tree, read_scene) = tree_from_file(&file).unwrap();
+        verify_tree(&read_tree, &read_scene).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(read_tree.nodes.len(), tree.nodes.len());
+        // Same triangles (as original vertex ids, with parts), in any order.
+        let mut original: Vec<([u32; 3], u32)> = scene
+            .triangles
+            .iter()
+            .zip(&scene.triangle_parts)
+            .map(|(t, &p)| (*t, p))
+            .collect();
+        let mut read: Vec<([u32; 3], u32)> = read_scene
+            .triangles
+            .iter()
+            .zip(&read_scene.triangle_parts)
+            .map(|(t, &p)| (t.map(|rank| tree.leaf_vertex[rank as usize]), p))
+            .collect();
+        original.sort_unstable();
+        read.sort_unstable();
+        assert_eq!(original, read, "{name}");
+        // Leaves keep their exact original positions.
+        for (rank, &v) in tree.leaf_vertex.iter().enumerate() {
+            assert_eq!(read_scene.positions[rank], scene.positions[v as usize]);
+        }
+    }
+}
+
+#[test]
+fn pages_hold_contiguous_nodes_and_root_page_is_small() {
+    let file = VdtFile::from_bytes(encoded("bunny.obj", &WriteOptions::default())).unwrap();
+    let directory = file.directory();
+    assert!(directory[0].raw_length.get() <= vds_format::DEFAULT_PAGE_BYTES / 4 + 1024);
+    for id in [0u32, 1, 500, 40_000] {
+        let page = file.page_of_node(id).unwrap();
+        let decoded = file.read_page(page).unwrap();
+        assert!(decoded.node(id).is_some(), "node {id} not in page {page}");
+    }
+    assert!(file.page_of_node(u32::MAX).is_err());
+}
+
+#[test]
+fn output_is_byte_identical_on_one_and_two_threads() {
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| encoded("cow.obj", &small_pages()))
+    };
+    assert!(on(1) == on(2));
+}
+
+#[test]
+fn write_is_atomic_and_leaves_no_partial_file() {
+    let dir = std::env::temp_dir().join(format!("vds-vdt-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = vds_import::load_file(shared("cow.obj"), &Default::default()).unwrap();
+    let tree = build_tree(&scene);
+    let content = tree_content(&tree, &scene, Default::default());
+    let target = dir.join("cow.vdt");
+    std::fs::write(&target, b"an older file").unwrap();
+    write_file(&target, &content, &small_pages()).unwrap();
+    assert!(
+        VdtFile::open(&target).is_ok(),
+        "the old file was replaced whole"
+    );
+    let names: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(names.len(), 1, "leftovers: {names:?}");
+    // A failed write (missing directory) leaves nothing behind.
+    let missing = dir.join("no-such-dir").join("x.vdt");
+    assert!(write_file(&missing, &content, &small_pages()).is_err());
+    assert!(!missing.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn rejects_bad_magic() {
+    let mut bytes = encoded("cow.obj", &small_pages());
+    bytes[0] = b'X';
+    assert!(matches!(VdtFile::from_bytes(bytes), Err(VdtError::Magic)));
+}
+
+#[test]
+fn rejects_unknown_version_with_both_numbers() {
+    let mut bytes = encoded("cow.obj", &small_pages());
+    bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
+    match VdtFile::from_bytes(bytes) {
+        Err(VdtError::Version {
+            expected: 1,
+            got: 2,
+        }) => {}
+        other => panic!("{:?}", other.err()),
+    }
+}
+
+#[test]
+fn rejects_truncated_file() {
+    let bytes = encoded("cow.obj", &small_pages());
+    let cut = bytes[..bytes.len() - 1].to_vec();
+    assert!(VdtFile::from_bytes(cut).is_err());
+}
+
+#[test]
+fn rejects_corrupted_page_by_checksum() {
+    let mut bytes = encoded("cow.obj", &small_pages());
+    let last = bytes.len() - 5;
+    bytes[last] ^= 0x55;
+    let file = VdtFile::from_bytes(bytes).unwrap();
+    let last_page = file.directory().len() as u32 - 1;
+    assert!(matches!(
+        file.read_page(last_page),
+        Err(VdtError::Checksum { .. })
+    ));
+}
+
+/// Recomputes every checksum so mutations reach the validation behind them.
+fn fix_checksums(bytes: &mut [u8]) {
+    let get = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+    let put = |b: &mut [u8], at: usize, v: u64| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
+    if bytes.len() < 128 {
+        return;
+    }
+    // Sections: metadata at 56 (offset, length, checksum), directory at 80.
+    for at in [56usize, 80] {
+        let (offset, length) = (get(bytes, at) as usize, get(bytes, at + 8) as usize);
+        if let Some(section) = offset
+            .checked_add(length)
+            .and_then(|end| bytes.get(offset..end))
+        {
+            let sum = xxh3_64(section);
+            put(bytes, at + 16, sum);
+        }
+    }
+    let (dir_offset, dir_length) = (get(bytes, 80) as usize, get(bytes, 88) as usize);
+    for i in 0..dir_length / 40 {
+        let Some(entry) = dir_offset
+            .checked_add(40 * i)
+            .filter(|e| e.saturating_add(40) <= bytes.len())
+        else {
+            break;
+        };
+        let offset = get(bytes, entry) as usize;
+        let length = u32::from_le_bytes(bytes[entry + 8..entry + 12].try_into().unwrap()) as usize;
+        if let Some(frame) = offset
+            .checked_add(length)
+            .and_then(|end| bytes.get(offset..end))
+        {
+            let sum = xxh3_64(frame);
+            put(bytes, entry + 32, sum);
+        }
+    }
+    let sum = xxh3_64(&bytes[..120]);
+    put(bytes, 120, sum);
+}
+
+/// Opening, decoding every page, rebuilding the tree and checking it: must not panic.
+fn exercise(bytes: Vec<u8>) {
+    if let Ok(file) = VdtFile::from_bytes(bytes) {
+        if let Ok((tree, scene)) = tree_from_file(&file) {
+            let _ = verify_tree(&tree, &scene);
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+
+    #[test]
+    fn mutated_files_give_errors_not_panics(
+        flips in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..6),
+        cut in any::<prop::sample::Index>(),
+        truncate in any::<bool>(),
+        fix in any::<bool>(),
+    ) {
+        let mut bytes = encoded("cow.obj", &small_pages());
+        for (at, value) in flips {
+            let i = at.index(bytes.len());
+            bytes[i] ^= value.max(1);
+        }
+        if truncate {
+            bytes.truncate(cut.index(bytes.len() + 1));
+        }
+        if fix {
+            fix_checksums(&mut bytes);
+        }
+        exercise(bytes);
+    }
+
+    /// Header fields overwritten with huge or random values, checksums made valid.
+    #[test]
+    fn huge_counts_and_spliced_sections_give_errors(
+        field in prop::sample::select(vec![16usize, 24, 32, 40, 48, 52, 56, 64, 80, 88]),
+        value in prop_oneof![Just(u64::MAX), Just(u64::from(u32::MAX)), any::<u64>(), 0u64..4096],
+    ) {
+        let mut bytes = encoded("cow.obj", &small_pages());
+        bytes[field..field + 8].copy_from_slice(&value.to_le_bytes());
+        fix_checksums(&mut bytes);
+        exercise(bytes);
+    }
+
+    /// Directory entries rewritten (page offsets, lengths, counts), checksums made valid.
+    #[test]
+    fn rewritten_directory_entries_give_errors(
+        page in any::<prop::sample::Index>(),
+        field in prop::sample::select(vec![0usize, 8, 12, 16, 20, 24, 28]),
+        value in prop_oneof![Just(u32::MAX), any::<u32>(), 0u32..64],
+    ) {
+        let mut bytes = encoded("cow.obj", &small_pages());
+        let dir_offset = u64::from_le_bytes(bytes[80..88].try_into().unwrap()) as usize;
+        let pages = u32::from_le_bytes(bytes[48..52].try_into().unwrap()) as usize;
+        let at = dir_offset + 40 * page.index(pages) + field;
+        bytes[at..at + 4].copy_from_slice(&value.to_le_bytes());
+        fix_checksums(&mut bytes);
+        exercise(bytes);
+    }
+
+    /// Page contents replaced by valid zstd frames of mutated records.
+    #[test]
+    fn mutated_records_in_valid_frames_give_errors(
+        page in any::<prop::sample::Index>(),
+        flips in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..4),
+    ) {
+        let bytes = encoded("cow.obj", &small_pages());
+        let file = VdtFile::from_bytes(bytes.clone()).unwrap();
+        let index = page.index(file.directory().len());
+        let entry = file.directory()[index];
+        let start = entry.offset.get() as usize;
+        let frame = &bytes[start..start + entry.compressed_length.get() as usize];
+        let mut raw = zstd::bulk::decompress(frame, entry.raw_length.get() as usize).unwrap();
+        for (at, value) in flips {
+            let i = at.index(raw.len());
+            raw[i] ^= value.max(1);
+        }
+        let new_frame = zstd::bulk::compress(&raw, 1).unwrap();
+        // Splice the new frame in at the end and point the entry at it.
+        let mut out = bytes.clone();
+        let new_offset = out.len() as u64;
+        out.extend_from_slice(&new_frame);
+        let dir_offset = u64::from_le_bytes(out[80..88].try_into().unwrap()) as usize;
+        let at = dir_offset + 40 * index;
+        out[at..at + 8].copy_from_slice(&new_offset.to_le_bytes());
+        out[at + 8..at + 12].copy_from_slice(&(new_frame.len() as u32).to_le_bytes());
+        let size = out.len() as u64;
+        out[16..24].copy_from_slice(&size.to_le_bytes());
+        fix_checksums(&mut out);
+        exercise(out);
+    }
+}
