@@ -211,10 +211,10 @@ fn fix_checksums(bytes: &mut [u8]) {
 
 /// Opening, decoding every page, rebuilding the tree and checking it: must not panic.
 fn exercise(bytes: Vec<u8>) {
-    if let Ok(file) = VdtFile::from_bytes(bytes) {
-        if let Ok((tree, scene)) = tree_from_file(&file) {
-            let _ = verify_tree(&tree, &scene);
-        }
+    if let Ok(file) = VdtFile::from_bytes(bytes)
+        && let Ok((tree, scene)) = tree_from_file(&file)
+    {
+        let _ = verify_tree(&tree, &scene);
     }
 }
 
