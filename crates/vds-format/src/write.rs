@@ -24,8 +24,9 @@ use crate::{Metadata, VdtError};
 
 /// Default raw bytes per page: large enough to compress well, small enough to page in fast.
 pub const DEFAULT_PAGE_BYTES: u32 = 64 * 1024;
-/// Default zstd level.
-pub const DEFAULT_ZSTD_LEVEL: i32 = 9;
+/// Default zstd level: on generated CAD scenes level 6 gave smaller files than 9 (17.5 vs
+/// 17.7 B/triangle) in half the time; 15 saves 15 % more at 10× the time.
+pub const DEFAULT_ZSTD_LEVEL: i32 = 6;
 
 /// A tree to write, with nodes in any order where children are contiguous and node 0 is the
 /// root. Each node's subtris are `triangles[subtri_begin .. subtri_begin + subtri_count]`.

@@ -42,6 +42,20 @@ enum Commands {
     /// (internal) Import and build one file, print a JSON line with times and peak memory.
     #[command(hide = true)]
     One { file: PathBuf },
+    /// (internal) Build one file, write its .vdt, time opening and decoding it.
+    #[command(hide = true)]
+    Vdt { file: PathBuf },
+}
+
+#[derive(Serialize, Deserialize)]
+struct VdtRun {
+    input_triangles: u64,
+    file_bytes: u64,
+    pages: u32,
+    raw_page_bytes: u64,
+    write_seconds: f64,
+    open_ms: f64,
+    decode_seconds_one_core: f64,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -83,8 +97,10 @@ fn parse_count(text: &str) -> Result<u64> {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    if let Some(Commands::One { file }) = args.command {
-        return one(&file);
+    match args.command {
+        Some(Commands::One { file }) => return one(&file),
+        Some(Commands::Vdt { file }) => return vdt(&file),
+        None => {}
     }
     println!(
         "vds-bench: {} cores, medians of {} runs\n",
@@ -92,9 +108,91 @@ fn main() -> Result<()> {
         args.runs
     );
     bunny(&args.shared.join("bunny.obj"), args.runs)?;
+    let mut files = vec![args.shared.join("bunny.obj")];
     for size in &args.sizes {
-        cad_scene(parse_count(size)?, &args.dir, args.runs)?;
+        files.push(cad_scene(parse_count(size)?, &args.dir, args.runs)?);
     }
+    for file in files {
+        vdt_figures(&file)?;
+    }
+    Ok(())
+}
+
+/// The hidden `vdt` subcommand: build, write the .vdt beside the input, open and decode it.
+fn vdt(file: &Path) -> Result<()> {
+    let scene = vds_import::load_file(file, &Default::default())?;
+    let tree = vds_build::build_tree(&scene);
+    let metadata = vds_format::Metadata {
+        part_names: scene.part_names.clone(),
+        input_triangles: scene.stats.input_triangles,
+        ..Default::default()
+    };
+    let content = vds_build::tree_content(&tree, &scene, metadata);
+    drop(tree);
+    let out = std::env::temp_dir().join(format!("vds-bench-{}.vdt", std::process::id()));
+    let start = Instant::now();
+    let written = vds_format::write_file(&out, &content, &Default::default())?;
+    let write_seconds = start.elapsed().as_secs_f64();
+    drop(content);
+    let open_ms = median(
+        (0..21)
+            .map(|_| {
+                let start = Instant::now();
+                let file = vds_format::VdtFile::open(&out).expect("the file just written opens");
+                // Opening includes the root page, which any viewer decodes first.
+                std::hint::black_box(file.read_page(0).expect("root page decodes"));
+                start.elapsed().as_secs_f64() * 1e3
+            })
+            .collect(),
+    );
+    let file = vds_format::VdtFile::open(&out)?;
+    let one_core = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+    let decode_seconds_one_core = median(
+        (0..3)
+            .map(|_| {
+                let start = Instant::now();
+                one_core.install(|| std::hint::black_box(file.read_all_pages().expect("pages decode")));
+                start.elapsed().as_secs_f64()
+            })
+            .collect(),
+    );
+    std::fs::remove_file(&out)?;
+    let run = VdtRun {
+        input_triangles: scene.stats.input_triangles,
+        file_bytes: written.file_bytes,
+        pages: written.pages,
+        raw_page_bytes: written.raw_page_bytes,
+        write_seconds,
+        open_ms,
+        decode_seconds_one_core,
+    };
+    println!("{}", serde_json::to_string(&run)?);
+    Ok(())
+}
+
+fn vdt_figures(file: &Path) -> Result<()> {
+    let exe = std::env::current_exe()?;
+    let output = Command::new(&exe).arg("vdt").arg(file).output()?;
+    if !output.status.success() {
+        bail!("{} failed: {}", file.display(), String::from_utf8_lossy(&output.stderr));
+    }
+    let run: VdtRun = serde_json::from_slice(&output.stdout)?;
+    let n = run.input_triangles as f64;
+    println!(".vdt of {} ({} triangles)", file.display(), run.input_triangles);
+    println!(
+        "  file {:.1} MB in {} pages: {:.2} bytes/triangle ({:.2} raw)",
+        run.file_bytes as f64 / 1e6,
+        run.pages,
+        run.file_bytes as f64 / n,
+        run.raw_page_bytes as f64 / n
+    );
+    println!("  write (layout + zstd + fsync)   {:7.3} s", run.write_seconds);
+    println!("  open (header, metadata, directory, root page)  {:.3} ms (median of 21)", run.open_ms);
+    println!(
+        "  decode every page on one core   {:7.3} s  {:6.0} MB/s of raw page data\n",
+        run.decode_seconds_one_core,
+        run.raw_page_bytes as f64 / run.decode_seconds_one_core / 1e6
+    );
     Ok(())
 }
 
@@ -173,7 +271,7 @@ fn bunny(path: &Path, runs: usize) -> Result<()> {
     Ok(())
 }
 
-fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<()> {
+fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<PathBuf> {
     std::fs::create_dir_all(dir)?;
     let file = dir.join(format!("cad-{triangles}.ply"));
     if !file.exists() {
@@ -224,5 +322,5 @@ fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<()> {
         peak / 1e6,
         peak / n
     );
-    Ok(())
+    Ok(file)
 }

@@ -1,0 +1,16 @@
+//! Fuzzes the `.vdt` reader: open, decode every page, rebuild the tree, check invariants.
+//! Any input must give an error or valid data, never a panic, hang or huge allocation.
+//!
+//! Seed the corpus with real files so the fuzzer starts past the magic and checksums:
+//! `vds-build testdata/as1_assembly.obj -o fuzz/corpus/vdt_reader/as1.vdt`.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    if let Ok(file) = vds_format::VdtFile::from_bytes(data)
+        && let Ok((tree, scene)) = vds_build::tree_from_file(&file)
+    {
+        let _ = vds_build::verify_tree(&tree, &scene);
+    }
+});
