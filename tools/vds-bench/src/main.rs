@@ -151,7 +151,8 @@ fn vdt(file: &Path) -> Result<()> {
         (0..3)
             .map(|_| {
                 let start = Instant::now();
-                one_core.install(|| std::hint::black_box(file.read_all_pages().expect("pages decode")));
+                one_core
+                    .install(|| std::hint::black_box(file.read_all_pages().expect("pages decode")));
                 start.elapsed().as_secs_f64()
             })
             .collect(),
@@ -174,11 +175,19 @@ fn vdt_figures(file: &Path) -> Result<()> {
     let exe = std::env::current_exe()?;
     let output = Command::new(&exe).arg("vdt").arg(file).output()?;
     if !output.status.success() {
-        bail!("{} failed: {}", file.display(), String::from_utf8_lossy(&output.stderr));
+        bail!(
+            "{} failed: {}",
+            file.display(),
+            String::from_utf8_lossy(&output.stderr)
+        );
     }
     let run: VdtRun = serde_json::from_slice(&output.stdout)?;
     let n = run.input_triangles as f64;
-    println!(".vdt of {} ({} triangles)", file.display(), run.input_triangles);
+    println!(
+        ".vdt of {} ({} triangles)",
+        file.display(),
+        run.input_triangles
+    );
     println!(
         "  file {:.1} MB in {} pages: {:.2} bytes/triangle ({:.2} raw)",
         run.file_bytes as f64 / 1e6,
@@ -186,8 +195,14 @@ fn vdt_figures(file: &Path) -> Result<()> {
         run.file_bytes as f64 / n,
         run.raw_page_bytes as f64 / n
     );
-    println!("  write (layout + zstd + fsync)   {:7.3} s", run.write_seconds);
-    println!("  open (header, metadata, directory, root page)  {:.3} ms (median of 21)", run.open_ms);
+    println!(
+        "  write (layout + zstd + fsync)   {:7.3} s",
+        run.write_seconds
+    );
+    println!(
+        "  open (header, metadata, directory, root page)  {:.3} ms (median of 21)",
+        run.open_ms
+    );
     println!(
         "  decode every page on one core   {:7.3} s  {:6.0} MB/s of raw page data\n",
         run.decode_seconds_one_core,

@@ -1,0 +1,145 @@
+//! The `vds-build` and `vds-info` command lines: what a CI script relies on (exit codes,
+//! files written or not, JSON reports, error messages naming the file and line).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("vds-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn demo_model() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../testdata/as1_assembly.obj")
+}
+
+fn build(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_vds-build"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn info(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_vds-info"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn build_writes_a_file_that_verifies_and_reports_json() {
+    let dir = temp_dir("build");
+    let out = dir.join("as1.vdt");
+    let run = build(&[path(&demo_model()), "-o", path(&out), "--json"]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(report["parts"], 18);
+    assert_eq!(
+        report["output"]["bytes"].as_u64().unwrap(),
+        std::fs::metadata(&out).unwrap().len()
+    );
+    let verify = info(&[path(&out), "--verify", "--json"]);
+    assert!(
+        verify.status.success(),
+        "{}",
+        String::from_utf8_lossy(&verify.stderr)
+    );
+    let described: serde_json::Value = serde_json::from_slice(&verify.stdout).unwrap();
+    assert_eq!(described["triangles"], 10_896);
+    assert_eq!(described["verified"], true);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn identical_inputs_give_byte_identical_files_on_any_thread_count() {
+    let dir = temp_dir("determinism");
+    let (a, b) = (dir.join("a.vdt"), dir.join("b.vdt"));
+    assert!(
+        build(&[path(&demo_model()), "-o", path(&a), "--threads", "1", "-q"])
+            .status
+            .success()
+    );
+    assert!(
+        build(&[path(&demo_model()), "-o", path(&b), "--threads", "2", "-q"])
+            .status
+            .success()
+    );
+    assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn malformed_input_fails_naming_file_and_line_and_writes_nothing() {
+    let dir = temp_dir("malformed");
+    let input = dir.join("broken.obj");
+    std::fs::write(&input, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n").unwrap();
+    let out = dir.join("broken.vdt");
+    let run = build(&[path(&input), "-o", path(&out)]);
+    assert_eq!(run.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        message.contains("broken.obj") && message.contains("line 4"),
+        "{message}"
+    );
+    let leftovers: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(leftovers.len(), 1, "{leftovers:?}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn batch_goes_on_past_failures_and_exits_nonzero() {
+    let dir = temp_dir("batch");
+    let bad_count = dir.join("short.stl");
+    let mut bytes = vec![0u8; 84];
+    bytes[80..84].copy_from_slice(&1000u32.to_le_bytes()); // 1000 triangles promised, none there.
+    std::fs::write(&bad_count, bytes).unwrap();
+    let out_dir = dir.join("out");
+    let run = build(&[
+        "--batch",
+        path(&demo_model()),
+        path(&bad_count),
+        "--out-dir",
+        path(&out_dir),
+        "--json",
+    ]);
+    assert_eq!(run.status.code(), Some(1));
+    let reports: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(reports.as_array().unwrap().len(), 2);
+    assert!(reports[1]["error"].as_str().unwrap().contains("truncated"));
+    assert!(out_dir.join("as1_assembly.vdt").exists());
+    assert!(!out_dir.join("short.vdt").exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn info_rejects_a_corrupted_file() {
+    let dir = temp_dir("corrupt");
+    let out = dir.join("as1.vdt");
+    assert!(
+        build(&[path(&demo_model()), "-o", path(&out), "-q"])
+            .status
+            .success()
+    );
+    let mut bytes = std::fs::read(&out).unwrap();
+    let n = bytes.len();
+    bytes[n - 3] ^= 0xFF;
+    std::fs::write(&out, bytes).unwrap();
+    let run = info(&[path(&out), "--verify"]);
+    assert_eq!(run.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("checksum"));
+    std::fs::remove_dir_all(dir).unwrap();
+}
