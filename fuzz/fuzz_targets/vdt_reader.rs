@@ -11,6 +11,7 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(file) = vds_format::VdtFile::from_bytes(data)
         && let Ok((tree, scene)) = vds_build::tree_from_file(&file)
     {
-        let _ = vds_build::verify_tree(&tree, &scene);
+        let options = vds_build::VerifyOptions { leaf_bounds: false };
+        let _ = vds_build::verify_tree_with(&tree, &scene, &options);
     }
 });

@@ -2,7 +2,8 @@
 //! format's records, and a file's pages back into a tree and the scene it encodes (leaf
 //! positions and triangles by leaf rank), which is what `vds-info --verify` checks.
 
-use vds_format::{NO_NODE, NodeRecord, TreeContent, TriangleRecord, VdtError, VdtFile};
+use rayon::prelude::*;
+use vds_format::{Grid, NO_NODE, NodeRecord, TreeContent, TriangleRecord, VdtError, VdtFile};
 use vds_import::Scene;
 use zerocopy::little_endian::{F32, U16, U32};
 
@@ -43,12 +44,37 @@ fn record(node: &Node) -> NodeRecord {
     }
 }
 
+/// Moves every vertex of `scene` to the nearest point of the `.vdt` grid for its bounds and
+/// returns that grid. Build the tree after snapping, so every bound the builder computes is
+/// exact for the positions the file will hold.
+pub fn snap_to_grid(scene: &mut Scene) -> Grid {
+    let mut min = [f32::INFINITY; 3];
+    let mut max = [f32::NEG_INFINITY; 3];
+    for p in &scene.positions {
+        for k in 0..3 {
+            min[k] = min[k].min(p[k]);
+            max[k] = max[k].max(p[k]);
+        }
+    }
+    if scene.positions.is_empty() {
+        (min, max) = ([0.0; 3], [1.0; 3]);
+    }
+    let grid = Grid::for_bounds(min, max);
+    scene
+        .positions
+        .par_iter_mut()
+        .for_each(|p| *p = grid.snap(*p));
+    grid
+}
+
 /// The format's view of a built tree: node records, and triangles grouped by node with
-/// corners as leaf ranks. `metadata` is stored as given.
+/// corners as leaf ranks. `metadata` is stored as given; `grid` is the one the scene was
+/// snapped to ([`snap_to_grid`]) before the tree was built.
 pub fn tree_content(
     tree: &VertexTree,
     scene: &Scene,
     metadata: vds_format::Metadata,
+    grid: Grid,
 ) -> TreeContent {
     let triangles = tree
         .subtris
@@ -67,13 +93,15 @@ pub fn tree_content(
         triangles,
         vertex_count: tree.leaf_vertex.len() as u64,
         max_depth: tree.max_depth() as u32,
+        grid,
         metadata,
     }
 }
 
 /// Decodes every page of a file into a tree and the scene it encodes. In that scene, vertex
 /// ids are leaf ranks (positions come from the leaves' proxies) and triangle ids follow the
-/// file's node order, so [`crate::verify_tree`] can check the file's tree against it.
+/// file's node order, so [`crate::verify_tree_with`] can check the file's tree against it
+/// (files carry no bounds on leaves: check with `leaf_bounds: false`).
 pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
     file: &VdtFile<B>,
 ) -> Result<(VertexTree, Scene), VdtError> {

@@ -5,9 +5,14 @@
 use std::path::PathBuf;
 
 use proptest::prelude::*;
-use vds_build::{build_tree, tree_content, tree_from_file, verify_tree};
+use vds_build::{
+    VerifyOptions, build_tree, snap_to_grid, tree_content, tree_from_file, verify_tree_with,
+};
 use vds_format::{VdtError, VdtFile, WriteOptions, encode, write_file};
 use xxhash_rust::xxh3::xxh3_64;
+
+/// Files store no bounds on leaves (leaves never unfold).
+const FILE_CHECKS: VerifyOptions = VerifyOptions { leaf_bounds: false };
 
 fn shared(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -16,14 +21,15 @@ fn shared(name: &str) -> PathBuf {
 }
 
 fn encoded(name: &str, options: &WriteOptions) -> Vec<u8> {
-    let scene = vds_import::load_file(shared(name), &Default::default()).unwrap();
+    let mut scene = vds_import::load_file(shared(name), &Default::default()).unwrap();
+    let grid = snap_to_grid(&mut scene);
     let tree = build_tree(&scene);
     let metadata = vds_format::Metadata {
         tool: "test".into(),
         part_names: scene.part_names.clone(),
         ..Default::default()
     };
-    encode(&tree_content(&tree, &scene, metadata), options)
+    encode(&tree_content(&tree, &scene, metadata, grid), options)
         .unwrap()
         .0
 }
@@ -39,7 +45,8 @@ fn small_pages() -> WriteOptions {
 #[test]
 fn round_trip_keeps_every_invariant_and_triangle() {
     for name in ["cow.obj", "as1_assembly.obj", "bone.ply"] {
-        let scene = vds_import::load_file(shared(name), &Default::default()).unwrap();
+        let mut scene = vds_import::load_file(shared(name), &Default::default()).unwrap();
+        let grid = snap_to_grid(&mut scene);
         let tree = build_tree(&scene);
         let content = tree_content(
             &tree,
@@ -48,12 +55,14 @@ fn round_trip_keeps_every_invariant_and_triangle() {
                 part_names: scene.part_names.clone(),
                 ..Default::default()
             },
+            grid,
         );
         let (bytes, report) = encode(&content, &small_pages()).unwrap();
         assert!(report.pages > 3, "{name}: {} pages", report.pages);
         let file = VdtFile::from_bytes(bytes).unwrap();
         let (read_tree, read_scene) = tree_from_file(&file).unwrap();
-        verify_tree(&read_tree, &read_scene).unwrap_or_else(|e| panic!("{name}: {e}"));
+        verify_tree_with(&read_tree, &read_scene, &FILE_CHECKS)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(read_tree.nodes.len(), tree.nodes.len());
         // Same triangles (as original vertex ids, with parts), in any order.
         let mut original: Vec<([u32; 3], u32)> = scene
@@ -107,9 +116,10 @@ fn output_is_byte_identical_on_one_and_two_threads() {
 fn write_is_atomic_and_leaves_no_partial_file() {
     let dir = std::env::temp_dir().join(format!("vds-vdt-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let scene = vds_import::load_file(shared("cow.obj"), &Default::default()).unwrap();
+    let mut scene = vds_import::load_file(shared("cow.obj"), &Default::default()).unwrap();
+    let grid = snap_to_grid(&mut scene);
     let tree = build_tree(&scene);
-    let content = tree_content(&tree, &scene, Default::default());
+    let content = tree_content(&tree, &scene, Default::default(), grid);
     let target = dir.join("cow.vdt");
     std::fs::write(&target, b"an older file").unwrap();
     write_file(&target, &content, &small_pages()).unwrap();
@@ -139,11 +149,11 @@ fn rejects_bad_magic() {
 #[test]
 fn rejects_unknown_version_with_both_numbers() {
     let mut bytes = encoded("cow.obj", &small_pages());
-    bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&3u32.to_le_bytes());
     match VdtFile::from_bytes(bytes) {
         Err(VdtError::Version {
-            expected: 1,
-            got: 2,
+            expected: 2,
+            got: 3,
         }) => {}
         other => panic!("{:?}", other.err()),
     }
@@ -214,7 +224,7 @@ fn exercise(bytes: Vec<u8>) {
     if let Ok(file) = VdtFile::from_bytes(bytes)
         && let Ok((tree, scene)) = tree_from_file(&file)
     {
-        let _ = verify_tree(&tree, &scene);
+        let _ = verify_tree_with(&tree, &scene, &FILE_CHECKS);
     }
 }
 

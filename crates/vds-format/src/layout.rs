@@ -13,7 +13,7 @@ use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 pub const VDT_MAGIC: [u8; 8] = *b"VDT\x00\r\n\x1a\n";
 
 /// The format version this crate writes.
-pub const VDT_VERSION: u32 = 1;
+pub const VDT_VERSION: u32 = 2;
 
 /// `parent` of the root and `first_child` of leaves.
 pub const NO_NODE: u32 = u32::MAX;
@@ -60,8 +60,10 @@ pub struct Header {
     pub metadata: SectionRef,
     /// The page directory: `page_count` [`PageEntry`] records.
     pub directory: SectionRef,
-    /// Zero.
-    pub reserved: [u8; 16],
+    /// The quantisation grid's origin (see [`crate::Grid`]).
+    pub grid_origin: [F32; 3],
+    /// The quantisation grid's step; positive and finite.
+    pub grid_step: F32,
     /// XXH3-64 of the 120 bytes before this field.
     pub header_checksum: U64,
 }
@@ -90,7 +92,7 @@ pub struct PageEntry {
     pub checksum: U64,
 }
 
-/// One node as stored in a page.
+/// One node as decoded from a page (pages store it compactly, see `codec.rs`).
 #[derive(
     Debug, Clone, Copy, PartialEq, FromBytes, IntoBytes, KnownLayout, Immutable, Unaligned,
 )]
@@ -124,7 +126,7 @@ pub struct NodeRecord {
     pub cone: [F32; 4],
 }
 
-/// One triangle as stored in a page.
+/// One triangle as decoded from a page.
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, FromBytes, IntoBytes, KnownLayout, Immutable, Unaligned,
 )]

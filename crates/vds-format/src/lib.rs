@@ -2,7 +2,7 @@
 //!
 //! ```text
 //! VDT := HEADER (128 B) METADATA (rkyv) DIRECTORY (PageEntry × page_count) PAGE*
-//! PAGE := zstd( NodeRecord × node_count  TriangleRecord × triangle_count )
+//! PAGE := zstd( stream table, 11 varint streams of node and triangle columns )
 //! ```
 //!
 //! The byte-level specification is `docs/format.md`. [`write_file`] lays a tree out in pages
@@ -11,13 +11,16 @@
 
 #![deny(missing_docs)]
 
+mod codec;
 mod error;
+mod grid;
 pub mod layout;
 mod metadata;
 mod read;
 mod write;
 
 pub use error::VdtError;
+pub use grid::{GRID_STEPS, Grid};
 pub use layout::{
     HEADER_BYTES, Header, NO_NODE, NODE_BYTES, NodeRecord, PageEntry, TRIANGLE_BYTES,
     TriangleRecord, VDT_MAGIC, VDT_VERSION,

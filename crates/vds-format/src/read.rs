@@ -207,10 +207,14 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
                 u64::from(page.compressed_length.get()),
                 h.file_size.get(),
             )?;
-            let raw = u64::from(page.node_count.get()) * NODE_BYTES as u64
-                + u64::from(page.triangle_count.get()) * TRIANGLE_BYTES as u64;
+            // The encoding spends at least 8 bytes per node and 4 per triangle (see codec.rs),
+            // which bounds the records a page can decode to by its raw length.
+            let least = 48
+                + u64::from(page.node_count.get()) * 8
+                + u64::from(page.triangle_count.get()) * 4;
+            let raw = u64::from(page.raw_length.get());
             if page.node_count.get() == 0
-                || u64::from(page.raw_length.get()) != raw
+                || raw < least
                 || page.raw_length.get() > MAX_PAGE_RAW_BYTES
                 || raw > MAX_COMPRESSION_RATIO * u64::from(page.compressed_length.get())
                 || u64::from(page.first_node.get()) != nodes
@@ -243,6 +247,14 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
     /// The header.
     pub fn header(&self) -> &Header {
         &self.header
+    }
+
+    /// The grid positions are stored on.
+    pub fn grid(&self) -> crate::Grid {
+        crate::Grid {
+            origin: self.header.grid_origin.map(|c| c.get()),
+            step: self.header.grid_step.get(),
+        }
     }
 
     /// The metadata.
@@ -286,13 +298,15 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         if raw.len() != entry.raw_length.get() as usize {
             return Err(VdtError::invalid(&what, "decodes to the wrong size"));
         }
-        let node_bytes = entry.node_count.get() as usize * NODE_BYTES;
-        let nodes = <[NodeRecord]>::ref_from_bytes(&raw[..node_bytes])
-            .map_err(|_| VdtError::invalid(&what, "node records"))?
-            .to_vec();
-        let triangles = <[TriangleRecord]>::ref_from_bytes(&raw[node_bytes..])
-            .map_err(|_| VdtError::invalid(&what, "triangle records"))?
-            .to_vec();
+        let (nodes, triangles) = crate::codec::decode_page(
+            &self.grid(),
+            &raw,
+            entry.first_node.get(),
+            entry.node_count.get(),
+            entry.triangle_count.get(),
+            entry.first_triangle.get(),
+        )
+        .map_err(|message| VdtError::invalid(&what, message))?;
         let page = Page {
             first_node: entry.first_node.get(),
             first_triangle: entry.first_triangle.get(),

@@ -20,7 +20,7 @@ use zerocopy::IntoBytes;
 use zerocopy::little_endian::{U32, U64};
 
 use crate::layout::*;
-use crate::{Metadata, VdtError};
+use crate::{Grid, Metadata, VdtError};
 
 /// Default raw bytes per page: large enough to compress well, small enough to page in fast.
 pub const DEFAULT_PAGE_BYTES: u32 = 64 * 1024;
@@ -30,7 +30,7 @@ pub const DEFAULT_ZSTD_LEVEL: i32 = 6;
 
 /// A tree to write, with nodes in any order where children are contiguous and node 0 is the
 /// root. Each node's subtris are `triangles[subtri_begin .. subtri_begin + subtri_count]`.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct TreeContent {
     /// Nodes; ids are indices. Rewritten into page order by the writer.
     pub nodes: Vec<NodeRecord>,
@@ -40,6 +40,9 @@ pub struct TreeContent {
     pub vertex_count: u64,
     /// Depth of the deepest node.
     pub max_depth: u32,
+    /// The grid positions are stored on; every leaf position must lie on it
+    /// ([`Grid::snap`] the scene before building).
+    pub grid: Grid,
     /// The metadata section.
     pub metadata: Metadata,
 }
@@ -67,7 +70,7 @@ impl Default for WriteOptions {
 pub struct WriteReport {
     /// Total file size.
     pub file_bytes: u64,
-    /// Decoded size of all pages.
+    /// Size of all pages' encoded streams before zstd.
     pub raw_page_bytes: u64,
     /// Compressed size of all pages.
     pub compressed_page_bytes: u64,
@@ -204,17 +207,21 @@ pub fn encode(
         node_at += node_count;
         triangle_at += triangle_count;
     }
+    let grid = &content.grid;
     let frames: Vec<(Vec<u8>, usize)> = spans
         .par_iter()
         .map(|&(n0, nc, t0, tc)| {
-            let mut raw = Vec::with_capacity(nc * NODE_BYTES + tc * TRIANGLE_BYTES);
-            raw.extend_from_slice(records[n0..n0 + nc].as_bytes());
-            raw.extend_from_slice(triangles[t0..t0 + tc].as_bytes());
+            let raw = crate::codec::encode_page(
+                grid,
+                n0 as u32,
+                &records[n0..n0 + nc],
+                &triangles[t0..t0 + tc],
+            )?;
             let frame = zstd::bulk::compress(&raw, options.zstd_level)
                 .expect("zstd compression of an in-memory buffer cannot fail");
-            (frame, raw.len())
+            Ok((frame, raw.len()))
         })
-        .collect();
+        .collect::<Result<_, VdtError>>()?;
 
     for (i, (frame, raw_length)) in frames.iter().enumerate() {
         if *raw_length as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
@@ -264,7 +271,8 @@ pub fn encode(
             length: U64::new(directory_length),
             checksum: U64::new(xxh3_64(directory.as_bytes())),
         },
-        reserved: [0; 16],
+        grid_origin: grid.origin.map(zerocopy::little_endian::F32::new),
+        grid_step: zerocopy::little_endian::F32::new(grid.step),
         header_checksum: U64::new(0),
     };
     header.header_checksum = U64::new(xxh3_64(&header.as_bytes()[..HEADER_BYTES - 8]));

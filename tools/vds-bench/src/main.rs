@@ -120,14 +120,15 @@ fn main() -> Result<()> {
 
 /// The hidden `vdt` subcommand: build, write the .vdt beside the input, open and decode it.
 fn vdt(file: &Path) -> Result<()> {
-    let scene = vds_import::load_file(file, &Default::default())?;
+    let mut scene = vds_import::load_file(file, &Default::default())?;
+    let grid = vds_build::snap_to_grid(&mut scene);
     let tree = vds_build::build_tree(&scene);
     let metadata = vds_format::Metadata {
         part_names: scene.part_names.clone(),
         input_triangles: scene.stats.input_triangles,
         ..Default::default()
     };
-    let content = vds_build::tree_content(&tree, &scene, metadata);
+    let content = vds_build::tree_content(&tree, &scene, metadata, grid);
     drop(tree);
     let out = std::env::temp_dir().join(format!("vds-bench-{}.vdt", std::process::id()));
     let start = Instant::now();

@@ -228,7 +228,9 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
 
     let start = Instant::now();
     let bar = spinner(show_progress, "reading meshes");
-    let scene = vds_import::load_files(inputs, &options)?;
+    let mut scene = vds_import::load_files(inputs, &options)?;
+    // A file stores positions on a grid; snap first so the tree's bounds are exact for it.
+    let grid = output.map(|_| vds_build::snap_to_grid(&mut scene));
     let import_seconds = start.elapsed().as_secs_f64();
     if let Some(bar) = &bar {
         bar.set_message("building the vertex tree");
@@ -272,7 +274,8 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
                 metadata.bounds_min = [0, 1, 2].map(|k| root.sphere_center[k] - r);
                 metadata.bounds_max = [0, 1, 2].map(|k| root.sphere_center[k] + r);
             }
-            let content = vds_build::tree_content(&tree, &scene, metadata);
+            let grid = grid.expect("snapped when an output is given");
+            let content = vds_build::tree_content(&tree, &scene, metadata, grid);
             let write_options = vds_format::WriteOptions {
                 zstd_level: args.zstd_level,
                 ..Default::default()
