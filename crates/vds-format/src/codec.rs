@@ -33,8 +33,9 @@ fn unzigzag(v: u64) -> i64 {
     ((v >> 1) as i64) ^ -((v & 1) as i64)
 }
 
-/// Octahedral encoding of a unit vector in two 16-bit numbers.
-fn octahedral(axis: [f32; 3]) -> [u16; 2] {
+/// Octahedral encoding of a unit vector in two bytes (about 1° of error, which the encoder
+/// adds to the cone's half-angle).
+fn octahedral(axis: [f32; 3]) -> [u8; 2] {
     let [x, y, z] = axis.map(f64::from);
     let l1 = x.abs() + y.abs() + z.abs();
     let (mut u, mut v) = if l1 > 0.0 {
@@ -47,11 +48,11 @@ fn octahedral(axis: [f32; 3]) -> [u16; 2] {
         u = (1.0 - pv.abs()) * pu.signum();
         v = (1.0 - pu.abs()) * pv.signum();
     }
-    [u, v].map(|c| (((c.clamp(-1.0, 1.0) + 1.0) * 0.5 * 65535.0).round()) as u16)
+    [u, v].map(|c| (((c.clamp(-1.0, 1.0) + 1.0) * 0.5 * 255.0).round()) as u8)
 }
 
-fn unoctahedral(e: [u16; 2]) -> [f32; 3] {
-    let [u, v] = e.map(|c| f64::from(c) / 65535.0 * 2.0 - 1.0);
+fn unoctahedral(e: [u8; 2]) -> [f32; 3] {
+    let [u, v] = e.map(|c| f64::from(c) / 255.0 * 2.0 - 1.0);
     let z = 1.0 - u.abs() - v.abs();
     let (x, y) = if z < 0.0 {
         ((1.0 - v.abs()) * u.signum(), (1.0 - u.abs()) * v.signum())
@@ -73,9 +74,18 @@ fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
     sin.atan2(a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
 }
 
-/// Half-angles are stored in units of π / 65534, rounded up; 65535 marks the empty cone.
-const ANGLE_UNITS: f64 = 65534.0;
-const EMPTY_CONE: u16 = u16::MAX;
+/// Half-angles are stored in units of π / 254, rounded up; 255 marks the empty cone.
+const ANGLE_UNITS: f64 = 254.0;
+const EMPTY_CONE: u8 = u8::MAX;
+
+/// Sphere centres are stored relative to the proxy in units of a 32nd of the node's error
+/// radius (at least one grid step): the centre lies within a few error radii of the proxy,
+/// so each offset takes a byte, and the rounding is added to the sphere's radius.
+const CENTRE_UNITS_PER_RADIUS: u64 = 32;
+
+fn centre_unit(error_units: u64) -> u64 {
+    (error_units / CENTRE_UNITS_PER_RADIUS).max(1)
+}
 
 fn distance(a: [f32; 3], b: [f32; 3]) -> f64 {
     (0..3)
@@ -93,31 +103,50 @@ pub fn encode_page(
     triangles: &[TriangleRecord],
 ) -> Result<Vec<u8>, VdtError> {
     let mut s: [Vec<u8>; STREAMS] = Default::default();
-    let (mut previous_leaf, mut previous_q) = (0i64, [0i64; 3]);
+    let page = first_node..first_node + nodes.len() as u32;
+    let mut previous_q = [0i64; 3];
     for (k, n) in nodes.iter().enumerate() {
         let id = first_node + k as u32;
         let proxy = n.proxy.map(|c| c.get());
         let q = grid.quantize(proxy);
         s[0].push(n.child_count);
-        put_varint(
-            &mut s[1],
-            if n.parent.get() == NO_NODE {
-                0
-            } else {
-                u64::from(id - n.parent.get())
-            },
-        );
-        put_varint(&mut s[3], u64::from(n.depth.get()));
-        put_varint(
-            &mut s[4],
-            zigzag(i64::from(n.leaf_begin.get()) - previous_leaf),
-        );
-        previous_leaf = i64::from(n.leaf_begin.get());
-        put_varint(&mut s[6], u64::from(n.subtri_count.get()));
-        for a in 0..3 {
-            put_varint(&mut s[7], zigzag(i64::from(q[a]) - previous_q[a]));
-            previous_q[a] = i64::from(q[a]);
+        // A parent in this page is implied by its child range, and a sibling of the previous
+        // node shares its parent; either way the depth and first leaf follow. Only the first
+        // node of a sibling group whose parent lies in another page spells them out.
+        let parent = n.parent.get();
+        let previous = k.checked_sub(1).map(|p| &nodes[p]);
+        if page.contains(&parent) || previous.is_some_and(|p| p.parent.get() == parent) {
+            put_varint(&mut s[1], 0);
+        } else {
+            put_varint(
+                &mut s[1],
+                if parent == NO_NODE {
+                    0
+                } else {
+                    u64::from(id - parent)
+                },
+            );
+            let (depth, leaf) = previous.map_or((0, 0), |p| {
+                (i64::from(p.depth.get()), i64::from(p.leaf_end.get()))
+            });
+            put_varint(&mut s[3], zigzag(i64::from(n.depth.get()) - depth));
+            put_varint(&mut s[4], zigzag(i64::from(n.leaf_begin.get()) - leaf));
         }
+        put_varint(&mut s[6], u64::from(n.subtri_count.get()));
+        // Positions are predicted by the previous node (usually the previous sibling), or
+        // for a first child by its parent's proxy, which lies in the same small cell.
+        let prediction = if page.contains(&parent)
+            && nodes[(parent - first_node) as usize].first_child.get() == id
+        {
+            grid.quantize(nodes[(parent - first_node) as usize].proxy.map(|c| c.get()))
+                .map(i64::from)
+        } else {
+            previous_q
+        };
+        for a in 0..3 {
+            put_varint(&mut s[7], zigzag(i64::from(q[a]) - prediction[a]));
+        }
+        previous_q = q.map(i64::from);
         let stored = grid.dequantize(q);
         if n.child_count == 0 {
             if stored != proxy {
@@ -132,14 +161,20 @@ pub fn encode_page(
         put_varint(&mut s[5], u64::from(n.leaf_end.get() - n.leaf_begin.get()));
         // Bounds, widened by what quantising the proxy, centre and axis moved.
         let moved = distance(proxy, stored);
-        put_varint(
-            &mut s[8],
-            u64::from(grid.units_up(f64::from(n.error_radius.get()) + moved)),
-        );
+        let error_units = u64::from(grid.units_up(f64::from(n.error_radius.get()) + moved));
+        put_varint(&mut s[8], error_units);
+        let unit = centre_unit(error_units);
         let centre = [n.sphere[0].get(), n.sphere[1].get(), n.sphere[2].get()];
-        let centre_q = grid.quantize(centre);
+        let mut centre_q = [0u32; 3];
         for a in 0..3 {
-            put_varint(&mut s[8], zigzag(i64::from(centre_q[a]) - i64::from(q[a])));
+            let offset = (f64::from(centre[a]) - f64::from(stored[a])) / f64::from(grid.step);
+            let steps = (offset / unit as f64).round() as i64;
+            // Keep the decoded centre on the grid; whatever clamping costs is widened below.
+            let lowest = -(i64::from(q[a]) / unit as i64);
+            let highest = (i64::from(crate::grid::GRID_STEPS) - i64::from(q[a])) / unit as i64;
+            let steps = steps.clamp(lowest, highest);
+            put_varint(&mut s[8], zigzag(steps));
+            centre_q[a] = (i64::from(q[a]) + steps * unit as i64) as u32;
         }
         let centre_moved = distance(centre, grid.dequantize(centre_q));
         put_varint(
@@ -149,16 +184,14 @@ pub fn encode_page(
         let axis = [n.cone[0].get(), n.cone[1].get(), n.cone[2].get()];
         let half_angle = f64::from(n.cone[3].get());
         let (encoded, units) = if half_angle < 0.0 {
-            ([0u16; 2], EMPTY_CONE)
+            ([0u8; 2], EMPTY_CONE)
         } else {
             let e = octahedral(axis);
             let widened = half_angle + angle(axis, unoctahedral(e));
             let units = (widened / std::f64::consts::PI * ANGLE_UNITS).ceil() + 1.0;
-            (e, units.min(ANGLE_UNITS) as u16)
+            (e, units.min(ANGLE_UNITS) as u8)
         };
-        s[9].extend_from_slice(&encoded[0].to_le_bytes());
-        s[9].extend_from_slice(&encoded[1].to_le_bytes());
-        s[9].extend_from_slice(&units.to_le_bytes());
+        s[9].extend_from_slice(&[encoded[0], encoded[1], units]);
     }
     // Triangles: corners relative to the owning node's first leaf, parts as deltas.
     let mut t = 0usize;
@@ -213,10 +246,6 @@ impl Stream<'_> {
         Some(b)
     }
 
-    fn u16(&mut self) -> Option<u16> {
-        Some(u16::from_le_bytes([self.byte()?, self.byte()?]))
-    }
-
     fn done(&self) -> bool {
         self.at == self.bytes.len()
     }
@@ -255,8 +284,10 @@ pub fn decode_page(
     }
     let bad = |what: &str| format!("stream ends early or holds a bad value ({what})");
     let f = |x: f32| F32::new(x);
-    let mut nodes = Vec::with_capacity(node_count as usize);
-    let (mut previous_leaf, mut previous_q) = (0i64, [0i64; 3]);
+    let mut nodes: Vec<NodeRecord> = Vec::with_capacity(node_count as usize);
+    // Parent of each node of this page whose parent is also in it, from the child ranges.
+    let mut parent_in_page = vec![NO_NODE; node_count as usize];
+    let mut previous_q = [0i64; 3];
     let mut subtri_begin = u64::from(first_triangle);
     for k in 0..node_count {
         let id = first_node + k;
@@ -265,28 +296,49 @@ pub fn decode_page(
         };
         let child_count = s0.byte().ok_or_else(|| bad("child count"))?;
         let parent_delta = s1.varint().ok_or_else(|| bad("parent"))?;
-        let parent = if parent_delta == 0 {
-            NO_NODE
+        let mut prediction = previous_q;
+        let previous = nodes.last();
+        let in_page = parent_in_page[k as usize];
+        let (parent, depth, leaf_begin) = if parent_delta == 0 && id != 0 && in_page != NO_NODE {
+            let p = &nodes[(in_page - first_node) as usize];
+            let depth = p.depth.get().checked_add(1).ok_or_else(|| bad("depth"))?;
+            // The first child starts at its parent's first leaf, the others where the
+            // previous sibling ends.
+            let leaf_begin = if p.first_child.get() == id {
+                prediction = grid.quantize(p.proxy.map(|c| c.get())).map(i64::from);
+                p.leaf_begin.get()
+            } else {
+                previous.ok_or_else(|| bad("leaf"))?.leaf_end.get()
+            };
+            (in_page, depth, leaf_begin)
+        } else if parent_delta == 0 && id != 0 {
+            // A sibling of the previous node, whose parent is in another page.
+            let p = previous.ok_or_else(|| bad("parent"))?;
+            (p.parent.get(), p.depth.get(), p.leaf_end.get())
         } else {
-            u32::try_from(
+            let parent = if parent_delta == 0 {
+                NO_NODE
+            } else {
                 u64::from(id)
                     .checked_sub(parent_delta)
-                    .ok_or_else(|| bad("parent"))?,
-            )
-            .map_err(|_| bad("parent"))?
+                    .and_then(|p| u32::try_from(p).ok())
+                    .ok_or_else(|| bad("parent"))?
+            };
+            let (depth, leaf) = previous.map_or((0, 0), |p| {
+                (i64::from(p.depth.get()), i64::from(p.leaf_end.get()))
+            });
+            let depth = u16::try_from(depth + unzigzag(s3.varint().ok_or_else(|| bad("depth"))?))
+                .map_err(|_| bad("depth"))?;
+            let leaf_begin =
+                u32::try_from(leaf + unzigzag(s4.varint().ok_or_else(|| bad("leaf"))?))
+                    .map_err(|_| bad("leaf"))?;
+            (parent, depth, leaf_begin)
         };
-        let depth =
-            u16::try_from(s3.varint().ok_or_else(|| bad("depth"))?).map_err(|_| bad("depth"))?;
-        let leaf_begin = previous_leaf
-            .checked_add(unzigzag(s4.varint().ok_or_else(|| bad("leaf"))?))
-            .ok_or_else(|| bad("leaf"))?;
-        previous_leaf = leaf_begin;
-        let leaf_begin = u32::try_from(leaf_begin).map_err(|_| bad("leaf"))?;
         let subtri_count = u32::try_from(s6.varint().ok_or_else(|| bad("subtris"))?)
             .map_err(|_| bad("subtris"))?;
         let mut q = [0u32; 3];
         for a in 0..3 {
-            let v = previous_q[a]
+            let v = prediction[a]
                 .checked_add(unzigzag(s7.varint().ok_or_else(|| bad("position"))?))
                 .ok_or_else(|| bad("position"))?;
             previous_q[a] = v;
@@ -314,33 +366,52 @@ pub fn decode_page(
         subtri_begin += u64::from(subtri_count);
         if child_count > 0 {
             let first_child = u64::from(id) + s2.varint().ok_or_else(|| bad("children"))?;
-            node.first_child = U32::new(u32::try_from(first_child).map_err(|_| bad("children"))?);
+            let first_child = u32::try_from(first_child).map_err(|_| bad("children"))?;
+            node.first_child = U32::new(first_child);
+            for child in first_child..first_child.saturating_add(u32::from(child_count)) {
+                if let Some(slot) = parent_in_page.get_mut(child.wrapping_sub(first_node) as usize)
+                {
+                    *slot = id;
+                }
+            }
             let count = s5.varint().ok_or_else(|| bad("leaf count"))?;
             let leaf_end = u64::from(leaf_begin) + count;
             node.leaf_end = U32::new(u32::try_from(leaf_end).map_err(|_| bad("leaf count"))?);
-            let units = |s: &mut Stream| -> Result<f32, String> {
-                Ok(s.varint()
-                    .filter(|&u| u <= u64::from(u32::MAX))
-                    .ok_or_else(|| bad("bound"))? as f32
-                    * grid.step)
-            };
-            node.error_radius = f(units(s8)?);
+            let error_units = s8
+                .varint()
+                .filter(|&u| u <= u64::from(u32::MAX))
+                .ok_or_else(|| bad("bound"))?;
+            node.error_radius = f(error_units as f32 * grid.step);
+            let unit = centre_unit(error_units) as i64;
             let mut centre_q = [0u32; 3];
             for a in 0..3 {
-                let v = i64::from(q[a]) + unzigzag(s8.varint().ok_or_else(|| bad("sphere"))?);
+                let steps = unzigzag(s8.varint().ok_or_else(|| bad("sphere"))?);
+                let v = steps
+                    .checked_mul(unit)
+                    .and_then(|d| d.checked_add(i64::from(q[a])))
+                    .ok_or_else(|| bad("sphere"))?;
                 centre_q[a] = u32::try_from(v)
                     .ok()
                     .filter(|&c| c <= crate::grid::GRID_STEPS)
                     .ok_or_else(|| bad("sphere"))?;
             }
             let centre = grid.dequantize(centre_q);
-            let radius = units(s8)?;
-            node.sphere = [centre[0], centre[1], centre[2], radius].map(f);
+            let radius_units = s8
+                .varint()
+                .filter(|&u| u <= u64::from(u32::MAX))
+                .ok_or_else(|| bad("sphere"))?;
+            node.sphere = [
+                centre[0],
+                centre[1],
+                centre[2],
+                radius_units as f32 * grid.step,
+            ]
+            .map(f);
             let e = [
-                s9.u16().ok_or_else(|| bad("cone"))?,
-                s9.u16().ok_or_else(|| bad("cone"))?,
+                s9.byte().ok_or_else(|| bad("cone"))?,
+                s9.byte().ok_or_else(|| bad("cone"))?,
             ];
-            let angle_units = s9.u16().ok_or_else(|| bad("cone"))?;
+            let angle_units = s9.byte().ok_or_else(|| bad("cone"))?;
             let axis = unoctahedral(e);
             let half = if angle_units == EMPTY_CONE {
                 -1.0
@@ -406,7 +477,9 @@ mod tests {
         ] {
             let n = (axis.iter().map(|c: &f32| c * c).sum::<f32>()).sqrt();
             let axis = axis.map(|c| c / n);
-            assert!(angle(axis, unoctahedral(octahedral(axis))) < 1e-3);
+            // One byte per coordinate: within about a degree; the encoder widens cones by the
+            // actual error.
+            assert!(angle(axis, unoctahedral(octahedral(axis))) < 0.02);
         }
     }
 }
