@@ -80,6 +80,26 @@ fn map(file: &std::fs::File) -> std::io::Result<memmap2::Mmap> {
     unsafe { memmap2::Mmap::map(file) }
 }
 
+thread_local! {
+    /// One zstd decompression context per thread: creating one per page cost more than
+    /// decoding a small page.
+    static DECOMPRESSOR: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Decompresses a zstd frame into at most `capacity` bytes.
+fn decompress(frame: &[u8], capacity: usize) -> std::io::Result<Vec<u8>> {
+    DECOMPRESSOR.with(|cell| {
+        let mut slot = cell.borrow_mut();
+        if slot.is_none() {
+            *slot = Some(zstd::bulk::Decompressor::new()?);
+        }
+        slot.as_mut()
+            .expect("just created")
+            .decompress(frame, capacity)
+    })
+}
+
 fn check_range(
     what: &str,
     offset: u64,
@@ -289,7 +309,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         let start = entry.offset.get() as usize;
         let frame = &self.bytes.as_ref()[start..start + entry.compressed_length.get() as usize];
         check_sum(&what, frame, entry.checksum.get())?;
-        let raw = zstd::bulk::decompress(frame, entry.raw_length.get() as usize).map_err(|e| {
+        let raw = decompress(frame, entry.raw_length.get() as usize).map_err(|e| {
             VdtError::Decompress {
                 page: index,
                 message: e.to_string(),
