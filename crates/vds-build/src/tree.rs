@@ -100,7 +100,8 @@ pub struct VertexTree {
     /// Triangle ids (indices into the scene's triangles) grouped by the node they are subtris
     /// of; each node's are at `subtri_begin..subtri_end`, in increasing triangle id.
     pub subtris: Vec<u32>,
-    /// Node ids where each depth starts, plus the node count at the end.
+    /// Node ids where each depth starts, plus the node count at the end. Empty for a tree
+    /// read from a `.vdt` file, whose nodes are in page order rather than by depth.
     pub level_starts: Vec<u32>,
 }
 
@@ -115,7 +116,15 @@ impl VertexTree {
 
     /// Depth of the deepest node (0 for a single node).
     pub fn max_depth(&self) -> usize {
-        self.level_starts.len().saturating_sub(2)
+        match self.level_starts.len() {
+            0 => self
+                .nodes
+                .iter()
+                .map(|n| usize::from(n.depth))
+                .max()
+                .unwrap_or(0),
+            levels => levels - 2,
+        }
     }
 
     /// The node a triangle is a subtri of: the deepest node supporting two or more of its

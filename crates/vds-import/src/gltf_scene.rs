@@ -22,8 +22,17 @@ const MAX_NODE_DEPTH: usize = 1024;
 
 /// Reads a glTF or GLB file's bytes into `soup`. `path` locates external buffers.
 pub fn read_gltf(data: &[u8], path: &Path, soup: &mut MeshSoup) -> Result<(), FormatError> {
-    let gltf = gltf::Gltf::from_slice(data)
-        .map_err(|e| FormatError::syntax(Location::File, format!("invalid glTF: {e}")))?;
+    // gltf-json 1.4's validation indexes `accessors` with a POSITION index before checking it
+    // (mesh.rs, `primitive_validate_hook`), so a hostile file can panic it. Until that is
+    // fixed upstream, a panic there is turned into the error it should have been.
+    let parsed = std::panic::catch_unwind(|| gltf::Gltf::from_slice(data)).map_err(|_| {
+        FormatError::syntax(
+            Location::File,
+            "invalid glTF: a primitive refers to an accessor that does not exist",
+        )
+    })?;
+    let gltf =
+        parsed.map_err(|e| FormatError::syntax(Location::File, format!("invalid glTF: {e}")))?;
     let buffers = load_buffers(&gltf, path)?;
     let document = &gltf.document;
     let roots: Vec<gltf::Node> = match document

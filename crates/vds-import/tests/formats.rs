@@ -422,6 +422,14 @@ fn gltf_rejects_non_finite_position() {
 }
 
 #[test]
+fn gltf_rejects_position_accessor_that_does_not_exist() {
+    // gltf-json's validator itself panics on this; the reader must return an error.
+    let text = gltf(&SQUARE, &[0, 1, 2], 4, [0.0; 3]).replace(r#""POSITION":0"#, r#""POSITION":9"#);
+    let error = read(text.as_bytes(), Format::Gltf).unwrap_err();
+    assert!(matches!(error.problem, Problem::Syntax(_)), "{error:?}");
+}
+
+#[test]
 fn gltf_rejects_accessor_larger_than_its_buffer() {
     let text =
         gltf(&SQUARE, &[0, 1, 2], 4, [0.0; 3]).replace(r#""count":4"#, r#""count":4000000000"#);
