@@ -251,16 +251,36 @@ impl Stream<'_> {
     }
 }
 
-/// Decodes a page encoded by [`encode_page`]. Structural checks of the decoded records are
+/// Where a page's records go, and what the page holds.
+pub struct PageShape {
+    /// Id of the first node.
+    pub first_node: u32,
+    /// Number of nodes.
+    pub node_count: u32,
+    /// Index of the first triangle.
+    pub first_triangle: u32,
+    /// Number of triangles.
+    pub triangle_count: u32,
+}
+
+/// Decodes a page encoded by [`encode_page`] into `nodes` and `triangles` (cleared first, so
+/// a caller decoding many pages can reuse them). Structural checks of the decoded records are
 /// the caller's; this checks the encoding itself (lengths, ranges, no trailing bytes).
 pub fn decode_page(
     grid: &Grid,
     raw: &[u8],
-    first_node: u32,
-    node_count: u32,
-    triangle_count: u32,
-    first_triangle: u32,
-) -> Result<(Vec<NodeRecord>, Vec<TriangleRecord>), String> {
+    shape: &PageShape,
+    nodes: &mut Vec<NodeRecord>,
+    triangles: &mut Vec<TriangleRecord>,
+) -> Result<(), String> {
+    let PageShape {
+        first_node,
+        node_count,
+        first_triangle,
+        triangle_count,
+    } = *shape;
+    nodes.clear();
+    triangles.clear();
     let table = raw
         .get(..4 * STREAMS)
         .ok_or("page too short for its stream table")?;
@@ -284,7 +304,7 @@ pub fn decode_page(
     }
     let bad = |what: &str| format!("stream ends early or holds a bad value ({what})");
     let f = |x: f32| F32::new(x);
-    let mut nodes: Vec<NodeRecord> = Vec::with_capacity(node_count as usize);
+    nodes.reserve(node_count as usize);
     // Parent of each node of this page whose parent is also in it, from the child ranges.
     let mut parent_in_page = vec![NO_NODE; node_count as usize];
     let mut previous_q = [0i64; 3];
@@ -425,12 +445,12 @@ pub fn decode_page(
     if subtri_begin != u64::from(first_triangle) + u64::from(triangle_count) {
         return Err("subtri counts do not add up to the page's triangles".into());
     }
-    let mut triangles = Vec::with_capacity(triangle_count as usize);
+    triangles.reserve(triangle_count as usize);
     let [.., s10, s11] = &mut streams[..] else {
         unreachable!()
     };
     let mut previous_part = 0i64;
-    for n in &nodes {
+    for n in nodes.iter() {
         let begin = i64::from(n.leaf_begin.get());
         for _ in 0..n.subtri_count.get() {
             let mut corners = [U32::new(0); 3];
@@ -449,7 +469,7 @@ pub fn decode_page(
     if !streams.iter().all(Stream::done) {
         return Err("streams hold more than the page's records".into());
     }
-    Ok((nodes, triangles))
+    Ok(())
 }
 
 #[cfg(test)]

@@ -301,6 +301,20 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
 
     /// Checksums, decompresses and validates page `index`.
     pub fn read_page(&self, index: u32) -> Result<Page, VdtError> {
+        let mut page = Page {
+            first_node: 0,
+            first_triangle: 0,
+            nodes: Vec::new(),
+            triangles: Vec::new(),
+        };
+        self.read_page_into(index, &mut page)?;
+        Ok(page)
+    }
+
+    /// [`VdtFile::read_page`] into an existing page, reusing its buffers: a page cache
+    /// decoding page after page allocates nothing once its buffers have grown. On error the
+    /// page's contents are unspecified.
+    pub fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError> {
         let entry = self
             .directory
             .get(index as usize)
@@ -318,23 +332,23 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         if raw.len() != entry.raw_length.get() as usize {
             return Err(VdtError::invalid(&what, "decodes to the wrong size"));
         }
-        let (nodes, triangles) = crate::codec::decode_page(
+        let shape = crate::codec::PageShape {
+            first_node: entry.first_node.get(),
+            node_count: entry.node_count.get(),
+            first_triangle: entry.first_triangle.get(),
+            triangle_count: entry.triangle_count.get(),
+        };
+        page.first_node = shape.first_node;
+        page.first_triangle = shape.first_triangle;
+        crate::codec::decode_page(
             &self.grid(),
             &raw,
-            entry.first_node.get(),
-            entry.node_count.get(),
-            entry.triangle_count.get(),
-            entry.first_triangle.get(),
+            &shape,
+            &mut page.nodes,
+            &mut page.triangles,
         )
         .map_err(|message| VdtError::invalid(&what, message))?;
-        let page = Page {
-            first_node: entry.first_node.get(),
-            first_triangle: entry.first_triangle.get(),
-            nodes,
-            triangles,
-        };
-        self.check_page(&what, &page)?;
-        Ok(page)
+        self.check_page(&what, page)
     }
 
     fn check_page(&self, what: &str, page: &Page) -> Result<(), VdtError> {
