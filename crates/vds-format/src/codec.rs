@@ -228,6 +228,12 @@ struct Stream<'a> {
 
 impl Stream<'_> {
     fn varint(&mut self) -> Option<u64> {
+        // Most values fit in one byte.
+        let first = *self.bytes.get(self.at)?;
+        if first < 0x80 {
+            self.at += 1;
+            return Some(u64::from(first));
+        }
         let mut v = 0u64;
         for shift in (0..64).step_by(7) {
             let b = *self.bytes.get(self.at)?;
