@@ -87,6 +87,20 @@ fn centre_unit(error_units: u64) -> u64 {
     (error_units / CENTRE_UNITS_PER_RADIUS).max(1)
 }
 
+/// Inner proxies are stored in units of a 32nd of their (unwidened) error radius, at least
+/// one grid step: the runtime's error test already tolerates the error radius, so a proxy
+/// moved by a few percent of it costs nothing visible, and saves a byte per coordinate.
+fn proxy_unit(base_error_units: u64) -> u64 {
+    (base_error_units / 32).max(1)
+}
+
+/// The error radius that holds after an inner proxy was stored in `unit`s: each coordinate
+/// moves less than one unit (rounded to nearest, or one step back onto the grid), so the
+/// proxy moves less than √3 units; one more step absorbs rounding.
+fn widened_error(base_error_units: u64, unit: u64) -> u64 {
+    base_error_units + (unit as f64 * 3f64.sqrt()).ceil() as u64 + 1
+}
+
 fn distance(a: [f32; 3], b: [f32; 3]) -> f64 {
     (0..3)
         .map(|k| (f64::from(a[k]) - f64::from(b[k])).powi(2))
@@ -105,10 +119,12 @@ pub fn encode_page(
     let mut s: [Vec<u8>; STREAMS] = Default::default();
     let page = first_node..first_node + nodes.len() as u32;
     let mut previous_q = [0i64; 3];
+    // The grid coordinates as stored (inner proxies are coarser than their exact ones).
+    let mut stored_q: Vec<[i64; 3]> = Vec::with_capacity(nodes.len());
     for (k, n) in nodes.iter().enumerate() {
         let id = first_node + k as u32;
         let proxy = n.proxy.map(|c| c.get());
-        let q = grid.quantize(proxy);
+        let exact_q = grid.quantize(proxy);
         s[0].push(n.child_count);
         // A parent in this page is implied by its child range, and a sibling of the previous
         // node shares its parent; either way the depth and first leaf follow. Only the first
@@ -138,15 +154,38 @@ pub fn encode_page(
         let prediction = if page.contains(&parent)
             && nodes[(parent - first_node) as usize].first_child.get() == id
         {
-            grid.quantize(nodes[(parent - first_node) as usize].proxy.map(|c| c.get()))
-                .map(i64::from)
+            stored_q[(parent - first_node) as usize]
         } else {
             previous_q
         };
+        // Leaves are exact; an inner proxy is stored in units of a 32nd of its error radius,
+        // and its error radius grows by the most that can move it (see `proxy_unit`).
+        let base_error = if n.child_count == 0 {
+            0
+        } else {
+            u64::from(grid.units_up(f64::from(n.error_radius.get())))
+        };
+        let unit = if n.child_count == 0 {
+            1
+        } else {
+            proxy_unit(base_error)
+        };
+        let mut q = [0u32; 3];
         for a in 0..3 {
-            put_varint(&mut s[7], zigzag(i64::from(q[a]) - prediction[a]));
+            let exact = i64::from(exact_q[a]);
+            let mut steps = ((exact - prediction[a]) as f64 / unit as f64).round() as i64;
+            // Stay on the grid: step back towards the exact coordinate if rounding left it.
+            while prediction[a] + steps * unit as i64 > i64::from(crate::grid::GRID_STEPS) {
+                steps -= 1;
+            }
+            while prediction[a] + steps * (unit as i64) < 0 {
+                steps += 1;
+            }
+            put_varint(&mut s[7], zigzag(steps));
+            q[a] = (prediction[a] + steps * unit as i64) as u32;
         }
         previous_q = q.map(i64::from);
+        stored_q.push(previous_q);
         let stored = grid.dequantize(q);
         if n.child_count == 0 {
             if stored != proxy {
@@ -161,8 +200,11 @@ pub fn encode_page(
         put_varint(&mut s[5], u64::from(n.leaf_end.get() - n.leaf_begin.get()));
         // Bounds, widened by what quantising the proxy, centre and axis moved.
         let moved = distance(proxy, stored);
-        let error_units = u64::from(grid.units_up(f64::from(n.error_radius.get()) + moved));
-        put_varint(&mut s[8], error_units);
+        let error_units = widened_error(base_error, unit);
+        debug_assert!(
+            error_units as f64 * f64::from(grid.step) >= f64::from(n.error_radius.get()) + moved
+        );
+        put_varint(&mut s[8], base_error);
         let unit = centre_unit(error_units);
         let centre = [n.sphere[0].get(), n.sphere[1].get(), n.sphere[2].get()];
         let mut centre_q = [0u32; 3];
@@ -177,10 +219,9 @@ pub fn encode_page(
             centre_q[a] = (i64::from(q[a]) + steps * unit as i64) as u32;
         }
         let centre_moved = distance(centre, grid.dequantize(centre_q));
-        put_varint(
-            &mut s[8],
-            u64::from(grid.units_up(f64::from(n.sphere[3].get()) + centre_moved)),
-        );
+        // The radius in the same coarse units, rounded up.
+        let radius_units = u64::from(grid.units_up(f64::from(n.sphere[3].get()) + centre_moved));
+        put_varint(&mut s[8], radius_units.div_ceil(unit));
         let axis = [n.cone[0].get(), n.cone[1].get(), n.cone[2].get()];
         let half_angle = f64::from(n.cone[3].get());
         let (encoded, units) = if half_angle < 0.0 {
@@ -362,10 +403,24 @@ pub fn decode_page(
         };
         let subtri_count = u32::try_from(s6.varint().ok_or_else(|| bad("subtris"))?)
             .map_err(|_| bad("subtris"))?;
+        // Inner nodes: the error radius comes first, it sets the proxy's unit.
+        let base_error = if child_count > 0 {
+            s8.varint()
+                .filter(|&u| u <= u64::from(u32::MAX))
+                .ok_or_else(|| bad("bound"))?
+        } else {
+            0
+        };
+        let unit = if child_count > 0 {
+            proxy_unit(base_error) as i64
+        } else {
+            1
+        };
         let mut q = [0u32; 3];
         for a in 0..3 {
-            let v = prediction[a]
-                .checked_add(unzigzag(s7.varint().ok_or_else(|| bad("position"))?))
+            let v = unzigzag(s7.varint().ok_or_else(|| bad("position"))?)
+                .checked_mul(unit)
+                .and_then(|d| d.checked_add(prediction[a]))
                 .ok_or_else(|| bad("position"))?;
             previous_q[a] = v;
             q[a] = u32::try_from(v)
@@ -403,10 +458,7 @@ pub fn decode_page(
             let count = s5.varint().ok_or_else(|| bad("leaf count"))?;
             let leaf_end = u64::from(leaf_begin) + count;
             node.leaf_end = U32::new(u32::try_from(leaf_end).map_err(|_| bad("leaf count"))?);
-            let error_units = s8
-                .varint()
-                .filter(|&u| u <= u64::from(u32::MAX))
-                .ok_or_else(|| bad("bound"))?;
+            let error_units = widened_error(base_error, unit as u64);
             node.error_radius = f(error_units as f32 * grid.step);
             let unit = centre_unit(error_units) as i64;
             let mut centre_q = [0u32; 3];
@@ -424,6 +476,7 @@ pub fn decode_page(
             let centre = grid.dequantize(centre_q);
             let radius_units = s8
                 .varint()
+                .and_then(|r| r.checked_mul(unit as u64))
                 .filter(|&u| u <= u64::from(u32::MAX))
                 .ok_or_else(|| bad("sphere"))?;
             node.sphere = [
