@@ -65,8 +65,8 @@ pub enum VdtError {
 }
 
 impl VdtError {
-    /// An invalid-field error.
-    pub(crate) fn invalid(what: impl Into<String>, message: impl Into<String>) -> VdtError {
+    /// An invalid-field error: `what` names the field or record, `message` what is wrong.
+    pub fn invalid(what: impl Into<String>, message: impl Into<String>) -> VdtError {
         VdtError::Invalid {
             what: what.into(),
             message: message.into(),

@@ -5,7 +5,8 @@
 //! copying and without alignment assumptions. Sizes are asserted at compile time; the byte
 //! layout is specified in `docs/format.md`.
 
-use zerocopy::little_endian::{F32, U16, U32, U64};
+/// The little-endian field types the records are made of (from `zerocopy`).
+pub use zerocopy::little_endian::{F32, U16, U32, U64};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 /// The first eight bytes of every `.vdt` file. Like PNG's signature, the `\r\n` and `\x1a`

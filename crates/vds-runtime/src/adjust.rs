@@ -1,0 +1,308 @@
+//! Adjusting the cut for a new viewpoint: the threshold traversal along the boundary path
+//! (Luebke & Erikson 1997 §3.1, §4.1) and the triangle-budget exchange (§3.3).
+//!
+//! ## Threshold
+//! The paper's `adjust_tree` walks the whole active tree each frame. Here only the boundary
+//! nodes are visited — the *boundary path* — because every decision happens there: a
+//! boundary node that needs more detail unfolds, and its new children are checked in turn;
+//! one that does not lets its parent fold once all the parent's children are on the boundary
+//! and the parent itself passes, and the fold goes on upwards. Work per frame is the boundary
+//! (one test each, the cheap division-free form first) plus what changes. Each node's
+//! decision is computed once per frame and cached, since a parent is asked by each child.
+//!
+//! After the traversal every boundary node has passed the test for this frame — either it was
+//! tested and stayed, or it was a parent that passed and folded — which is the threshold
+//! guarantee: no visible vertex is further than `t` pixels from its image.
+//!
+//! ## Budget
+//! A max-queue of boundary nodes by priority (screen-space error over the criteria's
+//! threshold scale) and a min-queue of *fold candidates* (active nodes whose children are all
+//! on the boundary). Starting from the current cut (coherence), the worst boundary node is
+//! unfolded while its subtris fit; when it does not fit and a fold candidate is cheaper, that
+//! candidate is folded to make room. A node's priority is clamped to its parent's, so a fold
+//! candidate is never the parent of the node it makes room for. Each exchange replaces lower
+//! priorities by a higher one, so the loop terminates; it stops when the worst boundary node
+//! does not fit and nothing cheaper can fold: unfolding the next node in the queue would
+//! exceed the budget, which is §3.3's stopping rule.
+
+use std::cmp::{Ordering, Reverse};
+use std::collections::BinaryHeap;
+
+use vds_format::VdtError;
+
+use crate::criteria::{Decision, Judge};
+use crate::cut::{Cut, NIL, NodeState};
+
+/// Work done by one adjust.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct AdjustStats {
+    /// Nodes whose criteria were evaluated.
+    pub visited: u32,
+    /// Nodes unfolded.
+    pub unfolds: u32,
+    /// Nodes folded.
+    pub folds: u32,
+    /// Folds refused because they would flip a triangle.
+    pub refused_folds: u32,
+}
+
+/// A float with a total order, for the priority queues.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Priority(f32);
+
+impl Eq for Priority {}
+
+impl PartialOrd for Priority {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Priority {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.0.total_cmp(&other.0)
+    }
+}
+
+/// Scratch state of the adjust traversals, reused from frame to frame.
+#[derive(Default)]
+pub struct Adjuster {
+    frame: u32,
+    /// Per node: `frame << 2 | decision` once decided this frame.
+    decisions: Vec<u32>,
+    /// Per node: the frame its priority was computed in, and the priority.
+    priorities: Vec<(u32, f32)>,
+    /// Per node: the frame it was last queued as a fold candidate.
+    queued: Vec<u32>,
+    work: Vec<u32>,
+    stack: Vec<u32>,
+    unfold_queue: BinaryHeap<(Priority, Reverse<u32>)>,
+    fold_queue: BinaryHeap<Reverse<(Priority, u32)>>,
+    stats: AdjustStats,
+}
+
+impl Adjuster {
+    fn begin(&mut self, nodes: usize) {
+        self.frame += 1;
+        // Frames are stored in 30 bits beside the decision; start over long before overflow.
+        if self.frame >= 1 << 29 || self.decisions.len() != nodes {
+            self.frame = 1;
+            self.decisions = vec![0; nodes];
+            self.priorities.clear();
+            self.queued.clear();
+        }
+        self.stats = AdjustStats::default();
+    }
+
+    fn decision(&mut self, cut: &Cut, judge: &Judge, t: f32, id: u32) -> Decision {
+        let cached = self.decisions[id as usize];
+        if cached >> 2 == self.frame {
+            return match cached & 3 {
+                0 => Decision::Unfold,
+                1 => Decision::Fold,
+                _ => Decision::Keep,
+            };
+        }
+        self.stats.visited += 1;
+        let decision = judge.decide(cut.node(id), t);
+        let code = match decision {
+            Decision::Unfold => 0,
+            Decision::Fold => 1,
+            Decision::Keep => 2,
+        };
+        self.decisions[id as usize] = self.frame << 2 | code;
+        decision
+    }
+
+    /// Adjusts `cut` so that every visible vertex is within `t` of its image.
+    pub fn adjust_threshold(
+        &mut self,
+        cut: &mut Cut,
+        judge: &Judge,
+        t: f32,
+        prevent_flips: bool,
+    ) -> Result<AdjustStats, VdtError> {
+        self.begin(cut.store().node_count() as usize);
+        self.work.clear();
+        self.work.extend_from_slice(cut.boundary());
+        for i in 0..self.work.len() {
+            let b = self.work[i];
+            if cut.state(b) != NodeState::Boundary {
+                continue;
+            }
+            match self.decision(cut, judge, t, b) {
+                Decision::Unfold => self.refine(cut, judge, t, b)?,
+                Decision::Fold => self.coarsen(cut, judge, t, cut.node(b).parent, prevent_flips),
+                Decision::Keep => {}
+            }
+        }
+        Ok(self.stats)
+    }
+
+    /// Unfolds `id` and, recursively, each new boundary node that needs it.
+    fn refine(&mut self, cut: &mut Cut, judge: &Judge, t: f32, id: u32) -> Result<(), VdtError> {
+        self.stack.clear();
+        self.stack.push(id);
+        while let Some(n) = self.stack.pop() {
+            if cut.can_unfold(n) && self.decision(cut, judge, t, n) == Decision::Unfold {
+                cut.unfold_node(n)?;
+                self.stats.unfolds += 1;
+                self.stack.extend(cut.node(n).children());
+            }
+        }
+        Ok(())
+    }
+
+    /// Folds `id` and its ancestors while each may fold and passes the test.
+    fn coarsen(&mut self, cut: &mut Cut, judge: &Judge, t: f32, mut id: u32, prevent: bool) {
+        while id != NIL && cut.can_fold(id) && self.decision(cut, judge, t, id) == Decision::Fold
+        {
+            if !cut.fold_node(id, prevent) {
+                self.stats.refused_folds += 1;
+                return;
+            }
+            self.stats.folds += 1;
+            id = cut.node(id).parent;
+        }
+    }
+
+    /// The priority of unfolding `id` this frame: the judge's priority, clamped to its
+    /// parent's (see the module documentation).
+    pub fn priority(&mut self, cut: &Cut, judge: &Judge, id: u32) -> f32 {
+        if self.priorities.len() != cut.store().node_count() as usize {
+            self.priorities = vec![(0, 0.0); cut.store().node_count() as usize];
+        }
+        // Walk up to the first ancestor already priced this frame, then price down.
+        self.stack.clear();
+        let mut n = id;
+        let mut above = f32::MAX;
+        while n != NIL {
+            let (frame, value) = self.priorities[n as usize];
+            if frame == self.frame {
+                above = value;
+                break;
+            }
+            self.stack.push(n);
+            n = cut.node(n).parent;
+        }
+        while let Some(n) = self.stack.pop() {
+            self.stats.visited += 1;
+            above = judge.priority(cut.node(n)).min(above);
+            self.priorities[n as usize] = (self.frame, above);
+        }
+        above
+    }
+
+    /// Adjusts `cut` to the best cut of at most `budget` triangles under `judge`.
+    pub fn adjust_budget(
+        &mut self,
+        cut: &mut Cut,
+        judge: &Judge,
+        budget: u32,
+        prevent_flips: bool,
+    ) -> Result<AdjustStats, VdtError> {
+        let nodes = cut.store().node_count() as usize;
+        self.begin(nodes);
+        if self.queued.len() != nodes {
+            self.queued = vec![0; nodes];
+        }
+        self.unfold_queue.clear();
+        self.fold_queue.clear();
+        self.work.clear();
+        self.work.extend_from_slice(cut.boundary());
+        for i in 0..self.work.len() {
+            let b = self.work[i];
+            self.queue_unfold(cut, judge, b);
+            self.queue_fold(cut, judge, cut.node(b).parent);
+        }
+        // Over budget (the budget shrank): fold the cheapest candidates. The budget is a hard
+        // limit, so mesh-fold prevention yields here.
+        while cut.active_triangle_count() > budget {
+            let Some(f) = self.pop_fold(cut) else { break };
+            cut.fold_node(f, false);
+            self.stats.folds += 1;
+            self.after_fold(cut, judge, f);
+        }
+        loop {
+            let Some(&(Priority(worst), Reverse(u))) = self.peek_unfold(cut) else {
+                break;
+            };
+            if worst <= 0.0 {
+                break;
+            }
+            let cost = cut.node(u).subtri_count;
+            if u64::from(cut.active_triangle_count()) + u64::from(cost) <= u64::from(budget) {
+                self.unfold_queue.pop();
+                cut.unfold_node(u)?;
+                self.stats.unfolds += 1;
+                for c in cut.node(u).children() {
+                    self.queue_unfold(cut, judge, c);
+                }
+                self.queue_fold(cut, judge, u);
+                continue;
+            }
+            match self.peek_fold(cut) {
+                Some(&Reverse((Priority(cheapest), f))) if cheapest < worst => {
+                    self.pop_fold(cut);
+                    if cut.fold_node(f, prevent_flips) {
+                        self.stats.folds += 1;
+                        self.after_fold(cut, judge, f);
+                    } else {
+                        self.stats.refused_folds += 1;
+                    }
+                }
+                _ => break,
+            }
+        }
+        Ok(self.stats)
+    }
+
+    fn after_fold(&mut self, cut: &Cut, judge: &Judge, id: u32) {
+        self.queue_unfold(cut, judge, id);
+        self.queue_fold(cut, judge, cut.node(id).parent);
+    }
+
+    fn queue_unfold(&mut self, cut: &Cut, judge: &Judge, id: u32) {
+        if cut.can_unfold(id) {
+            let p = self.priority(cut, judge, id);
+            self.unfold_queue.push((Priority(p), Reverse(id)));
+        }
+    }
+
+    fn queue_fold(&mut self, cut: &Cut, judge: &Judge, id: u32) {
+        if id != NIL && cut.can_fold(id) && self.queued[id as usize] != self.frame {
+            self.queued[id as usize] = self.frame;
+            let p = self.priority(cut, judge, id);
+            self.fold_queue.push(Reverse((Priority(p), id)));
+        }
+    }
+
+    fn peek_unfold(&mut self, cut: &Cut) -> Option<&(Priority, Reverse<u32>)> {
+        while let Some(&(_, Reverse(u))) = self.unfold_queue.peek() {
+            if cut.can_unfold(u) {
+                break;
+            }
+            self.unfold_queue.pop();
+        }
+        self.unfold_queue.peek()
+    }
+
+    fn peek_fold(&mut self, cut: &Cut) -> Option<&Reverse<(Priority, u32)>> {
+        while let Some(&Reverse((_, f))) = self.fold_queue.peek() {
+            if cut.can_fold(f) {
+                break;
+            }
+            // A node that stops being a candidate may become one again this frame.
+            self.queued[f as usize] = 0;
+            self.fold_queue.pop();
+        }
+        self.fold_queue.peek()
+    }
+
+    fn pop_fold(&mut self, cut: &Cut) -> Option<u32> {
+        let f = self.peek_fold(cut)?.0.1;
+        self.fold_queue.pop();
+        self.queued[f as usize] = 0;
+        Some(f)
+    }
+}

@@ -1,0 +1,321 @@
+//! What decides a node's fate: the screen-space error bound, silhouettes, backfacing regions,
+//! the view frustum and gaze (Luebke & Erikson 1997 §3, §4.2–4.3).
+//!
+//! ## The screen-space bound
+//! Every original vertex `v` under a node lies within `r` (the node's error radius) of its
+//! proxy `p`, so folding moves `v`'s image along the projection of a segment inside the ball
+//! `B(p, r)`. For a pinhole with focal length `f` pixels, the image of a point `q` moves by at
+//! most `f·‖dq‖·√(1 + ‖q_xy‖²/q_z²) / q_z` per unit of motion (the Jacobian of `q ↦ f·q_xy/q_z`
+//! and Cauchy–Schwarz). Over the ball, `q_z ≥ d = p_z − r` and `‖q_xy‖ ≤ ρ + r` with
+//! `ρ = ‖p_xy‖`, so the screen error is at most
+//!
+//! ```text
+//! E = f·r·√(d² + (ρ + r)²) / d²      (camera coordinates, d > 0)
+//! ```
+//!
+//! This is the paper's `r·cot(φ/2)/‖c − e‖` test made exact off-centre: on the view axis it is
+//! `f·r/d`, and towards the frustum's edge it grows by the `1/cos θ` that the paper's form
+//! misses. It is compared without division or square root of the whole, as in §4.3:
+//! `E ≤ t ⟺ f²r²(d² + (ρ+r)²) ≤ t²d⁴`. Nodes whose ball reaches the eye plane (`d ≤ 0`)
+//! have unbounded error and unfold.
+//!
+//! ## Cones (§3.2)
+//! A node's normal cone (axis `a`, half-angle `α`) bounds the normals of every triangle
+//! touching it; the viewing cone from the eye to its bounding sphere has half-angle
+//! `β = asin(R/‖c − e‖)`. With `γ` the angle between `a` and `c − e`, every normal makes an
+//! angle in `[γ−α−β, γ+α+β]` with every view ray into the sphere, so the node is entirely
+//! backfacing when `γ + α + β < π/2`, entirely front-facing when `γ − α − β > π/2`, and may
+//! hold silhouette edges otherwise.
+
+use glam::Vec3;
+
+use crate::store::Node;
+use crate::view::{Camera, View};
+
+/// How the cut is driven.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Goal {
+    /// Unfold until no visible vertex is more than this far from its original image: pixels
+    /// with a camera, scene units when view-independent.
+    Threshold(f32),
+    /// The best cut of at most this many triangles (§3.3).
+    Budget(u32),
+}
+
+/// What nodes outside the view frustum do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FrustumMode {
+    /// No frustum test: off-screen regions keep full screen-space accuracy.
+    Off,
+    /// Nodes entirely outside fold (§4.2), so invisible regions cost almost no triangles.
+    #[default]
+    Fold,
+    /// Nodes entirely outside are irrelevant: left as they are, neither folded nor unfolded,
+    /// so turning away and back costs no work. Budget mode treats them as [`FrustumMode::Fold`].
+    Ignore,
+}
+
+/// Gaze-directed simplification: the threshold is tightest along a focus direction and grows
+/// towards the periphery.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gaze {
+    /// Focus direction in world space (need not be unit length).
+    pub direction: [f32; 3],
+    /// The threshold is multiplied by `1 + falloff · θ`, `θ` the angle in radians between
+    /// the focus direction and the nearest point of a node's bounding sphere.
+    pub falloff: f32,
+}
+
+/// Every criterion of the cut besides its goal; all combine.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Criteria {
+    /// Nodes that may hold silhouette edges use the threshold times this factor (< 1 is
+    /// tighter); `None` turns silhouette preservation off.
+    pub silhouette_factor: Option<f32>,
+    /// Fold nodes whose every triangle faces away from the eye.
+    pub backface: bool,
+    /// What nodes outside the frustum do.
+    pub frustum: FrustumMode,
+    /// Optional gaze-directed falloff.
+    pub gaze: Option<Gaze>,
+    /// Refuse folds that would flip the normal of a surviving triangle (mesh folding).
+    pub prevent_mesh_folds: bool,
+}
+
+impl Default for Criteria {
+    fn default() -> Self {
+        Criteria {
+            silhouette_factor: Some(0.25),
+            backface: true,
+            frustum: FrustumMode::Fold,
+            gaze: None,
+            prevent_mesh_folds: false,
+        }
+    }
+}
+
+/// Where the cut is seen from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Viewpoint {
+    /// A camera: screen-space criteria.
+    Camera(Camera),
+    /// No camera: the object-space error radius alone decides (no culling, no cones), so a
+    /// cut compares with ordinary simplifiers at equal triangle counts.
+    Independent,
+}
+
+/// What the threshold test says about a node.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Decision {
+    /// Its error is too large: unfold it.
+    Unfold,
+    /// It may be folded.
+    Fold,
+    /// Leave it as it is (outside the frustum in [`FrustumMode::Ignore`]).
+    Keep,
+}
+
+/// How a node's triangles face the eye.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Facing {
+    /// Every triangle faces the eye (or the node bounds no normal).
+    Front,
+    /// Every triangle faces away.
+    Back,
+    /// Some may face either way: the node may hold silhouette edges.
+    Silhouette,
+}
+
+/// The criteria evaluated for one viewpoint: built once per frame, asked once per node.
+#[derive(Debug, Clone, Copy)]
+pub struct Judge {
+    view: Option<View>,
+    criteria: Criteria,
+    gaze_direction: Vec3,
+    focal_sq: f32,
+}
+
+impl Judge {
+    /// A judge for `viewpoint` under `criteria`.
+    pub fn new(viewpoint: &Viewpoint, criteria: &Criteria) -> Judge {
+        let view = match viewpoint {
+            Viewpoint::Camera(camera) => Some(camera.view()),
+            Viewpoint::Independent => None,
+        };
+        let gaze_direction = criteria
+            .gaze
+            .map(|g| Vec3::from(g.direction).normalize_or_zero())
+            .unwrap_or(Vec3::ZERO);
+        Judge {
+            view,
+            criteria: *criteria,
+            gaze_direction,
+            focal_sq: view.map_or(1.0, |v| v.focal_px * v.focal_px),
+        }
+    }
+
+    /// The prepared camera, if there is one.
+    pub fn view(&self) -> Option<&View> {
+        self.view.as_ref()
+    }
+
+    /// Whether node `n` should unfold under threshold `t` (pixels, or scene units when
+    /// view-independent).
+    #[inline]
+    pub fn decide(&self, n: &Node, t: f32) -> Decision {
+        let Some(view) = &self.view else {
+            return if n.error_radius > t {
+                Decision::Unfold
+            } else {
+                Decision::Fold
+            };
+        };
+        if self.outside(view, n) {
+            return match self.criteria.frustum {
+                FrustumMode::Ignore => Decision::Keep,
+                _ => Decision::Fold,
+            };
+        }
+        let r = n.error_radius;
+        if r == 0.0 {
+            return Decision::Fold;
+        }
+        let c = view.to_camera(Vec3::from(n.proxy));
+        let d = c.z - r;
+        if d <= 0.0 {
+            return if self.criteria.backface && self.facing(view, n) == Facing::Back {
+                Decision::Fold
+            } else {
+                Decision::Unfold
+            };
+        }
+        let rho = (c.x * c.x + c.y * c.y).sqrt();
+        let lhs = self.focal_sq * r * r * (d * d + (rho + r) * (rho + r));
+        let d4 = (d * d) * (d * d);
+        // Cheapest first: most nodes of a settled cut are far below even the tightest limit.
+        let tightest = t * self.criteria.silhouette_factor.map_or(1.0, |s| s.min(1.0));
+        if lhs <= tightest * tightest * d4 {
+            return Decision::Fold;
+        }
+        let facing = if self.criteria.backface || self.criteria.silhouette_factor.is_some() {
+            self.facing(view, n)
+        } else {
+            Facing::Front
+        };
+        if self.criteria.backface && facing == Facing::Back {
+            return Decision::Fold;
+        }
+        let mut limit = t * self.gaze_factor(view, n);
+        if let (Some(s), Facing::Silhouette) = (self.criteria.silhouette_factor, facing) {
+            limit *= s;
+        }
+        if lhs > limit * limit * d4 {
+            Decision::Unfold
+        } else {
+            Decision::Fold
+        }
+    }
+
+    /// The priority of unfolding `n` in budget mode: its screen-space error in pixels divided
+    /// by the factor its criteria scale the threshold by (silhouette, gaze), so that
+    /// priorities rank nodes as a threshold would. Zero for nodes outside the frustum or
+    /// entirely backfacing; object-space error radius when view-independent.
+    pub fn priority(&self, n: &Node) -> f32 {
+        let Some(view) = &self.view else {
+            return n.error_radius;
+        };
+        if self.criteria.frustum != FrustumMode::Off && self.outside(view, n) {
+            return 0.0;
+        }
+        let r = n.error_radius;
+        if r == 0.0 {
+            return 0.0;
+        }
+        let facing = self.facing(view, n);
+        if self.criteria.backface && facing == Facing::Back {
+            return 0.0;
+        }
+        let c = view.to_camera(Vec3::from(n.proxy));
+        let d = c.z - r;
+        let error = if d <= 0.0 {
+            f32::MAX
+        } else {
+            let rho = (c.x * c.x + c.y * c.y).sqrt();
+            view.focal_px * r * (d * d + (rho + r) * (rho + r)).sqrt() / (d * d)
+        };
+        let mut scale = self.gaze_factor(view, n);
+        if let (Some(s), Facing::Silhouette) = (self.criteria.silhouette_factor, facing) {
+            scale *= s;
+        }
+        (error / scale).min(f32::MAX)
+    }
+
+    /// The screen-space error bound of `n` in pixels ([`f32::INFINITY`] when its ball reaches
+    /// the eye plane), or its error radius when view-independent.
+    pub fn screen_error(&self, n: &Node) -> f32 {
+        let Some(view) = &self.view else {
+            return n.error_radius;
+        };
+        let r = n.error_radius;
+        let c = view.to_camera(Vec3::from(n.proxy));
+        let d = c.z - r;
+        if d <= 0.0 {
+            return if r == 0.0 { 0.0 } else { f32::INFINITY };
+        }
+        let rho = (c.x * c.x + c.y * c.y).sqrt();
+        view.focal_px * r * (d * d + (rho + r) * (rho + r)).sqrt() / (d * d)
+    }
+
+    #[inline]
+    fn outside(&self, view: &View, n: &Node) -> bool {
+        self.criteria.frustum != FrustumMode::Off
+            && view.sphere_outside(view.to_camera(Vec3::from(n.sphere_center)), n.sphere_radius)
+    }
+
+    /// How `n`'s triangles face the eye of this judge's camera (front when view-independent).
+    pub fn facing_of(&self, n: &Node) -> Facing {
+        match &self.view {
+            Some(view) => self.facing(view, n),
+            None => Facing::Front,
+        }
+    }
+
+    fn facing(&self, view: &View, n: &Node) -> Facing {
+        let alpha = n.cone_half_angle;
+        if alpha < 0.0 {
+            return Facing::Front;
+        }
+        let to_center = Vec3::from(n.sphere_center) - view.eye;
+        let distance = to_center.length();
+        if distance <= n.sphere_radius {
+            return Facing::Silhouette;
+        }
+        let beta = (n.sphere_radius / distance).asin();
+        let cos_gamma = (Vec3::from(n.cone_axis).dot(to_center) / distance).clamp(-1.0, 1.0);
+        let gamma = cos_gamma.acos();
+        let half_pi = std::f32::consts::FRAC_PI_2;
+        if gamma + alpha + beta < half_pi {
+            Facing::Back
+        } else if gamma - alpha - beta > half_pi {
+            Facing::Front
+        } else {
+            Facing::Silhouette
+        }
+    }
+
+    fn gaze_factor(&self, view: &View, n: &Node) -> f32 {
+        let Some(gaze) = self.criteria.gaze else {
+            return 1.0;
+        };
+        let to_center = Vec3::from(n.sphere_center) - view.eye;
+        let distance = to_center.length();
+        if distance <= n.sphere_radius || self.gaze_direction == Vec3::ZERO {
+            return 1.0;
+        }
+        let angle = (self.gaze_direction.dot(to_center) / distance)
+            .clamp(-1.0, 1.0)
+            .acos();
+        let beta = (n.sphere_radius / distance).asin();
+        1.0 + gaze.falloff.max(0.0) * (angle - beta).max(0.0)
+    }
+}

@@ -1,0 +1,674 @@
+//! The cut through the vertex tree and its two local operations, fold and unfold
+//! (Luebke & Erikson 1997 §2.3).
+//!
+//! Every node is *active* (unfolded: its children are in the cut), *boundary* (folded with an
+//! active parent, or the folded root: its proxy is a vertex of the current mesh) or
+//! *inactive* (below the boundary). A triangle is active exactly when the node it is a subtri
+//! of is active, and its current corners are the boundary nodes above its three original
+//! vertices.
+//!
+//! ## The active triangle list
+//! Active triangles live in *slots* of one array with a free list: a fold frees its subtris'
+//! slots, an unfold fills free slots first, and a triangle keeps its slot while it is active.
+//! A renderer mirrors the array on the GPU and rewrites only the slots a frame touched (the
+//! paper's own suggested improvement over its linked list).
+//!
+//! ## Keeping corners current
+//! Two strategies, chosen at construction ([`CornerTracking`]):
+//! - **Incidence lists** (the paper's reltris, maintained at run time instead of stored per
+//!   node): every boundary node heads an intrusive doubly-linked list of the active triangle
+//!   corners it is the proxy of. Folding a node removes its subtris and relinks its
+//!   children's lists to itself, rewriting those corners; unfolding splits its list among its
+//!   children by the leaf-range test. Work is proportional to the triangles that change.
+//! - **Lazy evaluation** (§4.5): no lists; after the cut changes, every active corner is
+//!   checked and, if its node is no longer on the boundary, re-resolved by walking up (it was
+//!   folded away) or down (it was unfolded) along its original vertex's path. Work is
+//!   proportional to the active triangles, every frame.
+//!
+//! `vds-bench cut` measures both along the same camera paths.
+
+use rustc_hash::FxHashMap;
+use vds_format::VdtError;
+
+use crate::store::{Node, NodeStore};
+
+/// "None" for slot, list and node links.
+pub const NIL: u32 = u32::MAX;
+
+/// A node's label in the cut.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum NodeState {
+    /// Below the boundary.
+    Inactive = 0,
+    /// On the boundary: folded, with an active parent (or the folded root).
+    Boundary = 1,
+    /// Above the boundary: unfolded.
+    Active = 2,
+}
+
+/// How active triangles' corners are kept up to date (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CornerTracking {
+    /// Per-boundary-node lists of the corners it holds, updated by fold and unfold.
+    #[default]
+    Incidence,
+    /// No lists; every active corner is re-checked when the cut is read.
+    Lazy,
+}
+
+/// One active triangle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct ActiveTriangle {
+    /// The triangle's index in the file.
+    pub triangle: u32,
+    /// Its current corners: boundary node ids, whose proxies are the positions to draw.
+    pub corners: [u32; 3],
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Slot {
+    /// The triangle held, or [`NIL`] for a free slot.
+    triangle: u32,
+    /// Leaf ranks of its original corners.
+    leaves: [u32; 3],
+    /// Current corners (boundary node ids).
+    corners: [u32; 3],
+}
+
+const FREE_SLOT: Slot = Slot {
+    triangle: NIL,
+    leaves: [NIL; 3],
+    corners: [NIL; 3],
+};
+
+/// What changed in the active triangle list since the last [`Cut::take_changes`].
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Changes {
+    /// Slots whose contents differ from what they held before (ascending): a renderer
+    /// rewrites exactly these, with the triangle they now hold or a degenerate one if free.
+    pub dirty_slots: Vec<u32>,
+    /// Triangles that became active.
+    pub added: u32,
+    /// Triangles that stopped being active.
+    pub removed: u32,
+    /// Triangles active before and after whose corners changed.
+    pub changed: u32,
+}
+
+/// The cut: node labels, the boundary path and the active triangles.
+pub struct Cut {
+    pub(crate) store: NodeStore,
+    tracking: CornerTracking,
+    state: Vec<NodeState>,
+    /// Per node: how many of its children are active. A node may fold when this is zero.
+    active_children: Vec<u8>,
+    boundary: Vec<u32>,
+    boundary_index: Vec<u32>,
+    active_node_count: u32,
+    slots: Vec<Slot>,
+    free_slots: Vec<u32>,
+    active_triangle_count: u32,
+    slot_of_triangle: Vec<u32>,
+    /// Incidence lists: `head[node]` is the first corner entry (`slot * 3 + k`) the node is
+    /// the current proxy of; `next`/`prev` link entries.
+    head: Vec<u32>,
+    next: Vec<u32>,
+    prev: Vec<u32>,
+    /// Journal of slots touched since the last `take_changes`: their contents before.
+    touched_epoch: Vec<u32>,
+    journal: Vec<(u32, u32, [u32; 3])>,
+    epoch: u32,
+    lazy_dirty: bool,
+}
+
+impl Cut {
+    /// The coarsest cut over `store`: the root alone, folded.
+    pub fn new(store: NodeStore, tracking: CornerTracking) -> Cut {
+        let nodes = store.node_count() as usize;
+        let triangles = store.triangle_count() as usize;
+        let mut cut = Cut {
+            store,
+            tracking,
+            state: vec![NodeState::Inactive; nodes],
+            active_children: vec![0; nodes],
+            boundary: Vec::new(),
+            boundary_index: vec![NIL; nodes],
+            active_node_count: 0,
+            slots: Vec::new(),
+            free_slots: Vec::new(),
+            active_triangle_count: 0,
+            slot_of_triangle: vec![NIL; triangles],
+            head: match tracking {
+                CornerTracking::Incidence => vec![NIL; nodes],
+                CornerTracking::Lazy => Vec::new(),
+            },
+            next: Vec::new(),
+            prev: Vec::new(),
+            touched_epoch: Vec::new(),
+            journal: Vec::new(),
+            epoch: 1,
+            lazy_dirty: false,
+        };
+        cut.state[0] = NodeState::Boundary;
+        cut.boundary_push(0);
+        cut
+    }
+
+    /// How corners are tracked.
+    pub fn tracking(&self) -> CornerTracking {
+        self.tracking
+    }
+
+    /// The node store (node attributes, triangle records, residency).
+    pub fn store(&self) -> &NodeStore {
+        &self.store
+    }
+
+    /// Node `id`'s attributes; the node must be on or above the boundary, or a child of a
+    /// boundary node's... in short, loaded: every node the cut has reached is.
+    #[inline]
+    pub fn node(&self, id: u32) -> &Node {
+        self.store.node(id)
+    }
+
+    /// Node `id`'s label.
+    #[inline]
+    pub fn state(&self, id: u32) -> NodeState {
+        self.state[id as usize]
+    }
+
+    /// The boundary nodes (the current vertices), in no particular order.
+    pub fn boundary(&self) -> &[u32] {
+        &self.boundary
+    }
+
+    /// Number of active (unfolded) nodes.
+    pub fn active_node_count(&self) -> u32 {
+        self.active_node_count
+    }
+
+    /// Number of active triangles.
+    pub fn active_triangle_count(&self) -> u32 {
+        self.active_triangle_count
+    }
+
+    /// Number of slots, free ones included: the length of a renderer's triangle buffer.
+    pub fn slot_count(&self) -> u32 {
+        self.slots.len() as u32
+    }
+
+    /// The triangle in slot `index`, or `None` for a free slot.
+    pub fn slot(&mut self, index: u32) -> Option<ActiveTriangle> {
+        self.refresh_lazy_corners();
+        self.peek_slot(index)
+    }
+
+    fn peek_slot(&self, index: u32) -> Option<ActiveTriangle> {
+        let slot = self.slots.get(index as usize)?;
+        (slot.triangle != NIL).then_some(ActiveTriangle {
+            triangle: slot.triangle,
+            corners: slot.corners,
+        })
+    }
+
+    /// Every active triangle, by slot.
+    pub fn active_triangles(&mut self) -> Vec<ActiveTriangle> {
+        self.refresh_lazy_corners();
+        (0..self.slot_count())
+            .filter_map(|s| self.peek_slot(s))
+            .collect()
+    }
+
+    /// The boundary node above original vertex `rank`: the node whose proxy stands in for it.
+    pub fn current_proxy_node(&self, rank: u32) -> u32 {
+        self.store
+            .descend(0, rank, |id| self.state[id as usize] == NodeState::Active)
+    }
+
+    /// True when `id` may be unfolded: on the boundary and not a leaf.
+    pub fn can_unfold(&self, id: u32) -> bool {
+        self.state[id as usize] == NodeState::Boundary && !self.store.node(id).is_leaf()
+    }
+
+    /// True when `id` may be folded: active with every child on the boundary.
+    pub fn can_fold(&self, id: u32) -> bool {
+        self.state[id as usize] == NodeState::Active && self.active_children[id as usize] == 0
+    }
+
+    /// Unfolds boundary node `id`: its children join the boundary, its subtris become
+    /// active and its corners move to the children. Loads the children's page first; on a
+    /// load error nothing changes.
+    ///
+    /// # Panics
+    /// If `id` cannot unfold ([`Cut::can_unfold`]).
+    pub fn unfold_node(&mut self, id: u32) -> Result<(), VdtError> {
+        assert!(self.can_unfold(id), "node {id} cannot unfold");
+        self.store.load_children(id)?;
+        let node = *self.store.node(id);
+        self.set_state(id, NodeState::Active);
+        self.boundary_remove(id);
+        for c in node.children() {
+            self.set_state(c, NodeState::Boundary);
+            self.boundary_push(c);
+        }
+        if node.parent != NIL {
+            self.active_children[node.parent as usize] += 1;
+        }
+        self.active_node_count += 1;
+        if self.tracking == CornerTracking::Incidence {
+            let mut entry = std::mem::replace(&mut self.head[id as usize], NIL);
+            while entry != NIL {
+                let following = self.next[entry as usize];
+                let (slot, k) = (entry / 3, (entry % 3) as usize);
+                let child = self
+                    .store
+                    .child_supporting(id, self.slots[slot as usize].leaves[k]);
+                self.touch(slot);
+                self.slots[slot as usize].corners[k] = child;
+                self.link(child, entry);
+                entry = following;
+            }
+        } else {
+            self.lazy_dirty = true;
+        }
+        for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
+            let leaves = self.store.triangle_corners(t);
+            let corners = leaves.map(|rank| self.boundary_node_of(rank, id));
+            self.insert_triangle(t, leaves, corners);
+        }
+        Ok(())
+    }
+
+    /// Folds active node `id`: its subtris are removed and every corner held by a child moves
+    /// to `id`'s proxy. Returns `false` without changing anything when `prevent_flips` is set
+    /// and the fold would turn a surviving triangle's normal around (incidence tracking only:
+    /// lazy tracking cannot see the surviving triangles).
+    ///
+    /// # Panics
+    /// If `id` cannot fold ([`Cut::can_fold`]).
+    pub fn fold_node(&mut self, id: u32, prevent_flips: bool) -> bool {
+        assert!(self.can_fold(id), "node {id} cannot fold");
+        if prevent_flips && self.fold_would_flip(id) {
+            return false;
+        }
+        let node = *self.store.node(id);
+        for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
+            let slot = self.slot_of_triangle[t as usize];
+            if slot != NIL {
+                self.remove_slot(slot);
+            }
+        }
+        for c in node.children() {
+            if self.tracking == CornerTracking::Incidence {
+                let mut entry = std::mem::replace(&mut self.head[c as usize], NIL);
+                while entry != NIL {
+                    let following = self.next[entry as usize];
+                    let (slot, k) = (entry / 3, (entry % 3) as usize);
+                    self.touch(slot);
+                    self.slots[slot as usize].corners[k] = id;
+                    self.link(id, entry);
+                    entry = following;
+                }
+            }
+            self.set_state(c, NodeState::Inactive);
+            self.boundary_remove(c);
+        }
+        if self.tracking == CornerTracking::Lazy {
+            self.lazy_dirty = true;
+        }
+        self.set_state(id, NodeState::Boundary);
+        self.boundary_push(id);
+        if node.parent != NIL {
+            self.active_children[node.parent as usize] -= 1;
+        }
+        self.active_node_count -= 1;
+        true
+    }
+
+    /// Unfolds every node: the cut becomes the original mesh.
+    pub fn unfold_all(&mut self) -> Result<(), VdtError> {
+        let mut stack = self.boundary.clone();
+        while let Some(id) = stack.pop() {
+            if self.can_unfold(id) {
+                self.unfold_node(id)?;
+                stack.extend(self.store.node(id).children());
+            }
+        }
+        Ok(())
+    }
+
+    /// Folds every node: the cut becomes the root alone.
+    pub fn fold_all(&mut self) {
+        let mut stack: Vec<u32> = self
+            .boundary
+            .iter()
+            .map(|&b| self.store.node(b).parent)
+            .filter(|&p| p != NIL)
+            .collect();
+        while let Some(id) = stack.pop() {
+            if self.can_fold(id) {
+                self.fold_node(id, false);
+                let parent = self.store.node(id).parent;
+                if parent != NIL {
+                    stack.push(parent);
+                }
+            }
+        }
+    }
+
+    /// The changes to the active triangle list since the last call, and a fresh journal.
+    pub fn take_changes(&mut self) -> Changes {
+        self.refresh_lazy_corners();
+        let mut before: FxHashMap<u32, [u32; 3]> = FxHashMap::default();
+        before.reserve(self.journal.len());
+        for &(_, triangle, corners) in &self.journal {
+            if triangle != NIL {
+                before.insert(triangle, corners);
+            }
+        }
+        let mut changes = Changes::default();
+        for &(slot, triangle, corners) in &self.journal {
+            let now = self.slots[slot as usize];
+            if now.triangle != triangle || now.corners != corners {
+                changes.dirty_slots.push(slot);
+            }
+            if now.triangle == NIL {
+                continue;
+            }
+            match before.remove(&now.triangle) {
+                Some(old) if old == now.corners => {}
+                Some(_) => changes.changed += 1,
+                None => changes.added += 1,
+            }
+        }
+        changes.removed = before.len() as u32;
+        changes.dirty_slots.sort_unstable();
+        self.journal.clear();
+        self.epoch = self.epoch.wrapping_add(1);
+        if self.epoch == 0 {
+            self.touched_epoch.fill(0);
+            self.epoch = 1;
+        }
+        changes
+    }
+
+    /// Lazy tracking: re-resolves every active corner whose node left the boundary.
+    pub(crate) fn refresh_lazy_corners(&mut self) {
+        if !self.lazy_dirty {
+            return;
+        }
+        self.lazy_dirty = false;
+        for slot in 0..self.slots.len() as u32 {
+            let s = self.slots[slot as usize];
+            if s.triangle == NIL {
+                continue;
+            }
+            for k in 0..3 {
+                let node = s.corners[k];
+                let resolved = match self.state[node as usize] {
+                    NodeState::Boundary => continue,
+                    NodeState::Active => self.store.descend(node, s.leaves[k], |id| {
+                        self.state[id as usize] == NodeState::Active
+                    }),
+                    NodeState::Inactive => {
+                        let mut up = node;
+                        while self.state[up as usize] != NodeState::Boundary {
+                            up = self.store.node(up).parent;
+                        }
+                        up
+                    }
+                };
+                self.touch(slot);
+                self.slots[slot as usize].corners[k] = resolved;
+            }
+        }
+    }
+
+    /// The boundary node above `rank`, found from `near` (any node on or above the boundary,
+    /// typically the node being unfolded): up to the first ancestor supporting `rank`, then
+    /// down through active nodes.
+    fn boundary_node_of(&self, rank: u32, near: u32) -> u32 {
+        let mut node = near;
+        while !self.store.node(node).supports_rank(rank) {
+            node = self.store.node(node).parent;
+        }
+        self.store
+            .descend(node, rank, |id| self.state[id as usize] == NodeState::Active)
+    }
+
+    fn fold_would_flip(&self, id: u32) -> bool {
+        if self.tracking != CornerTracking::Incidence {
+            return false;
+        }
+        let node = self.store.node(id);
+        let position = |n: u32| glam::Vec3::from(self.store.node(n).proxy);
+        for c in node.children() {
+            let mut entry = self.head[c as usize];
+            while entry != NIL {
+                let (slot, k) = (entry / 3, (entry % 3) as usize);
+                let s = &self.slots[slot as usize];
+                if !node.owns_subtri(s.triangle) {
+                    let p = s.corners.map(position);
+                    let before = (p[1] - p[0]).cross(p[2] - p[0]);
+                    let mut q = p;
+                    q[k] = glam::Vec3::from(node.proxy);
+                    let after = (q[1] - q[0]).cross(q[2] - q[0]);
+                    if before.dot(after) < 0.0 {
+                        return true;
+                    }
+                }
+                entry = self.next[entry as usize];
+            }
+        }
+        false
+    }
+
+    fn insert_triangle(&mut self, triangle: u32, leaves: [u32; 3], corners: [u32; 3]) {
+        let slot = match self.free_slots.pop() {
+            Some(slot) => slot,
+            None => {
+                let slot = self.slots.len() as u32;
+                self.slots.push(FREE_SLOT);
+                self.touched_epoch.push(0);
+                if self.tracking == CornerTracking::Incidence {
+                    self.next.extend([NIL; 3]);
+                    self.prev.extend([NIL; 3]);
+                }
+                slot
+            }
+        };
+        self.touch(slot);
+        self.slots[slot as usize] = Slot {
+            triangle,
+            leaves,
+            corners,
+        };
+        self.slot_of_triangle[triangle as usize] = slot;
+        if self.tracking == CornerTracking::Incidence {
+            for k in 0..3 {
+                self.link(corners[k], slot * 3 + k as u32);
+            }
+        }
+        self.active_triangle_count += 1;
+    }
+
+    fn remove_slot(&mut self, slot: u32) {
+        self.touch(slot);
+        let s = self.slots[slot as usize];
+        if self.tracking == CornerTracking::Incidence {
+            for k in 0..3 {
+                self.unlink(s.corners[k], slot * 3 + k as u32);
+            }
+        }
+        self.slot_of_triangle[s.triangle as usize] = NIL;
+        self.slots[slot as usize] = FREE_SLOT;
+        self.free_slots.push(slot);
+        self.active_triangle_count -= 1;
+    }
+
+    /// Records a slot's contents before its first change since the last `take_changes`.
+    #[inline]
+    fn touch(&mut self, slot: u32) {
+        if self.touched_epoch[slot as usize] != self.epoch {
+            self.touched_epoch[slot as usize] = self.epoch;
+            let s = self.slots[slot as usize];
+            self.journal.push((slot, s.triangle, s.corners));
+        }
+    }
+
+    #[inline]
+    fn link(&mut self, node: u32, entry: u32) {
+        let first = self.head[node as usize];
+        self.next[entry as usize] = first;
+        self.prev[entry as usize] = NIL;
+        if first != NIL {
+            self.prev[first as usize] = entry;
+        }
+        self.head[node as usize] = entry;
+    }
+
+    #[inline]
+    fn unlink(&mut self, node: u32, entry: u32) {
+        let (before, after) = (self.prev[entry as usize], self.next[entry as usize]);
+        if before != NIL {
+            self.next[before as usize] = after;
+        } else {
+            self.head[node as usize] = after;
+        }
+        if after != NIL {
+            self.prev[after as usize] = before;
+        }
+    }
+
+    fn set_state(&mut self, id: u32, state: NodeState) {
+        self.state[id as usize] = state;
+    }
+
+    fn boundary_push(&mut self, id: u32) {
+        self.boundary_index[id as usize] = self.boundary.len() as u32;
+        self.boundary.push(id);
+    }
+
+    fn boundary_remove(&mut self, id: u32) {
+        let index = std::mem::replace(&mut self.boundary_index[id as usize], NIL);
+        self.boundary.swap_remove(index as usize);
+        if let Some(&moved) = self.boundary.get(index as usize) {
+            self.boundary_index[moved as usize] = index;
+        }
+    }
+
+    /// Checks every structural invariant of the cut against a recomputation from scratch:
+    /// labels, the boundary list, child counts, and the active triangle set (each active
+    /// node's subtris, with corners found by walking down from the root), plus the incidence
+    /// lists. For tests and `vds-cut --verify`; costs a walk over the whole tree.
+    pub fn check(&mut self) -> Result<(), String> {
+        self.refresh_lazy_corners();
+        let mut expected = Vec::new();
+        let mut reached = 0usize;
+        let mut stack = vec![0u32];
+        let root_state = self.state[0];
+        if root_state == NodeState::Inactive {
+            return Err("the root is inactive".into());
+        }
+        while let Some(id) = stack.pop() {
+            reached += 1;
+            let node = *self.store.node(id);
+            match self.state[id as usize] {
+                NodeState::Inactive => return Err(format!("node {id} is inactive under an active parent")),
+                NodeState::Boundary => {
+                    if self.boundary.get(self.boundary_index[id as usize] as usize) != Some(&id) {
+                        return Err(format!("boundary node {id} is not in the boundary list"));
+                    }
+                }
+                NodeState::Active => {
+                    let active = node
+                        .children()
+                        .filter(|&c| self.state[c as usize] == NodeState::Active)
+                        .count();
+                    if active != usize::from(self.active_children[id as usize]) {
+                        return Err(format!("node {id} counts its active children wrong"));
+                    }
+                    for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
+                        let leaves = self.store.triangle_corners(t);
+                        expected.push(ActiveTriangle {
+                            triangle: t,
+                            corners: leaves.map(|r| self.current_proxy_node(r)),
+                        });
+                    }
+                    stack.extend(node.children());
+                }
+            }
+        }
+        let labelled = self
+            .state
+            .iter()
+            .filter(|&&s| s != NodeState::Inactive)
+            .count();
+        if labelled != reached {
+            return Err(format!(
+                "{labelled} nodes are labelled active or boundary but {reached} are reachable"
+            ));
+        }
+        let boundary_count = self
+            .state
+            .iter()
+            .filter(|&&s| s == NodeState::Boundary)
+            .count();
+        if boundary_count != self.boundary.len() {
+            return Err("the boundary list holds nodes that are not on the boundary".into());
+        }
+        let active_count = self.state.iter().filter(|&&s| s == NodeState::Active).count();
+        if active_count != self.active_node_count as usize {
+            return Err("the active node count is wrong".into());
+        }
+        let mut actual: Vec<ActiveTriangle> = (0..self.slot_count())
+            .filter_map(|s| self.peek_slot(s))
+            .collect();
+        if actual.len() != self.active_triangle_count as usize {
+            return Err("the active triangle count is wrong".into());
+        }
+        expected.sort_unstable();
+        actual.sort_unstable();
+        if let Some(k) = (0..expected.len().max(actual.len()))
+            .find(|&k| expected.get(k) != actual.get(k))
+        {
+            return Err(format!(
+                "active triangles differ from the recomputed set: expected {:?}, found {:?} \
+                 ({} expected, {} found)",
+                expected.get(k),
+                actual.get(k),
+                expected.len(),
+                actual.len()
+            ));
+        }
+        for (slot, s) in self.slots.iter().enumerate() {
+            if s.triangle != NIL && self.slot_of_triangle[s.triangle as usize] != slot as u32 {
+                return Err(format!("triangle {} does not map to its slot", s.triangle));
+            }
+        }
+        if self.tracking == CornerTracking::Incidence {
+            let mut listed = 0usize;
+            for &b in &self.boundary {
+                let mut entry = self.head[b as usize];
+                let mut previous = NIL;
+                while entry != NIL {
+                    let s = &self.slots[(entry / 3) as usize];
+                    if s.triangle == NIL || s.corners[(entry % 3) as usize] != b {
+                        return Err(format!("node {b}'s incidence list holds a stray entry"));
+                    }
+                    if self.prev[entry as usize] != previous {
+                        return Err(format!("node {b}'s incidence list is mislinked"));
+                    }
+                    listed += 1;
+                    previous = entry;
+                    entry = self.next[entry as usize];
+                }
+            }
+            if listed != 3 * self.active_triangle_count as usize {
+                return Err("incidence lists miss active corners".into());
+            }
+        }
+        Ok(())
+    }
+}

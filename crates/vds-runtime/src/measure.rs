@@ -1,0 +1,62 @@
+//! Exact measurements of a cut against the original vertices: how far, in pixels, each
+//! visible original vertex appears from where its current proxy is drawn. Used by the tests
+//! (the threshold guarantee) and by `vds-cut --json`.
+
+use glam::Vec3;
+use vds_format::VdtError;
+
+use crate::cut::Cut;
+use crate::store::NodeStore;
+use crate::view::View;
+
+/// The original vertex positions by leaf rank. Loads every page.
+pub fn leaf_positions(store: &mut NodeStore) -> Result<Vec<[f32; 3]>, VdtError> {
+    let mut positions = vec![[0.0; 3]; store.vertex_count() as usize];
+    // Walk the whole tree so each page is loaded through the same checked path the cut uses.
+    let mut stack = vec![0u32];
+    while let Some(id) = stack.pop() {
+        store.load_children(id)?;
+        let node = *store.node(id);
+        if node.is_leaf() {
+            positions[node.leaf_begin as usize] = node.proxy;
+        } else {
+            stack.extend(node.children());
+        }
+    }
+    Ok(positions)
+}
+
+/// The result of [`screen_deviation`].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Deviation {
+    /// The largest distance in pixels between a visible vertex's image and its proxy's.
+    pub max_px: f64,
+    /// The original vertex it was measured at (leaf rank), if any vertex is visible.
+    pub worst_rank: Option<u32>,
+    /// How many original vertices lie in the view frustum.
+    pub visible_vertices: u64,
+}
+
+/// For every original vertex inside `view`'s frustum, the on-screen distance between its
+/// projection and its current proxy's projection (both in double precision); the largest.
+/// A proxy behind the eye counts as infinitely far.
+pub fn screen_deviation(cut: &Cut, view: &View, positions: &[[f32; 3]]) -> Deviation {
+    let mut deviation = Deviation::default();
+    for (rank, &p) in positions.iter().enumerate() {
+        let v = Vec3::from(p);
+        if !view.contains(v) {
+            continue;
+        }
+        deviation.visible_vertices += 1;
+        let proxy = Vec3::from(cut.node(cut.current_proxy_node(rank as u32)).proxy);
+        let distance = match (view.project(v), view.project(proxy)) {
+            (Some(a), Some(b)) => (a[0] - b[0]).hypot(a[1] - b[1]),
+            _ => f64::INFINITY,
+        };
+        if distance > deviation.max_px || deviation.worst_rank.is_none() {
+            deviation.max_px = deviation.max_px.max(distance);
+            deviation.worst_rank = Some(rank as u32);
+        }
+    }
+    deviation
+}

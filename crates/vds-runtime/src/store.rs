@@ -1,0 +1,298 @@
+//! Node and triangle records, fetched a page at a time through the `.vdt` reader's page API.
+//!
+//! The cut never reads a file directly: it asks the store for the page holding a node before
+//! it first touches that node (the root at start, a node's children when it unfolds). Pages
+//! are decoded on first use into flat arrays indexed by node id and triangle index, so the
+//! per-frame traversal reads a node with one indexed load. A paging layer with a memory
+//! budget replaces this module's residency rule without touching the cut.
+
+use bytemuck::Zeroable;
+use vds_format::{Header, NO_NODE, NodeRecord, Page, PageEntry, VdtError, VdtFile};
+
+/// Where pages come from: a `.vdt` file, or anything else that speaks its page API.
+pub trait PageSource: Send {
+    /// The file's header (counts and grid).
+    fn header(&self) -> &Header;
+    /// The page directory.
+    fn directory(&self) -> &[PageEntry];
+    /// Decodes and validates page `index` into `page`, reusing its buffers.
+    fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError>;
+}
+
+impl<B: AsRef<[u8]> + Send> PageSource for VdtFile<B> {
+    fn header(&self) -> &Header {
+        VdtFile::header(self)
+    }
+
+    fn directory(&self) -> &[PageEntry] {
+        VdtFile::directory(self)
+    }
+
+    fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError> {
+        VdtFile::read_page_into(self, index, page)
+    }
+}
+
+/// One node of the vertex tree as the runtime reads it (native floats and integers).
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+pub struct Node {
+    /// The proxy vertex (a leaf's original position).
+    pub proxy: [f32; 3],
+    /// Largest distance from the proxy to any original vertex under the node.
+    pub error_radius: f32,
+    /// Centre of a sphere holding every triangle with a corner under the node.
+    pub sphere_center: [f32; 3],
+    /// Radius of that sphere.
+    pub sphere_radius: f32,
+    /// Unit axis of the cone of those triangles' normals.
+    pub cone_axis: [f32; 3],
+    /// Half-angle of that cone in radians; negative when it bounds no normal.
+    pub cone_half_angle: f32,
+    /// Parent id, or [`NO_NODE`] for the root.
+    pub parent: u32,
+    /// First child id; children are `first_child .. first_child + child_count`.
+    pub first_child: u32,
+    /// First leaf rank under the node.
+    pub leaf_begin: u32,
+    /// One past the last leaf rank under the node.
+    pub leaf_end: u32,
+    /// Global index of the node's first subtri.
+    pub subtri_begin: u32,
+    /// Number of subtris.
+    pub subtri_count: u32,
+    /// Number of children (0 for a leaf).
+    pub child_count: u8,
+    /// Depth below the root.
+    pub depth: u16,
+}
+
+impl Node {
+    fn from_record(r: &NodeRecord) -> Node {
+        let f = |v: &[vds_format::layout::F32]| [v[0].get(), v[1].get(), v[2].get()];
+        Node {
+            proxy: f(&r.proxy),
+            error_radius: r.error_radius.get(),
+            sphere_center: f(&r.sphere[..3]),
+            sphere_radius: r.sphere[3].get(),
+            cone_axis: f(&r.cone[..3]),
+            cone_half_angle: r.cone[3].get(),
+            parent: r.parent.get(),
+            first_child: r.first_child.get(),
+            leaf_begin: r.leaf_begin.get(),
+            leaf_end: r.leaf_end.get(),
+            subtri_begin: r.subtri_begin.get(),
+            subtri_count: r.subtri_count.get(),
+            child_count: r.child_count,
+            depth: r.depth.get(),
+        }
+    }
+
+    /// True for a leaf (an original vertex).
+    pub fn is_leaf(&self) -> bool {
+        self.child_count == 0
+    }
+
+    /// The children's ids.
+    pub fn children(&self) -> std::ops::Range<u32> {
+        self.first_child..self.first_child + u32::from(self.child_count)
+    }
+
+    /// True when the original vertex of leaf rank `rank` lies under this node.
+    pub fn supports_rank(&self, rank: u32) -> bool {
+        self.leaf_begin <= rank && rank < self.leaf_end
+    }
+
+    /// True when triangle `index` is one of this node's subtris.
+    pub fn owns_subtri(&self, index: u32) -> bool {
+        index.wrapping_sub(self.subtri_begin) < self.subtri_count
+    }
+}
+
+/// Nodes and triangles of the pages loaded so far.
+pub struct NodeStore {
+    source: Box<dyn PageSource>,
+    page_first_node: Vec<u32>,
+    resident: Vec<bool>,
+    resident_pages: u32,
+    nodes: Vec<Node>,
+    triangle_corners: Vec<[u32; 3]>,
+    triangle_parts: Vec<u32>,
+    scratch: Page,
+}
+
+impl NodeStore {
+    /// A store over `source` with the root's page loaded.
+    pub fn new(source: Box<dyn PageSource>) -> Result<NodeStore, VdtError> {
+        let header = source.header();
+        let node_count = header.node_count.get() as usize;
+        let triangle_count = header.triangle_count.get() as usize;
+        if node_count == 0 {
+            return Err(VdtError::invalid("tree", "the file holds no nodes"));
+        }
+        let page_first_node = source
+            .directory()
+            .iter()
+            .map(|p| p.first_node.get())
+            .collect::<Vec<_>>();
+        let page_count = page_first_node.len();
+        let mut store = NodeStore {
+            source,
+            page_first_node,
+            resident: vec![false; page_count],
+            resident_pages: 0,
+            // Zeroed allocations: the operating system provides the pages lazily, so a
+            // store over a huge file costs memory only for the pages actually loaded.
+            nodes: bytemuck::zeroed_vec(node_count),
+            triangle_corners: bytemuck::zeroed_vec(triangle_count),
+            triangle_parts: bytemuck::zeroed_vec(triangle_count),
+            scratch: Page {
+                first_node: 0,
+                first_triangle: 0,
+                nodes: Vec::new(),
+                triangles: Vec::new(),
+            },
+        };
+        store.load_node(0)?;
+        let root = store.nodes[0];
+        if root.leaf_begin != 0 || u64::from(root.leaf_end) != store.source.header().vertex_count.get() {
+            return Err(VdtError::invalid("node 0", "the root does not cover every vertex"));
+        }
+        Ok(store)
+    }
+
+    /// Number of nodes in the tree.
+    pub fn node_count(&self) -> u32 {
+        self.nodes.len() as u32
+    }
+
+    /// Number of original vertices (leaves).
+    pub fn vertex_count(&self) -> u32 {
+        self.source.header().vertex_count.get() as u32
+    }
+
+    /// Number of triangles in the tree.
+    pub fn triangle_count(&self) -> u32 {
+        self.triangle_corners.len() as u32
+    }
+
+    /// Pages loaded so far, and pages in the file.
+    pub fn pages_resident(&self) -> (u32, u32) {
+        (self.resident_pages, self.resident.len() as u32)
+    }
+
+    /// Node `id`. Its page must have been loaded ([`NodeStore::load_node`]); nodes of pages
+    /// not yet loaded read as zeros.
+    #[inline]
+    pub fn node(&self, id: u32) -> &Node {
+        &self.nodes[id as usize]
+    }
+
+    /// Corners (leaf ranks) of triangle `index`; its owner's page must be loaded.
+    #[inline]
+    pub fn triangle_corners(&self, index: u32) -> [u32; 3] {
+        self.triangle_corners[index as usize]
+    }
+
+    /// Part id of triangle `index`; its owner's page must be loaded.
+    #[inline]
+    pub fn triangle_part(&self, index: u32) -> u32 {
+        self.triangle_parts[index as usize]
+    }
+
+    /// Makes sure node `id` and its subtris are loaded.
+    pub fn load_node(&mut self, id: u32) -> Result<(), VdtError> {
+        let page = self.page_first_node.partition_point(|&first| first <= id);
+        match page.checked_sub(1) {
+            Some(index) if self.resident[index] => Ok(()),
+            Some(index) => self.load_page(index as u32),
+            None => Err(VdtError::invalid("node id", format!("{id} has no page"))),
+        }
+    }
+
+    /// Makes sure every child of `id` is loaded (children may straddle a page boundary) and
+    /// that they partition `id`'s leaf range in order, as the traversal assumes. The reader
+    /// validates each page on its own; this is the part of the tree's shape that spans
+    /// pages, checked where it is first relied on.
+    pub fn load_children(&mut self, id: u32) -> Result<(), VdtError> {
+        let node = self.nodes[id as usize];
+        if node.is_leaf() {
+            return Ok(());
+        }
+        self.load_node(node.first_child)?;
+        self.load_node(node.first_child + u32::from(node.child_count) - 1)?;
+        let mut next_rank = node.leaf_begin;
+        for c in node.children() {
+            let child = &self.nodes[c as usize];
+            if child.parent != id || child.leaf_begin != next_rank || child.depth != node.depth + 1
+            {
+                return Err(VdtError::invalid(
+                    format!("node {c}"),
+                    format!("is not a well-formed child of node {id}"),
+                ));
+            }
+            next_rank = child.leaf_end;
+        }
+        if next_rank != node.leaf_end {
+            return Err(VdtError::invalid(
+                format!("node {id}"),
+                "its children do not cover its leaf range",
+            ));
+        }
+        Ok(())
+    }
+
+    fn load_page(&mut self, index: u32) -> Result<(), VdtError> {
+        self.source.read_page_into(index, &mut self.scratch)?;
+        let page = &self.scratch;
+        let first = page.first_node as usize;
+        for (slot, record) in self.nodes[first..first + page.nodes.len()]
+            .iter_mut()
+            .zip(&page.nodes)
+        {
+            *slot = Node::from_record(record);
+        }
+        let first = page.first_triangle as usize;
+        for (k, t) in page.triangles.iter().enumerate() {
+            self.triangle_corners[first + k] = t.corners.map(|c| c.get());
+            self.triangle_parts[first + k] = t.part.get();
+        }
+        self.resident[index as usize] = true;
+        self.resident_pages += 1;
+        Ok(())
+    }
+
+    /// The boundary-node test needs the leaf a rank belongs to only through ranges, so no
+    /// rank → node table exists; this walks down from `from` (which must support `rank`)
+    /// through nodes for which `descend` says yes, and returns where it stops.
+    #[inline]
+    pub fn descend(&self, mut from: u32, rank: u32, mut descend: impl FnMut(u32) -> bool) -> u32 {
+        while descend(from) {
+            from = self.child_supporting(from, rank);
+        }
+        from
+    }
+
+    /// The child of inner node `id` that supports `rank` (which `id` must support).
+    #[inline]
+    pub fn child_supporting(&self, id: u32, rank: u32) -> u32 {
+        let node = &self.nodes[id as usize];
+        debug_assert!(node.supports_rank(rank) && !node.is_leaf());
+        // Children cover consecutive leaf ranges in id order, so the last child starting at
+        // or before `rank` is the one.
+        let mut child = node.first_child;
+        for c in node.first_child + 1..node.first_child + u32::from(node.child_count) {
+            if self.nodes[c as usize].leaf_begin <= rank {
+                child = c;
+            } else {
+                break;
+            }
+        }
+        child
+    }
+
+    /// The root id.
+    pub const ROOT: u32 = 0;
+
+    /// The parent id of the root.
+    pub const NO_PARENT: u32 = NO_NODE;
+}

@@ -1,0 +1,115 @@
+//! Shared helpers: building `.vdt` bytes from meshes, runtimes over them, and cameras.
+
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+use vds_build::{build_tree, snap_to_grid, tree_content};
+use vds_format::{VdtFile, WriteOptions, encode};
+use vds_import::Scene;
+use vds_runtime::{Camera, CornerTracking, Runtime};
+
+pub fn shared(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(name)
+}
+
+/// A mesh from `../shared/data`.
+pub fn load(name: &str) -> Scene {
+    vds_import::load_file(shared(name), &Default::default()).unwrap()
+}
+
+/// The `.vdt` bytes of `scene` (snapped to the file's grid in place), with small pages so
+/// that even small meshes exercise page loading.
+pub fn vdt_bytes(scene: &mut Scene) -> Vec<u8> {
+    let grid = snap_to_grid(scene);
+    let tree = build_tree(scene);
+    let metadata = vds_format::Metadata {
+        part_names: scene.part_names.clone(),
+        ..Default::default()
+    };
+    let options = WriteOptions {
+        zstd_level: 1,
+        page_bytes: 4096,
+    };
+    encode(&tree_content(&tree, scene, metadata, grid), &options)
+        .unwrap()
+        .0
+}
+
+pub fn runtime(bytes: &[u8], tracking: CornerTracking) -> Runtime {
+    Runtime::new(
+        Box::new(VdtFile::from_bytes(bytes.to_vec()).unwrap()),
+        tracking,
+    )
+    .unwrap()
+}
+
+/// Bounding sphere (centre, radius) of a point set.
+pub fn bounds(positions: &[[f32; 3]]) -> ([f32; 3], f32) {
+    let mut min = [f32::INFINITY; 3];
+    let mut max = [f32::NEG_INFINITY; 3];
+    for p in positions {
+        for k in 0..3 {
+            min[k] = min[k].min(p[k]);
+            max[k] = max[k].max(p[k]);
+        }
+    }
+    let center = [0, 1, 2].map(|k| (min[k] + max[k]) / 2.0);
+    let radius = (0..3)
+        .map(|k| (max[k] - min[k]) / 2.0)
+        .map(|h| h * h)
+        .sum::<f32>()
+        .sqrt();
+    (center, radius)
+}
+
+/// A small deterministic generator (SplitMix64) for cameras.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [lo, hi).
+    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    pub fn unit_vector(&mut self) -> [f32; 3] {
+        loop {
+            let v = [0; 3].map(|_| self.range(-1.0, 1.0));
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if l > 0.1 && l <= 1.0 {
+                return v.map(|x| x / l);
+            }
+        }
+    }
+}
+
+/// A random camera around a model: from far outside to inside its bounds, looking roughly at
+/// its centre, with varied fields of view and aspect ratios.
+pub fn random_camera(rng: &mut Rng, center: [f32; 3], radius: f32) -> Camera {
+    let distance = radius * rng.range(0.3, 4.0);
+    let dir = rng.unit_vector();
+    let eye = [0, 1, 2].map(|k| center[k] + dir[k] * distance);
+    let jitter = rng.unit_vector();
+    let target = [0, 1, 2].map(|k| center[k] + jitter[k] * radius * 0.3);
+    let width = 160 + (rng.next_u64() % 400) as u32;
+    let height = 120 + (rng.next_u64() % 300) as u32;
+    Camera {
+        eye,
+        target,
+        up: rng.unit_vector(),
+        fov_y_degrees: rng.range(20.0, 100.0),
+        width,
+        height,
+        near: radius * 1e-3,
+    }
+}

@@ -1,0 +1,342 @@
+//! The method's invariants for the cut: the threshold guarantee, the budget's stopping rule,
+//! unfold-all/fold-all, coherence of incremental adjusts with a recomputation from scratch,
+//! the change journal a renderer applies, and the two corner-tracking strategies agreeing.
+
+mod common;
+
+use common::*;
+use vds_runtime::{
+    ActiveTriangle, Camera, CornerTracking, Criteria, FrustumMode, Goal, Judge, Runtime,
+    Viewpoint, measure,
+};
+
+const MESHES: [&str; 3] = ["bunny.obj", "cow.obj", "as1_assembly.obj"];
+
+/// Screen-space checks compare a bound computed in `f32` with a projection computed in `f64`
+/// from `f32` positions; relative rounding of both is below 1e-5, so this slack covers it
+/// with room to spare while being far below anything a wrong bound would produce.
+fn slack(t: f32) -> f64 {
+    f64::from(t) * 1e-4 + 1e-4
+}
+
+fn no_backface() -> Criteria {
+    Criteria {
+        backface: false,
+        ..Criteria::default()
+    }
+}
+
+/// A canonical form of a triangle by corner positions: rotated so the smallest corner leads,
+/// keeping orientation.
+fn canonical(corners: [[f32; 3]; 3]) -> [[u32; 3]; 3] {
+    let bits = corners.map(|p| p.map(f32::to_bits));
+    let lead = (0..3).min_by_key(|&k| bits[k]).unwrap();
+    [bits[lead], bits[(lead + 1) % 3], bits[(lead + 2) % 3]]
+}
+
+#[test]
+fn unfolding_everything_gives_the_original_mesh_and_folding_everything_the_root() {
+    for name in MESHES {
+        for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
+            let mut scene = load(name);
+            let bytes = vdt_bytes(&mut scene);
+            let mut runtime = runtime(&bytes, tracking);
+            runtime.cut_mut().unfold_all().unwrap();
+            runtime.cut_mut().check().unwrap();
+            let cut = runtime.cut_mut();
+            let active = cut.active_triangles();
+            let mut drawn: Vec<_> = active
+                .iter()
+                .map(|t| {
+                    let corners = t.corners.map(|n| {
+                        assert!(cut.node(n).is_leaf(), "{name}: a corner is not a leaf");
+                        cut.node(n).proxy
+                    });
+                    canonical(corners)
+                })
+                .collect();
+            let mut original: Vec<_> = scene
+                .triangles
+                .iter()
+                .map(|t| canonical(t.map(|v| scene.positions[v as usize])))
+                .collect();
+            drawn.sort_unstable();
+            original.sort_unstable();
+            assert_eq!(drawn.len(), original.len(), "{name}: triangle count");
+            assert!(drawn == original, "{name}: the unfolded mesh differs");
+            assert_eq!(cut.boundary().len(), scene.positions.len());
+
+            cut.fold_all();
+            cut.check().unwrap();
+            assert_eq!(cut.active_triangle_count(), 0);
+            assert_eq!(cut.active_node_count(), 0);
+            assert_eq!(cut.boundary(), &[0]);
+        }
+    }
+}
+
+#[test]
+fn threshold_bounds_every_visible_vertex_on_random_cameras() {
+    for name in MESHES {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+        let positions = runtime.leaf_positions().unwrap();
+        let mut rng = Rng(name.len() as u64);
+        let mut checked = 0;
+        for step in 0..24 {
+            let camera = random_camera(&mut rng, center, radius);
+            let t = [0.5f32, 1.0, 3.0][step % 3];
+            let criteria = Criteria {
+                frustum: [FrustumMode::Fold, FrustumMode::Off][step / 3 % 2],
+                silhouette_factor: [Some(0.25), None][step / 6 % 2],
+                ..no_backface()
+            };
+            runtime
+                .adjust(&Viewpoint::Camera(camera), &criteria, Goal::Threshold(t))
+                .unwrap();
+            runtime.cut_mut().check().unwrap();
+            let deviation = measure::screen_deviation(runtime.cut(), &camera.view(), &positions);
+            assert!(
+                deviation.max_px <= f64::from(t) + slack(t),
+                "{name} step {step}: a vertex moved {} px > {t} px (camera {camera:?})",
+                deviation.max_px
+            );
+            if deviation.visible_vertices > 0 {
+                checked += 1;
+            }
+        }
+        assert!(checked >= 12, "{name}: too few cameras saw the model");
+    }
+}
+
+#[test]
+fn threshold_zero_unfolds_every_visible_region_fully() {
+    let mut scene = load("cow.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let camera = Camera::framing(center, radius, [1.0, 0.5, 2.0], 400, 300);
+    let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+    runtime
+        .adjust(&Viewpoint::Camera(camera), &no_backface(), Goal::Threshold(0.0))
+        .unwrap();
+    // The whole cow is in view, so every node unfolds.
+    assert_eq!(
+        runtime.cut().active_triangle_count() as usize,
+        scene.triangles.len()
+    );
+}
+
+/// Applies a frame's changes to a mirror of the slot array, as a renderer would.
+fn apply(mirror: &mut Vec<Option<ActiveTriangle>>, runtime: &mut Runtime, dirty: &[u32]) {
+    let cut = runtime.cut_mut();
+    mirror.resize(cut.slot_count() as usize, None);
+    for &slot in dirty {
+        mirror[slot as usize] = cut.slot(slot);
+    }
+}
+
+#[test]
+fn incremental_adjusts_match_a_recomputation_and_the_journal_replays_them() {
+    for name in ["bunny.obj", "as1_assembly.obj"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let mut eager = runtime(&bytes, CornerTracking::Incidence);
+        let mut lazy = runtime(&bytes, CornerTracking::Lazy);
+        let mut mirror = Vec::new();
+        let mut rng = Rng(7);
+        let mut camera = random_camera(&mut rng, center, radius);
+        for step in 0..60 {
+            // Mostly small moves, with a jump every 15 frames and goal switches.
+            if step % 15 == 14 {
+                camera = random_camera(&mut rng, center, radius);
+            } else {
+                let d = rng.unit_vector();
+                for k in 0..3 {
+                    camera.eye[k] += d[k] * radius * 0.05;
+                }
+            }
+            let goal = match step / 20 {
+                0 => Goal::Threshold(1.0),
+                1 => Goal::Budget(2000 + 300 * step),
+                _ => Goal::Threshold(4.0),
+            };
+            let criteria = Criteria {
+                frustum: [FrustumMode::Fold, FrustumMode::Ignore][step as usize % 2],
+                ..Criteria::default()
+            };
+            let view = Viewpoint::Camera(camera);
+            let frame = eager.adjust(&view, &criteria, goal).unwrap();
+            lazy.adjust(&view, &criteria, goal).unwrap();
+            eager.cut_mut().check().unwrap();
+            lazy.cut_mut().check().unwrap();
+            apply(&mut mirror, &mut eager, &frame.changes.dirty_slots);
+            let cut = eager.cut_mut();
+            let slots: Vec<_> = (0..cut.slot_count()).map(|s| cut.slot(s)).collect();
+            assert!(mirror == slots, "{name} step {step}: the journal missed a change");
+            let mut a = eager.cut_mut().active_triangles();
+            let mut b = lazy.cut_mut().active_triangles();
+            a.sort_unstable();
+            b.sort_unstable();
+            assert!(a == b, "{name} step {step}: incidence and lazy tracking disagree");
+        }
+    }
+}
+
+#[test]
+fn budget_is_never_exceeded_and_the_next_unfold_would_exceed_it() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+    let mut rng = Rng(3);
+    let mut camera = random_camera(&mut rng, center, radius);
+    for (step, budget) in [100u32, 1000, 5000, 20000, 3000, 500, 12000, 0, 8000]
+        .into_iter()
+        .cycle()
+        .take(27)
+        .enumerate()
+    {
+        if step % 3 == 0 {
+            camera = random_camera(&mut rng, center, radius);
+        }
+        let views = [Viewpoint::Camera(camera), Viewpoint::Independent];
+        let viewpoint = views[step % 4 / 3];
+        let criteria = Criteria::default();
+        runtime
+            .adjust(&viewpoint, &criteria, Goal::Budget(budget))
+            .unwrap();
+        runtime.cut_mut().check().unwrap();
+        let active = runtime.cut().active_triangle_count();
+        assert!(active <= budget, "step {step}: {active} > {budget}");
+        // §3.3's stopping rule: the highest-priority boundary node does not fit.
+        let judge = Judge::new(&viewpoint, &criteria);
+        let unfoldable: Vec<u32> = runtime
+            .cut()
+            .boundary()
+            .iter()
+            .copied()
+            .filter(|&b| runtime.cut().can_unfold(b))
+            .collect();
+        let next = unfoldable
+            .into_iter()
+            .map(|b| (runtime.budget_priority(&judge, b), b))
+            .filter(|&(p, _)| p > 0.0)
+            .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
+        if let Some((_, node)) = next {
+            let cost = runtime.cut().node(node).subtri_count;
+            assert!(
+                active + cost > budget,
+                "step {step}: node {node} ({cost} triangles) still fits in {budget} - {active}"
+            );
+        }
+    }
+}
+
+#[test]
+fn view_independent_budget_orders_by_object_space_error() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+    let mut previous_error = f32::INFINITY;
+    for budget in [500u32, 2000, 8000, 30000] {
+        runtime
+            .adjust(&Viewpoint::Independent, &Criteria::default(), Goal::Budget(budget))
+            .unwrap();
+        // The largest error radius left on the boundary shrinks as the budget grows.
+        let cut = runtime.cut();
+        let worst = cut
+            .boundary()
+            .iter()
+            .map(|&b| cut.node(b).error_radius)
+            .fold(0.0f32, f32::max);
+        assert!(worst <= previous_error, "budget {budget}: {worst} > {previous_error}");
+        previous_error = worst;
+        assert!(cut.active_triangle_count() > budget / 2, "budget {budget} is badly used");
+    }
+}
+
+#[test]
+fn frustum_fold_collapses_an_unseen_model_and_ignore_leaves_it() {
+    let mut scene = load("cow.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let front = Camera::framing(center, radius, [0.0, 0.0, 1.0], 320, 240);
+    // Same eye, looking straight away from the model.
+    let mut away = front;
+    away.target = [0, 1, 2].map(|k| 2.0 * front.eye[k] - center[k]);
+    for (mode, keeps) in [(FrustumMode::Fold, false), (FrustumMode::Ignore, true)] {
+        let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+        let criteria = Criteria {
+            frustum: mode,
+            ..Criteria::default()
+        };
+        runtime
+            .adjust(&Viewpoint::Camera(front), &criteria, Goal::Threshold(1.0))
+            .unwrap();
+        let seen = runtime.cut().active_triangle_count();
+        assert!(seen > 1000);
+        let frame = runtime
+            .adjust(&Viewpoint::Camera(away), &criteria, Goal::Threshold(1.0))
+            .unwrap();
+        runtime.cut_mut().check().unwrap();
+        if keeps {
+            assert_eq!(runtime.cut().active_triangle_count(), seen);
+            assert!(frame.changes.dirty_slots.is_empty());
+        } else {
+            assert_eq!(runtime.cut().active_triangle_count(), 0);
+            assert_eq!(frame.changes.removed, seen);
+        }
+    }
+}
+
+#[test]
+fn gaze_loosens_the_threshold_away_from_the_focus_and_keeps_its_bound() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let camera = Camera::framing(center, radius * 0.6, [0.3, 0.2, 1.0], 640, 480);
+    let view = camera.view();
+    let gaze_direction = (view.forward + view.right * 0.3).normalize();
+    let falloff = 8.0;
+    let mut plain = runtime(&bytes, CornerTracking::Incidence);
+    let mut gazing = runtime(&bytes, CornerTracking::Incidence);
+    let t = 1.0;
+    plain
+        .adjust(&Viewpoint::Camera(camera), &no_backface(), Goal::Threshold(t))
+        .unwrap();
+    let criteria = Criteria {
+        gaze: Some(vds_runtime::Gaze {
+            direction: gaze_direction.into(),
+            falloff,
+        }),
+        ..no_backface()
+    };
+    gazing
+        .adjust(&Viewpoint::Camera(camera), &criteria, Goal::Threshold(t))
+        .unwrap();
+    assert!(
+        gazing.cut().active_triangle_count() * 5 < plain.cut().active_triangle_count() * 4,
+        "gaze should cost at least a fifth fewer triangles: {} vs {}",
+        gazing.cut().active_triangle_count(),
+        plain.cut().active_triangle_count()
+    );
+    // Each visible vertex is within t·(1 + falloff·θ) of its image, θ its angle from the gaze.
+    let positions = gazing.leaf_positions().unwrap();
+    let cut = gazing.cut();
+    for (rank, &p) in positions.iter().enumerate() {
+        let v = glam::Vec3::from(p);
+        if !view.contains(v) {
+            continue;
+        }
+        let proxy = glam::Vec3::from(cut.node(cut.current_proxy_node(rank as u32)).proxy);
+        let a = view.project(v).unwrap();
+        let b = view.project(proxy).unwrap();
+        let theta = gaze_direction.angle_between(v - view.eye);
+        let limit = t * (1.0 + falloff * theta);
+        let moved = (a[0] - b[0]).hypot(a[1] - b[1]);
+        assert!(moved <= f64::from(limit) + slack(limit), "vertex {rank}: {moved} > {limit}");
+    }
+}
