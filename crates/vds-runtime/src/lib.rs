@@ -18,12 +18,14 @@
 //! - [`criteria`]: the screen-space, silhouette, backface, frustum and gaze tests.
 //! - [`adjust`]: the per-frame threshold traversal and the triangle-budget exchange.
 //! - [`measure`]: exact screen-space deviation of the original vertices, for checks.
+//! - [`export`]: the cut as an OBJ or PLY mesh (`vds-cut`).
 
 #![deny(missing_docs)]
 
 pub mod adjust;
 pub mod criteria;
 pub mod cut;
+pub mod export;
 pub mod measure;
 pub mod store;
 pub mod view;

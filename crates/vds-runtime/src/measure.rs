@@ -37,14 +37,19 @@ pub struct Deviation {
     pub visible_vertices: u64,
 }
 
-/// For every original vertex inside `view`'s frustum, the on-screen distance between its
-/// projection and its current proxy's projection (both in double precision); the largest.
-/// A proxy behind the eye counts as infinitely far.
-pub fn screen_deviation(cut: &Cut, view: &View, positions: &[[f32; 3]]) -> Deviation {
+/// For every original vertex inside `view`'s frustum (and, when `only` is given, marked in
+/// it), the on-screen distance between its projection and its current proxy's projection
+/// (both in double precision); the largest. A proxy behind the eye counts as infinitely far.
+pub fn screen_deviation(
+    cut: &Cut,
+    view: &View,
+    positions: &[[f32; 3]],
+    only: Option<&[bool]>,
+) -> Deviation {
     let mut deviation = Deviation::default();
     for (rank, &p) in positions.iter().enumerate() {
         let v = Vec3::from(p);
-        if !view.contains(v) {
+        if !view.contains(v) || only.is_some_and(|only| !only[rank]) {
             continue;
         }
         deviation.visible_vertices += 1;
@@ -59,4 +64,35 @@ pub fn screen_deviation(cut: &Cut, view: &View, positions: &[[f32; 3]]) -> Devia
         }
     }
     deviation
+}
+
+/// The largest object-space distance between an original vertex and its current proxy.
+pub fn object_deviation(cut: &Cut, positions: &[[f32; 3]]) -> f32 {
+    positions
+        .iter()
+        .enumerate()
+        .map(|(rank, &p)| {
+            let proxy = Vec3::from(cut.node(cut.current_proxy_node(rank as u32)).proxy);
+            Vec3::from(p).distance(proxy)
+        })
+        .fold(0.0, f32::max)
+}
+
+/// Per leaf rank: whether the vertex has an incident triangle that faces `eye` or is seen
+/// edge-on — the vertices backface simplification must not fold away. Zero-area triangles
+/// count as facing (they bound no normal, so no cone test folds them). Every page must be
+/// loaded ([`leaf_positions`] does that).
+pub fn facing_vertices(store: &NodeStore, positions: &[[f32; 3]], eye: Vec3) -> Vec<bool> {
+    let mut facing = vec![false; positions.len()];
+    for t in 0..store.triangle_count() {
+        let ranks = store.triangle_corners(t);
+        let p = ranks.map(|r| Vec3::from(positions[r as usize]));
+        let normal = (p[1] - p[0]).cross(p[2] - p[0]);
+        if normal.dot(eye - p[0]) >= 0.0 || normal == Vec3::ZERO {
+            for r in ranks {
+                facing[r as usize] = true;
+            }
+        }
+    }
+    facing
 }

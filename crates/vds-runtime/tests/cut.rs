@@ -97,7 +97,7 @@ fn threshold_bounds_every_visible_vertex_on_random_cameras() {
                 .adjust(&Viewpoint::Camera(camera), &criteria, Goal::Threshold(t))
                 .unwrap();
             runtime.cut_mut().check().unwrap();
-            let deviation = measure::screen_deviation(runtime.cut(), &camera.view(), &positions);
+            let deviation = measure::screen_deviation(runtime.cut(), &camera.view(), &positions, None);
             assert!(
                 deviation.max_px <= f64::from(t) + slack(t),
                 "{name} step {step}: a vertex moved {} px > {t} px (camera {camera:?})",
