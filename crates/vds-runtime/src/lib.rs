@@ -17,12 +17,14 @@
 //! - [`cut`]: node labels, the boundary, active triangles in slots, fold and unfold.
 //! - [`criteria`]: the screen-space, silhouette, backface, frustum and gaze tests.
 //! - [`adjust`]: the per-frame threshold traversal and the triangle-budget exchange.
+//! - [`camera_path`]: camera paths (orbit, fly-through) and their JSON form.
 //! - [`measure`]: exact screen-space deviation of the original vertices, for checks.
 //! - [`export`]: the cut as an OBJ or PLY mesh (`vds-cut`).
 
 #![deny(missing_docs)]
 
 pub mod adjust;
+pub mod camera_path;
 pub mod criteria;
 pub mod cut;
 pub mod export;
@@ -33,6 +35,7 @@ pub mod view;
 use std::path::Path;
 
 pub use adjust::{AdjustStats, Adjuster};
+pub use camera_path::CameraPath;
 pub use criteria::{Criteria, Decision, Facing, FrustumMode, Gaze, Goal, Judge, Viewpoint};
 pub use cut::{ActiveTriangle, Changes, CornerTracking, Cut, NIL, NodeState};
 pub use store::{Node, NodeStore, PageSource};

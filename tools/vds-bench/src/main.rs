@@ -5,6 +5,9 @@
 //! - Generated CAD-like scenes (default 1M and 10M triangles): end-to-end `read + weld +
 //!   build` throughput and peak memory. Each run is a fresh child process (this binary with
 //!   the hidden `one` subcommand), so peak RSS (`VmHWM`) belongs to that run alone.
+//! - `vds-bench cut`: the runtime along camera paths and its fidelity (see `cut.rs`).
+
+mod cut;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -45,6 +48,16 @@ enum Commands {
     /// (internal) Build one file, write its .vdt, time opening and decoding it.
     #[command(hide = true)]
     Vdt { file: PathBuf },
+    /// The runtime: adjust time along camera paths (bunny orbit, generated CAD scene
+    /// fly-through) at t = 1 and 5 px, and view-independent fidelity vs simplify_sloppy.
+    Cut {
+        /// Frames per camera path.
+        #[arg(long, default_value_t = 600)]
+        frames: u32,
+        /// Generated scene sizes in triangles.
+        #[arg(long, value_delimiter = ',', default_value = "1M")]
+        sizes: Vec<String>,
+    },
 }
 
 #[derive(Serialize, Deserialize)]
@@ -101,6 +114,15 @@ fn main() -> Result<()> {
     match args.command {
         Some(Commands::One { file }) => return one(&file),
         Some(Commands::Vdt { file }) => return vdt(&file),
+        Some(Commands::Cut { frames, sizes }) => {
+            let bunny = args.shared.join("bunny.obj");
+            cut::paths("bunny", &bunny, frames, false)?;
+            for size in &sizes {
+                let file = generated_scene(parse_count(size)?, &args.dir)?;
+                cut::paths(&format!("generated CAD scene {size}"), &file, frames, true)?;
+            }
+            return cut::fidelity(&bunny);
+        }
         None => {}
     }
     println!(
@@ -293,7 +315,8 @@ fn bunny(path: &Path, runs: usize) -> Result<()> {
     Ok(())
 }
 
-fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<PathBuf> {
+/// The generated scene of `triangles` triangles, cached as PLY in `dir`.
+fn generated_scene(triangles: u64, dir: &Path) -> Result<PathBuf> {
     std::fs::create_dir_all(dir)?;
     let file = dir.join(format!("cad-{triangles}.ply"));
     if !file.exists() {
@@ -305,6 +328,11 @@ fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<PathBuf> {
         drop(out);
         std::fs::rename(&partial, &file)?;
     }
+    Ok(file)
+}
+
+fn cad_scene(triangles: u64, dir: &Path, runs: usize) -> Result<PathBuf> {
+    let file = generated_scene(triangles, dir)?;
     let exe = std::env::current_exe()?;
     let mut results = Vec::new();
     for _ in 0..runs {

@@ -1,0 +1,237 @@
+//! `vds-bench cut`: the runtime along camera paths, and the view-independent cut's fidelity
+//! against meshoptimizer's `simplify_sloppy` at equal triangle counts.
+//!
+//! Per frame: the adjust time (one thread), nodes visited, and triangles added, removed and
+//! changed as fractions of the active set. The first frame starts from the root and loads
+//! pages; it is reported apart, and the medians and 99th percentiles cover the frames after.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use rayon::prelude::*;
+use vds_format::{VdtFile, WriteOptions, encode};
+use vds_runtime::{CameraPath, CornerTracking, Criteria, Goal, Runtime, Viewpoint};
+
+/// The `.vdt` bytes of a mesh file, built in memory, and the scene as imported and snapped.
+pub fn vdt_bytes(file: &Path) -> Result<(Vec<u8>, vds_import::Scene)> {
+    let mut scene = vds_import::load_file(file, &Default::default())
+        .with_context(|| format!("reading {}", file.display()))?;
+    let grid = vds_build::snap_to_grid(&mut scene);
+    let tree = vds_build::build_tree(&scene);
+    let metadata = vds_format::Metadata {
+        part_names: scene.part_names.clone(),
+        ..Default::default()
+    };
+    let content = vds_build::tree_content(&tree, &scene, metadata, grid);
+    Ok((encode(&content, &WriteOptions::default())?.0, scene))
+}
+
+fn percentile(values: &[f64], p: f64) -> f64 {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+}
+
+/// Plays `path` through a fresh runtime and prints one line of figures.
+fn play(bytes: &[u8], path: &CameraPath, goal: Goal, tracking: CornerTracking) -> Result<()> {
+    let file = VdtFile::from_bytes(bytes.to_vec())?;
+    let mut runtime = Runtime::new(Box::new(file), tracking)?;
+    let criteria = Criteria::default();
+    let (mut ms, mut visited, mut added, mut removed, mut changed, mut active) =
+        (vec![], vec![], vec![], vec![], vec![], vec![]);
+    let mut first_ms = 0.0;
+    for (i, camera) in path.cameras.iter().enumerate() {
+        let start = Instant::now();
+        let frame = runtime.adjust(&Viewpoint::Camera(*camera), &criteria, goal)?;
+        let elapsed = start.elapsed().as_secs_f64() * 1e3;
+        let n = f64::from(runtime.cut().active_triangle_count().max(1));
+        if i == 0 {
+            first_ms = elapsed;
+            continue;
+        }
+        ms.push(elapsed);
+        visited.push(f64::from(frame.stats.visited));
+        added.push(f64::from(frame.changes.added) / n * 100.0);
+        removed.push(f64::from(frame.changes.removed) / n * 100.0);
+        changed.push(f64::from(frame.changes.changed) / n * 100.0);
+        active.push(n);
+    }
+    let median = |v: &[f64]| percentile(v, 0.5);
+    let t = match goal {
+        Goal::Threshold(t) => format!("t={t} px"),
+        Goal::Budget(n) => format!("n={n}"),
+    };
+    println!(
+        "  {t:<8} {:<9} adjust median {:6.3} ms  p99 {:6.3} ms  (first {:7.1} ms) | \
+         visited {:>7.0} | active {:>8.0} | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
+        format!("{tracking:?}"),
+        median(&ms),
+        percentile(&ms, 0.99),
+        first_ms,
+        median(&visited),
+        median(&active),
+        median(&added),
+        median(&removed),
+        median(&changed),
+        percentile(
+            &added
+                .iter()
+                .zip(&removed)
+                .zip(&changed)
+                .map(|((a, r), c)| a + r + c)
+                .collect::<Vec<_>>(),
+            0.99
+        ),
+    );
+    Ok(())
+}
+
+/// Runtime figures for one mesh along `path`, at t = 1 and 5 px, both corner strategies.
+pub fn paths(name: &str, file: &Path, frames: u32, fly: bool) -> Result<()> {
+    let (bytes, scene) = vdt_bytes(file)?;
+    let probe = Runtime::new(
+        Box::new(VdtFile::from_bytes(bytes.clone())?),
+        CornerTracking::Incidence,
+    )?;
+    let root = *probe.cut().node(0);
+    let (width, height) = (1920, 1080);
+    let path = if fly {
+        CameraPath::fly_through(root.sphere_center, root.sphere_radius, frames, width, height)
+    } else {
+        CameraPath::orbit(root.sphere_center, root.sphere_radius, frames, width, height)
+    };
+    println!(
+        "{name} ({} triangles), {} frames {} at {width}x{height}, one thread",
+        scene.triangles.len(),
+        frames,
+        if fly { "flying through" } else { "orbiting" },
+    );
+    for t in [1.0, 5.0] {
+        for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
+            play(&bytes, &path, Goal::Threshold(t), tracking)?;
+        }
+    }
+    println!();
+    Ok(())
+}
+
+/// Closest distance from `p` to triangle `abc` (Ericson, Real-Time Collision Detection §5.1.5).
+fn point_triangle_distance(p: glam::DVec3, a: glam::DVec3, b: glam::DVec3, c: glam::DVec3) -> f64 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return p.distance(a);
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return p.distance(b);
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return p.distance(a + ab * (d1 / (d1 - d3)));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return p.distance(c);
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return p.distance(a + ac * (d2 / (d2 - d6)));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return p.distance(b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
+    }
+    let denominator = 1.0 / (va + vb + vc);
+    p.distance(a + ab * (vb * denominator) + ac * (vc * denominator))
+}
+
+/// Mean distance from each point to the nearest triangle (exhaustive, in parallel).
+fn mean_distance(points: &[[f32; 3]], positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> f64 {
+    let corners: Vec<[glam::DVec3; 3]> = triangles
+        .iter()
+        .map(|t| t.map(|v| glam::Vec3::from(positions[v as usize]).as_dvec3()))
+        .collect();
+    let sum: f64 = points
+        .par_iter()
+        .map(|&p| {
+            let p = glam::Vec3::from(p).as_dvec3();
+            corners
+                .iter()
+                .map(|[a, b, c]| point_triangle_distance(p, *a, *b, *c))
+                .fold(f64::INFINITY, f64::min)
+        })
+        .sum();
+    sum / points.len().max(1) as f64
+}
+
+/// The symmetric mean surface distance between the original mesh and a simplification,
+/// vertex to surface both ways, as a fraction of the bounding-box diagonal.
+fn mean_error(
+    original: &vds_import::Scene,
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    diagonal: f64,
+) -> f64 {
+    let used: Vec<[f32; 3]> = {
+        let mut seen = vec![false; positions.len()];
+        triangles.iter().flatten().for_each(|&v| seen[v as usize] = true);
+        positions
+            .iter()
+            .zip(&seen)
+            .filter(|(_, s)| **s)
+            .map(|(p, _)| *p)
+            .collect()
+    };
+    let forward = mean_distance(&original.positions, positions, triangles);
+    let backward = mean_distance(&used, &original.positions, &original.triangles);
+    (forward + backward) / 2.0 / diagonal
+}
+
+/// View-independent VDS cuts vs `simplify_sloppy` at equal triangle counts on `file`.
+pub fn fidelity(file: &Path) -> Result<()> {
+    let (bytes, scene) = vdt_bytes(file)?;
+    let mut min = [f32::INFINITY; 3];
+    let mut max = [f32::NEG_INFINITY; 3];
+    for p in &scene.positions {
+        for k in 0..3 {
+            min[k] = min[k].min(p[k]);
+            max[k] = max[k].max(p[k]);
+        }
+    }
+    let diagonal = glam::Vec3::from(max).distance(glam::Vec3::from(min)) as f64;
+    let indices: Vec<u32> = scene.triangles.iter().flatten().copied().collect();
+    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&scene.positions), 12, 0)?;
+    println!(
+        "fidelity on {} ({} triangles): mean symmetric vertex-to-surface distance, % of the diagonal",
+        file.display(),
+        scene.triangles.len()
+    );
+    for target in [1_000usize, 5_000, 15_000] {
+        let sloppy = meshopt::simplify_sloppy(&indices, &adapter, target * 3, 1.0, None);
+        let sloppy_triangles: Vec<[u32; 3]> =
+            sloppy.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+        let count = sloppy_triangles.len() as u32;
+        let mut runtime = Runtime::new(
+            Box::new(VdtFile::from_bytes(bytes.clone())?),
+            CornerTracking::Incidence,
+        )?;
+        runtime.adjust(&Viewpoint::Independent, &Criteria::default(), Goal::Budget(count))?;
+        let mesh = vds_runtime::export::Mesh::from_cut(runtime.cut_mut());
+        let vds_error = mean_error(&scene, &mesh.positions, &mesh.triangles, diagonal);
+        let sloppy_error = mean_error(&scene, &scene.positions, &sloppy_triangles, diagonal);
+        println!(
+            "  ~{target:>6}: vds {:>6} triangles {:.4}%   simplify_sloppy {:>6} triangles {:.4}%   ratio vds/sloppy {:.2}",
+            mesh.triangles.len(),
+            vds_error * 100.0,
+            count,
+            sloppy_error * 100.0,
+            vds_error / sloppy_error
+        );
+    }
+    println!();
+    Ok(())
+}
