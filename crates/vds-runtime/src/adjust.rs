@@ -2,17 +2,27 @@
 //! (Luebke & Erikson 1997 §3.1, §4.1) and the triangle-budget exchange (§3.3).
 //!
 //! ## Threshold
-//! The paper's `adjust_tree` walks the whole active tree each frame. Here only the boundary
-//! nodes are visited — the *boundary path* — because every decision happens there: a
-//! boundary node that needs more detail unfolds, and its new children are checked in turn;
-//! one that does not lets its parent fold once all the parent's children are on the boundary
-//! and the parent itself passes, and the fold goes on upwards. Work per frame is the boundary
-//! (one test each, the cheap division-free form first) plus what changes. Each node's
-//! decision is computed once per frame and cached, since a parent is asked by each child.
+//! The paper's `adjust_tree` recurses through the active tree, and its §4.1 traversal follows
+//! the boundary path. Every decision happens at the boundary: a boundary node that needs more
+//! detail unfolds (and its new children are checked in turn); an active node whose children
+//! are all on the boundary folds if it passes itself, and the fold goes on upwards.
 //!
-//! After the traversal every boundary node has passed the test for this frame — either it was
-//! tested and stayed, or it was a parent that passed and folded — which is the threshold
-//! guarantee: no visible vertex is further than `t` pixels from its image.
+//! The traversal walks the active nodes in id order (page order, so memory streams) and asks
+//! two questions of each:
+//! - *Do its boundary children need anything?* One bound for the whole group answers "no"
+//!   for most of them ([`Judge::group_within`]: a ball around the node's proxy holding every
+//!   child's error ball, checked against the tightest threshold); only groups near the limit
+//!   test their children one by one.
+//! - *Can it fold?* Only if all its children are on the boundary; then its own full test
+//!   decides.
+//!
+//! Work per frame is the active nodes (one 32-byte record and one bound each) plus the
+//! boundary nodes near the threshold plus what changes. Decisions are cached per frame,
+//! since a fold cascade asks ancestors again.
+//!
+//! After the traversal every boundary node has passed the test for this frame — its group
+//! passed, or it was tested and stayed, or it folded because it passed — which is the
+//! threshold guarantee: no visible vertex is further than `t` pixels from its image.
 //!
 //! ## Budget
 //! A max-queue of boundary nodes by priority (screen-space error over the criteria's
@@ -123,17 +133,34 @@ impl Adjuster {
         prevent_flips: bool,
     ) -> Result<AdjustStats, VdtError> {
         self.begin(cut.store().node_count() as usize);
-        self.work.clear();
-        self.work.extend_from_slice(cut.boundary());
-        for i in 0..self.work.len() {
-            let b = self.work[i];
-            if cut.state(b) != NodeState::Boundary {
-                continue;
+        if cut.state(0) == NodeState::Boundary {
+            if self.decision(cut, judge, t, 0) == Decision::Unfold {
+                self.refine(cut, judge, t, 0)?;
+            } else {
+                return Ok(self.stats);
             }
-            match self.decision(cut, judge, t, b) {
-                Decision::Unfold => self.refine(cut, judge, t, b)?,
-                Decision::Fold => self.coarsen(cut, judge, t, cut.node(b).parent, prevent_flips),
-                Decision::Keep => {}
+        }
+        let tight = judge.tightest(t);
+        // Active nodes in id order. Nodes unfolded on the way have larger ids than their
+        // parent and are met later; nodes folded on the way are skipped by the state check.
+        let mut from = 0;
+        while let Some(p) = cut.next_active(from) {
+            from = p + 1;
+            let hot = *cut.store().hot(p);
+            if u32::from(cut.active_children(p)) < hot.child_count {
+                self.stats.visited += 1;
+                if !judge.group_within(&hot, tight) {
+                    for c in hot.first_child..hot.first_child + hot.child_count {
+                        if cut.state(c) == NodeState::Boundary
+                            && self.decision(cut, judge, t, c) == Decision::Unfold
+                        {
+                            self.refine(cut, judge, t, c)?;
+                        }
+                    }
+                }
+            }
+            if cut.active_children(p) == 0 && cut.state(p) == NodeState::Active {
+                self.coarsen(cut, judge, t, p, prevent_flips);
             }
         }
         Ok(self.stats)
@@ -209,7 +236,7 @@ impl Adjuster {
         self.unfold_queue.clear();
         self.fold_queue.clear();
         self.work.clear();
-        self.work.extend_from_slice(cut.boundary());
+        self.work.extend(cut.boundary());
         for i in 0..self.work.len() {
             let b = self.work[i];
             self.queue_unfold(cut, judge, b);

@@ -29,7 +29,7 @@
 
 use glam::Vec3;
 
-use crate::store::Node;
+use crate::store::{Hot, Node};
 use crate::view::{Camera, View};
 
 /// How the cut is driven.
@@ -159,6 +159,40 @@ impl Judge {
         self.view.as_ref()
     }
 
+    /// The tightest threshold any node can get from `t`: silhouettes scale it down, gaze
+    /// only up.
+    #[inline]
+    pub fn tightest(&self, t: f32) -> f32 {
+        match self.view {
+            Some(_) => t * self.criteria.silhouette_factor.map_or(1.0, |s| s.min(1.0)),
+            None => t,
+        }
+    }
+
+    /// True when every child of the node with test data `hot` is certainly within `tight`
+    /// ([`Judge::tightest`]): one bound for the whole group, from the ball around the node's
+    /// proxy that holds every child's error ball (see [`Hot::group_radius`]). Each child's
+    /// own bound has a ball inside it and an error radius no larger, and the bound grows with
+    /// both, so it is no larger than this one.
+    #[inline]
+    pub fn group_within(&self, hot: &Hot, tight: f32) -> bool {
+        let Some(view) = &self.view else {
+            return hot.group_error <= tight;
+        };
+        let r = hot.group_error;
+        if r == 0.0 {
+            return true;
+        }
+        let c = view.to_camera(Vec3::from(hot.proxy));
+        let d = c.z - hot.group_radius;
+        if d <= 0.0 {
+            return false;
+        }
+        let rho = (c.x * c.x + c.y * c.y).sqrt() + hot.group_radius;
+        let d2 = d * d;
+        self.focal_sq * r * r * (d2 + rho * rho) <= tight * tight * d2 * d2
+    }
+
     /// Whether node `n` should unfold under threshold `t` (pixels, or scene units when
     /// view-independent).
     #[inline]
@@ -170,11 +204,9 @@ impl Judge {
                 Decision::Fold
             };
         };
-        if self.outside(view, n) {
-            return match self.criteria.frustum {
-                FrustumMode::Ignore => Decision::Keep,
-                _ => Decision::Fold,
-            };
+        let ignore_outside = self.criteria.frustum == FrustumMode::Ignore;
+        if ignore_outside && self.outside(view, n) {
+            return Decision::Keep;
         }
         let r = n.error_radius;
         if r == 0.0 {
@@ -182,19 +214,21 @@ impl Judge {
         }
         let c = view.to_camera(Vec3::from(n.proxy));
         let d = c.z - r;
-        if d <= 0.0 {
-            return if self.criteria.backface && self.facing(view, n) == Facing::Back {
-                Decision::Fold
-            } else {
-                Decision::Unfold
-            };
-        }
-        let rho = (c.x * c.x + c.y * c.y).sqrt();
-        let lhs = self.focal_sq * r * r * (d * d + (rho + r) * (rho + r));
-        let d4 = (d * d) * (d * d);
         // Cheapest first: most nodes of a settled cut are far below even the tightest limit.
-        let tightest = t * self.criteria.silhouette_factor.map_or(1.0, |s| s.min(1.0));
+        let (lhs, d4) = if d > 0.0 {
+            let rho = (c.x * c.x + c.y * c.y).sqrt();
+            (
+                self.focal_sq * r * r * (d * d + (rho + r) * (rho + r)),
+                (d * d) * (d * d),
+            )
+        } else {
+            (f32::INFINITY, 0.0)
+        };
+        let tightest = self.tightest(t);
         if lhs <= tightest * tightest * d4 {
+            return Decision::Fold;
+        }
+        if !ignore_outside && self.outside(view, n) {
             return Decision::Fold;
         }
         let facing = if self.criteria.backface || self.criteria.silhouette_factor.is_some() {
@@ -204,6 +238,9 @@ impl Judge {
         };
         if self.criteria.backface && facing == Facing::Back {
             return Decision::Fold;
+        }
+        if d <= 0.0 {
+            return Decision::Unfold;
         }
         let mut limit = t * self.gaze_factor(view, n);
         if let (Some(s), Facing::Silhouette) = (self.criteria.silhouette_factor, facing) {
@@ -280,23 +317,30 @@ impl Judge {
         }
     }
 
+    /// The cone test without trigonometry: with `d = ‖c − e‖`, `d·cos γ = a·(c − e)`,
+    /// `d·cos β = √(d² − R²)` and `d·sin β = R`, so `α + β < π/2` is
+    /// `cos α·√(d² − R²) > sin α·R`, and then `γ + α + β < π/2` (backfacing) is
+    /// `a·(c − e) > d·sin(α + β) = sin α·√(d² − R²) + cos α·R`, and `γ − α − β > π/2`
+    /// (front-facing) is `a·(c − e) < −d·sin(α + β)`.
     fn facing(&self, view: &View, n: &Node) -> Facing {
-        let alpha = n.cone_half_angle;
-        if alpha < 0.0 {
+        if n.cone_half_angle < 0.0 {
             return Facing::Front;
         }
         let to_center = Vec3::from(n.sphere_center) - view.eye;
-        let distance = to_center.length();
-        if distance <= n.sphere_radius {
+        let d2 = to_center.length_squared();
+        let r = n.sphere_radius;
+        if d2 <= r * r {
             return Facing::Silhouette;
         }
-        let beta = (n.sphere_radius / distance).asin();
-        let cos_gamma = (Vec3::from(n.cone_axis).dot(to_center) / distance).clamp(-1.0, 1.0);
-        let gamma = cos_gamma.acos();
-        let half_pi = std::f32::consts::FRAC_PI_2;
-        if gamma + alpha + beta < half_pi {
+        let cos_beta_d = (d2 - r * r).sqrt();
+        if n.cone_cos * cos_beta_d <= n.cone_sin * r {
+            return Facing::Silhouette;
+        }
+        let sin_sum_d = n.cone_sin * cos_beta_d + n.cone_cos * r;
+        let along = Vec3::from(n.cone_axis).dot(to_center);
+        if along > sin_sum_d {
             Facing::Back
-        } else if gamma - alpha - beta > half_pi {
+        } else if along < -sin_sum_d {
             Facing::Front
         } else {
             Facing::Silhouette

@@ -103,9 +103,11 @@ pub struct Cut {
     state: Vec<NodeState>,
     /// Per node: how many of its children are active. A node may fold when this is zero.
     active_children: Vec<u8>,
-    boundary: Vec<u32>,
-    boundary_index: Vec<u32>,
+    /// One bit per node: set for active nodes. The per-frame traversal walks it in id order,
+    /// which is page order, so node reads stream through memory instead of jumping.
+    active_bits: Vec<u64>,
     active_node_count: u32,
+    boundary_count: u32,
     slots: Vec<Slot>,
     free_slots: Vec<u32>,
     active_triangle_count: u32,
@@ -132,9 +134,9 @@ impl Cut {
             tracking,
             state: vec![NodeState::Inactive; nodes],
             active_children: vec![0; nodes],
-            boundary: Vec::new(),
-            boundary_index: vec![NIL; nodes],
+            active_bits: vec![0; nodes.div_ceil(64)],
             active_node_count: 0,
+            boundary_count: 1,
             slots: Vec::new(),
             free_slots: Vec::new(),
             active_triangle_count: 0,
@@ -151,7 +153,6 @@ impl Cut {
             lazy_dirty: false,
         };
         cut.state[0] = NodeState::Boundary;
-        cut.boundary_push(0);
         cut
     }
 
@@ -178,9 +179,50 @@ impl Cut {
         self.state[id as usize]
     }
 
-    /// The boundary nodes (the current vertices), in no particular order.
-    pub fn boundary(&self) -> &[u32] {
-        &self.boundary
+    /// The boundary nodes (the current vertices), in ascending id order. Computed from the
+    /// active nodes' children.
+    pub fn boundary(&self) -> Vec<u32> {
+        let mut boundary = Vec::with_capacity(self.boundary_count as usize);
+        if self.state[0] == NodeState::Boundary {
+            boundary.push(0);
+        }
+        let mut from = 0;
+        while let Some(id) = self.next_active(from) {
+            boundary.extend(
+                self.store
+                    .node(id)
+                    .children()
+                    .filter(|&c| self.state[c as usize] == NodeState::Boundary),
+            );
+            from = id + 1;
+        }
+        boundary.sort_unstable();
+        boundary
+    }
+
+    /// Number of boundary nodes (vertices of the current mesh).
+    pub fn boundary_count(&self) -> u32 {
+        self.boundary_count
+    }
+
+    /// The first active node with id `from` or above.
+    #[inline]
+    pub fn next_active(&self, from: u32) -> Option<u32> {
+        let mut word = (from / 64) as usize;
+        let mut bits = *self.active_bits.get(word)? & (!0u64 << (from % 64));
+        loop {
+            if bits != 0 {
+                return Some(word as u32 * 64 + bits.trailing_zeros());
+            }
+            word += 1;
+            bits = *self.active_bits.get(word)?;
+        }
+    }
+
+    /// Number of active children of node `id`.
+    #[inline]
+    pub fn active_children(&self, id: u32) -> u8 {
+        self.active_children[id as usize]
     }
 
     /// Number of active (unfolded) nodes.
@@ -247,11 +289,10 @@ impl Cut {
         self.store.load_children(id)?;
         let node = *self.store.node(id);
         self.set_state(id, NodeState::Active);
-        self.boundary_remove(id);
         for c in node.children() {
             self.set_state(c, NodeState::Boundary);
-            self.boundary_push(c);
         }
+        self.boundary_count += u32::from(node.child_count) - 1;
         if node.parent != NIL {
             self.active_children[node.parent as usize] += 1;
         }
@@ -312,13 +353,12 @@ impl Cut {
                 }
             }
             self.set_state(c, NodeState::Inactive);
-            self.boundary_remove(c);
         }
+        self.boundary_count -= u32::from(node.child_count) - 1;
         if self.tracking == CornerTracking::Lazy {
             self.lazy_dirty = true;
         }
         self.set_state(id, NodeState::Boundary);
-        self.boundary_push(id);
         if node.parent != NIL {
             self.active_children[node.parent as usize] -= 1;
         }
@@ -328,7 +368,7 @@ impl Cut {
 
     /// Unfolds every node: the cut becomes the original mesh.
     pub fn unfold_all(&mut self) -> Result<(), VdtError> {
-        let mut stack = self.boundary.clone();
+        let mut stack = self.boundary();
         while let Some(id) = stack.pop() {
             if self.can_unfold(id) {
                 self.unfold_node(id)?;
@@ -341,7 +381,7 @@ impl Cut {
     /// Folds every node: the cut becomes the root alone.
     pub fn fold_all(&mut self) {
         let mut stack: Vec<u32> = self
-            .boundary
+            .boundary()
             .iter()
             .map(|&b| self.store.node(b).parent)
             .filter(|&p| p != NIL)
@@ -543,18 +583,11 @@ impl Cut {
 
     fn set_state(&mut self, id: u32, state: NodeState) {
         self.state[id as usize] = state;
-    }
-
-    fn boundary_push(&mut self, id: u32) {
-        self.boundary_index[id as usize] = self.boundary.len() as u32;
-        self.boundary.push(id);
-    }
-
-    fn boundary_remove(&mut self, id: u32) {
-        let index = std::mem::replace(&mut self.boundary_index[id as usize], NIL);
-        self.boundary.swap_remove(index as usize);
-        if let Some(&moved) = self.boundary.get(index as usize) {
-            self.boundary_index[moved as usize] = index;
+        let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
+        if state == NodeState::Active {
+            self.active_bits[word] |= bit;
+        } else {
+            self.active_bits[word] &= !bit;
         }
     }
 
@@ -576,12 +609,11 @@ impl Cut {
             let node = *self.store.node(id);
             match self.state[id as usize] {
                 NodeState::Inactive => return Err(format!("node {id} is inactive under an active parent")),
-                NodeState::Boundary => {
-                    if self.boundary.get(self.boundary_index[id as usize] as usize) != Some(&id) {
-                        return Err(format!("boundary node {id} is not in the boundary list"));
-                    }
-                }
+                NodeState::Boundary => {}
                 NodeState::Active => {
+                    if self.next_active(id) != Some(id) {
+                        return Err(format!("active node {id} is not in the active set"));
+                    }
                     let active = node
                         .children()
                         .filter(|&c| self.state[c as usize] == NodeState::Active)
@@ -615,8 +647,12 @@ impl Cut {
             .iter()
             .filter(|&&s| s == NodeState::Boundary)
             .count();
-        if boundary_count != self.boundary.len() {
-            return Err("the boundary list holds nodes that are not on the boundary".into());
+        if boundary_count != self.boundary_count as usize {
+            return Err("the boundary count is wrong".into());
+        }
+        let active_bits: u32 = self.active_bits.iter().map(|w| w.count_ones()).sum();
+        if active_bits != self.active_node_count {
+            return Err("the active set holds nodes that are not active".into());
         }
         let active_count = self.state.iter().filter(|&&s| s == NodeState::Active).count();
         if active_count != self.active_node_count as usize {
@@ -649,7 +685,7 @@ impl Cut {
         }
         if self.tracking == CornerTracking::Incidence {
             let mut listed = 0usize;
-            for &b in &self.boundary {
+            for b in self.boundary() {
                 let mut entry = self.head[b as usize];
                 let mut previous = NIL;
                 while entry != NIL {

@@ -70,7 +70,7 @@ fn unfolding_everything_gives_the_original_mesh_and_folding_everything_the_root(
             cut.check().unwrap();
             assert_eq!(cut.active_triangle_count(), 0);
             assert_eq!(cut.active_node_count(), 0);
-            assert_eq!(cut.boundary(), &[0]);
+            assert_eq!(cut.boundary(), vec![0]);
         }
     }
 }

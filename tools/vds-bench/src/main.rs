@@ -57,6 +57,12 @@ enum Commands {
         /// Generated scene sizes in triangles.
         #[arg(long, value_delimiter = ',', default_value = "1M")]
         sizes: Vec<String>,
+        /// Skip the fidelity comparison (slow: exhaustive distances).
+        #[arg(long)]
+        no_fidelity: bool,
+        /// Skip the bunny paths.
+        #[arg(long)]
+        no_bunny: bool,
     },
 }
 
@@ -114,14 +120,24 @@ fn main() -> Result<()> {
     match args.command {
         Some(Commands::One { file }) => return one(&file),
         Some(Commands::Vdt { file }) => return vdt(&file),
-        Some(Commands::Cut { frames, sizes }) => {
+        Some(Commands::Cut {
+            frames,
+            sizes,
+            no_fidelity,
+            no_bunny,
+        }) => {
             let bunny = args.shared.join("bunny.obj");
-            cut::paths("bunny", &bunny, frames, false)?;
+            if !no_bunny {
+                cut::paths("bunny", &bunny, frames, false)?;
+            }
             for size in &sizes {
                 let file = generated_scene(parse_count(size)?, &args.dir)?;
                 cut::paths(&format!("generated CAD scene {size}"), &file, frames, true)?;
             }
-            return cut::fidelity(&bunny);
+            if !no_fidelity {
+                cut::fidelity(&bunny)?;
+            }
+            return Ok(());
         }
         None => {}
     }
