@@ -17,8 +17,7 @@
 //!   decides.
 //!
 //! Work per frame is the active nodes (one 32-byte record and one bound each) plus the
-//! boundary nodes near the threshold plus what changes. Decisions are cached per frame,
-//! since a fold cascade asks ancestors again.
+//! boundary nodes near the threshold plus what changes.
 //!
 //! After the traversal every boundary node has passed the test for this frame — its group
 //! passed, or it was tested and stayed, or it folded because it passed — which is the
@@ -46,8 +45,12 @@ use crate::cut::{Cut, NIL, NodeState};
 /// Work done by one adjust.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct AdjustStats {
-    /// Nodes whose criteria were evaluated.
+    /// Nodes whose criteria were evaluated (group bounds and single nodes).
     pub visited: u32,
+    /// Group bounds evaluated (threshold mode).
+    pub groups: u32,
+    /// Groups whose bound failed, so their children were tested one by one.
+    pub groups_failed: u32,
     /// Nodes unfolded.
     pub unfolds: u32,
     /// Nodes folded.
@@ -78,8 +81,6 @@ impl Ord for Priority {
 #[derive(Default)]
 pub struct Adjuster {
     frame: u32,
-    /// Per node: `frame << 2 | decision` once decided this frame.
-    decisions: Vec<u32>,
     /// Per node: the frame its priority was computed in, and the priority.
     priorities: Vec<(u32, f32)>,
     /// Per node: the frame it was last queued as a fold candidate.
@@ -93,35 +94,21 @@ pub struct Adjuster {
 
 impl Adjuster {
     fn begin(&mut self, nodes: usize) {
-        self.frame += 1;
-        // Frames are stored in 30 bits beside the decision; start over long before overflow.
-        if self.frame >= 1 << 29 || self.decisions.len() != nodes {
+        self.frame = self.frame.wrapping_add(1);
+        if self.frame == 0 || self.priorities.len() != nodes {
             self.frame = 1;
-            self.decisions = vec![0; nodes];
-            self.priorities.clear();
-            self.queued.clear();
+            self.priorities = vec![(0, 0.0); nodes];
+            self.queued = vec![0; nodes];
         }
         self.stats = AdjustStats::default();
     }
 
+    /// The threshold decision for `id`. Not cached: the traversal asks each node at most
+    /// once per frame except along fold cascades, which are short and rare.
+    #[inline]
     fn decision(&mut self, cut: &Cut, judge: &Judge, t: f32, id: u32) -> Decision {
-        let cached = self.decisions[id as usize];
-        if cached >> 2 == self.frame {
-            return match cached & 3 {
-                0 => Decision::Unfold,
-                1 => Decision::Fold,
-                _ => Decision::Keep,
-            };
-        }
         self.stats.visited += 1;
-        let decision = judge.decide(cut.node(id), t);
-        let code = match decision {
-            Decision::Unfold => 0,
-            Decision::Fold => 1,
-            Decision::Keep => 2,
-        };
-        self.decisions[id as usize] = self.frame << 2 | code;
-        decision
+        judge.decide(cut.store().tested(id), t)
     }
 
     /// Adjusts `cut` so that every visible vertex is within `t` of its image.
@@ -149,7 +136,9 @@ impl Adjuster {
             let hot = *cut.store().hot(p);
             if u32::from(cut.active_children(p)) < hot.child_count {
                 self.stats.visited += 1;
+                self.stats.groups += 1;
                 if !judge.group_within(&hot, tight) {
+                    self.stats.groups_failed += 1;
                     for c in hot.first_child..hot.first_child + hot.child_count {
                         if cut.state(c) == NodeState::Boundary
                             && self.decision(cut, judge, t, c) == Decision::Unfold
@@ -166,10 +155,16 @@ impl Adjuster {
         Ok(self.stats)
     }
 
-    /// Unfolds `id` and, recursively, each new boundary node that needs it.
+    /// Unfolds `id` (which was decided to need it) and, recursively, each new boundary node
+    /// that needs it.
     fn refine(&mut self, cut: &mut Cut, judge: &Judge, t: f32, id: u32) -> Result<(), VdtError> {
+        if !cut.can_unfold(id) {
+            return Ok(());
+        }
+        cut.unfold_node(id)?;
+        self.stats.unfolds += 1;
         self.stack.clear();
-        self.stack.push(id);
+        self.stack.extend(cut.node(id).children());
         while let Some(n) = self.stack.pop() {
             if cut.can_unfold(n) && self.decision(cut, judge, t, n) == Decision::Unfold {
                 cut.unfold_node(n)?;
@@ -196,9 +191,6 @@ impl Adjuster {
     /// The priority of unfolding `id` this frame: the judge's priority, clamped to its
     /// parent's (see the module documentation).
     pub fn priority(&mut self, cut: &Cut, judge: &Judge, id: u32) -> f32 {
-        if self.priorities.len() != cut.store().node_count() as usize {
-            self.priorities = vec![(0, 0.0); cut.store().node_count() as usize];
-        }
         // Walk up to the first ancestor already priced this frame, then price down.
         self.stack.clear();
         let mut n = id;
@@ -214,7 +206,7 @@ impl Adjuster {
         }
         while let Some(n) = self.stack.pop() {
             self.stats.visited += 1;
-            above = judge.priority(cut.node(n)).min(above);
+            above = judge.priority(cut.store().tested(n)).min(above);
             self.priorities[n as usize] = (self.frame, above);
         }
         above
@@ -228,11 +220,7 @@ impl Adjuster {
         budget: u32,
         prevent_flips: bool,
     ) -> Result<AdjustStats, VdtError> {
-        let nodes = cut.store().node_count() as usize;
-        self.begin(nodes);
-        if self.queued.len() != nodes {
-            self.queued = vec![0; nodes];
-        }
+        self.begin(cut.store().node_count() as usize);
         self.unfold_queue.clear();
         self.fold_queue.clear();
         self.work.clear();

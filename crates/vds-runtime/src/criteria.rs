@@ -29,7 +29,7 @@
 
 use glam::Vec3;
 
-use crate::store::{Hot, Node};
+use crate::store::{Hot, Tested};
 use crate::view::{Camera, View};
 
 /// How the cut is driven.
@@ -196,9 +196,9 @@ impl Judge {
     /// Whether node `n` should unfold under threshold `t` (pixels, or scene units when
     /// view-independent).
     #[inline]
-    pub fn decide(&self, n: &Node, t: f32) -> Decision {
+    pub fn decide(&self, n: Tested<'_>, t: f32) -> Decision {
         let Some(view) = &self.view else {
-            return if n.error_radius > t {
+            return if n.hot.error_radius > t {
                 Decision::Unfold
             } else {
                 Decision::Fold
@@ -208,11 +208,11 @@ impl Judge {
         if ignore_outside && self.outside(view, n) {
             return Decision::Keep;
         }
-        let r = n.error_radius;
+        let r = n.hot.error_radius;
         if r == 0.0 {
             return Decision::Fold;
         }
-        let c = view.to_camera(Vec3::from(n.proxy));
+        let c = view.to_camera(Vec3::from(n.hot.proxy));
         let d = c.z - r;
         // Cheapest first: most nodes of a settled cut are far below even the tightest limit.
         let (lhs, d4) = if d > 0.0 {
@@ -257,14 +257,14 @@ impl Judge {
     /// by the factor its criteria scale the threshold by (silhouette, gaze), so that
     /// priorities rank nodes as a threshold would. Zero for nodes outside the frustum or
     /// entirely backfacing; object-space error radius when view-independent.
-    pub fn priority(&self, n: &Node) -> f32 {
+    pub fn priority(&self, n: Tested<'_>) -> f32 {
         let Some(view) = &self.view else {
-            return n.error_radius;
+            return n.hot.error_radius;
         };
         if self.criteria.frustum != FrustumMode::Off && self.outside(view, n) {
             return 0.0;
         }
-        let r = n.error_radius;
+        let r = n.hot.error_radius;
         if r == 0.0 {
             return 0.0;
         }
@@ -272,7 +272,7 @@ impl Judge {
         if self.criteria.backface && facing == Facing::Back {
             return 0.0;
         }
-        let c = view.to_camera(Vec3::from(n.proxy));
+        let c = view.to_camera(Vec3::from(n.hot.proxy));
         let d = c.z - r;
         let error = if d <= 0.0 {
             f32::MAX
@@ -289,12 +289,12 @@ impl Judge {
 
     /// The screen-space error bound of `n` in pixels ([`f32::INFINITY`] when its ball reaches
     /// the eye plane), or its error radius when view-independent.
-    pub fn screen_error(&self, n: &Node) -> f32 {
+    pub fn screen_error(&self, n: Tested<'_>) -> f32 {
         let Some(view) = &self.view else {
-            return n.error_radius;
+            return n.hot.error_radius;
         };
-        let r = n.error_radius;
-        let c = view.to_camera(Vec3::from(n.proxy));
+        let r = n.hot.error_radius;
+        let c = view.to_camera(Vec3::from(n.hot.proxy));
         let d = c.z - r;
         if d <= 0.0 {
             return if r == 0.0 { 0.0 } else { f32::INFINITY };
@@ -304,13 +304,13 @@ impl Judge {
     }
 
     #[inline]
-    fn outside(&self, view: &View, n: &Node) -> bool {
+    fn outside(&self, view: &View, n: Tested<'_>) -> bool {
         self.criteria.frustum != FrustumMode::Off
-            && view.sphere_outside(view.to_camera(Vec3::from(n.sphere_center)), n.sphere_radius)
+            && view.sphere_outside(view.to_camera(Vec3::from(n.shape.center)), n.shape.radius)
     }
 
     /// How `n`'s triangles face the eye of this judge's camera (front when view-independent).
-    pub fn facing_of(&self, n: &Node) -> Facing {
+    pub fn facing_of(&self, n: Tested<'_>) -> Facing {
         match &self.view {
             Some(view) => self.facing(view, n),
             None => Facing::Front,
@@ -322,22 +322,24 @@ impl Judge {
     /// `cos α·√(d² − R²) > sin α·R`, and then `γ + α + β < π/2` (backfacing) is
     /// `a·(c − e) > d·sin(α + β) = sin α·√(d² − R²) + cos α·R`, and `γ − α − β > π/2`
     /// (front-facing) is `a·(c − e) < −d·sin(α + β)`.
-    fn facing(&self, view: &View, n: &Node) -> Facing {
-        if n.cone_half_angle < 0.0 {
+    fn facing(&self, view: &View, n: Tested<'_>) -> Facing {
+        let cone_cos = n.shape.cone_cos;
+        if cone_cos > 1.0 {
             return Facing::Front;
         }
-        let to_center = Vec3::from(n.sphere_center) - view.eye;
+        let cone_sin = (1.0 - cone_cos * cone_cos).max(0.0).sqrt();
+        let to_center = Vec3::from(n.shape.center) - view.eye;
         let d2 = to_center.length_squared();
-        let r = n.sphere_radius;
+        let r = n.shape.radius;
         if d2 <= r * r {
             return Facing::Silhouette;
         }
         let cos_beta_d = (d2 - r * r).sqrt();
-        if n.cone_cos * cos_beta_d <= n.cone_sin * r {
+        if cone_cos * cos_beta_d <= cone_sin * r {
             return Facing::Silhouette;
         }
-        let sin_sum_d = n.cone_sin * cos_beta_d + n.cone_cos * r;
-        let along = Vec3::from(n.cone_axis).dot(to_center);
+        let sin_sum_d = cone_sin * cos_beta_d + cone_cos * r;
+        let along = Vec3::from(n.shape.cone_axis).dot(to_center);
         if along > sin_sum_d {
             Facing::Back
         } else if along < -sin_sum_d {
@@ -347,19 +349,19 @@ impl Judge {
         }
     }
 
-    fn gaze_factor(&self, view: &View, n: &Node) -> f32 {
+    fn gaze_factor(&self, view: &View, n: Tested<'_>) -> f32 {
         let Some(gaze) = self.criteria.gaze else {
             return 1.0;
         };
-        let to_center = Vec3::from(n.sphere_center) - view.eye;
+        let to_center = Vec3::from(n.shape.center) - view.eye;
         let distance = to_center.length();
-        if distance <= n.sphere_radius || self.gaze_direction == Vec3::ZERO {
+        if distance <= n.shape.radius || self.gaze_direction == Vec3::ZERO {
             return 1.0;
         }
         let angle = (self.gaze_direction.dot(to_center) / distance)
             .clamp(-1.0, 1.0)
             .acos();
-        let beta = (n.sphere_radius / distance).asin();
+        let beta = (n.shape.radius / distance).asin();
         1.0 + gaze.falloff.max(0.0) * (angle - beta).max(0.0)
     }
 }

@@ -133,6 +133,29 @@ pub struct Hot {
     pub child_count: u32,
 }
 
+/// What the full criteria read besides [`Hot`]: the bounding sphere and the normal cone
+/// (32 bytes, in their own array, read in the same id order as [`Hot`]).
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+pub struct Shape {
+    /// Bounding sphere centre.
+    pub center: [f32; 3],
+    /// Bounding sphere radius.
+    pub radius: f32,
+    /// Unit cone axis.
+    pub cone_axis: [f32; 3],
+    /// Cosine of the cone's half-angle; above 1 when the cone bounds no normal.
+    pub cone_cos: f32,
+}
+
+/// The two records the criteria read of one node.
+#[derive(Debug, Clone, Copy)]
+pub struct Tested<'a> {
+    /// Proxy, error radius and group bound.
+    pub hot: &'a Hot,
+    /// Sphere and cone.
+    pub shape: &'a Shape,
+}
+
 /// Nodes and triangles of the pages loaded so far.
 pub struct NodeStore {
     source: Box<dyn PageSource>,
@@ -141,6 +164,7 @@ pub struct NodeStore {
     resident_pages: u32,
     nodes: Vec<Node>,
     hot: Vec<Hot>,
+    shape: Vec<Shape>,
     triangle_corners: Vec<[u32; 3]>,
     triangle_parts: Vec<u32>,
     scratch: Page,
@@ -170,6 +194,7 @@ impl NodeStore {
             // store over a huge file costs memory only for the pages actually loaded.
             nodes: bytemuck::zeroed_vec(node_count),
             hot: bytemuck::zeroed_vec(node_count),
+            shape: bytemuck::zeroed_vec(node_count),
             triangle_corners: bytemuck::zeroed_vec(triangle_count),
             triangle_parts: bytemuck::zeroed_vec(triangle_count),
             scratch: Page {
@@ -218,6 +243,15 @@ impl NodeStore {
     #[inline]
     pub fn hot(&self, id: u32) -> &Hot {
         &self.hot[id as usize]
+    }
+
+    /// What the criteria read of node `id` (loaded, as for [`NodeStore::node`]).
+    #[inline]
+    pub fn tested(&self, id: u32) -> Tested<'_> {
+        Tested {
+            hot: &self.hot[id as usize],
+            shape: &self.shape[id as usize],
+        }
     }
 
     /// Corners (leaf ranks) of triangle `index`; its owner's page must be loaded.
@@ -298,6 +332,16 @@ impl NodeStore {
                 group_error: 0.0,
                 first_child: node.first_child,
                 child_count: u32::from(node.child_count),
+            };
+            self.shape[first + k] = Shape {
+                center: node.sphere_center,
+                radius: node.sphere_radius,
+                cone_axis: node.cone_axis,
+                cone_cos: if node.cone_half_angle < 0.0 {
+                    2.0
+                } else {
+                    node.cone_cos
+                },
             };
             self.nodes[first + k] = node;
         }
