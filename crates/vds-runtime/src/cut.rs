@@ -27,7 +27,6 @@
 //!
 //! `vds-bench cut` measures both along the same camera paths.
 
-use rustc_hash::FxHashMap;
 use vds_format::VdtError;
 
 use crate::store::{Node, NodeStore};
@@ -66,7 +65,10 @@ pub struct ActiveTriangle {
     pub corners: [u32; 3],
 }
 
+/// One slot of the active triangle array, with its three incidence-list links: everything
+/// fold and unfold touch for one triangle lies in one cache line.
 #[derive(Debug, Clone, Copy)]
+#[repr(C, align(64))]
 struct Slot {
     /// The triangle held, or [`NIL`] for a free slot.
     triangle: u32,
@@ -74,12 +76,21 @@ struct Slot {
     leaves: [u32; 3],
     /// Current corners (boundary node ids).
     corners: [u32; 3],
+    /// Next entry of each corner's incidence list (entries are `slot * 3 + corner`).
+    next: [u32; 3],
+    /// Previous entry of each corner's incidence list.
+    prev: [u32; 3],
+    /// The journal epoch in which this slot was last recorded.
+    touched: u32,
 }
 
 const FREE_SLOT: Slot = Slot {
     triangle: NIL,
     leaves: [NIL; 3],
     corners: [NIL; 3],
+    next: [NIL; 3],
+    prev: [NIL; 3],
+    touched: 0,
 };
 
 /// What changed in the active triangle list since the last [`Cut::take_changes`].
@@ -113,12 +124,11 @@ pub struct Cut {
     active_triangle_count: u32,
     slot_of_triangle: Vec<u32>,
     /// Incidence lists: `head[node]` is the first corner entry (`slot * 3 + k`) the node is
-    /// the current proxy of; `next`/`prev` link entries.
+    /// the current proxy of; the slots link the entries.
     head: Vec<u32>,
-    next: Vec<u32>,
-    prev: Vec<u32>,
+    /// Per triangle: the epoch in which `take_changes` last saw it active before the frame.
+    seen_before: Vec<u32>,
     /// Journal of slots touched since the last `take_changes`: their contents before.
-    touched_epoch: Vec<u32>,
     journal: Vec<(u32, u32, [u32; 3])>,
     epoch: u32,
     lazy_dirty: bool,
@@ -145,9 +155,7 @@ impl Cut {
                 CornerTracking::Incidence => vec![NIL; nodes],
                 CornerTracking::Lazy => Vec::new(),
             },
-            next: Vec::new(),
-            prev: Vec::new(),
-            touched_epoch: Vec::new(),
+            seen_before: vec![0; triangles],
             journal: Vec::new(),
             epoch: 1,
             lazy_dirty: false,
@@ -300,7 +308,7 @@ impl Cut {
         if self.tracking == CornerTracking::Incidence {
             let mut entry = std::mem::replace(&mut self.head[id as usize], NIL);
             while entry != NIL {
-                let following = self.next[entry as usize];
+                let following = self.next_of(entry);
                 let (slot, k) = (entry / 3, (entry % 3) as usize);
                 let child = self
                     .store
@@ -344,7 +352,7 @@ impl Cut {
             if self.tracking == CornerTracking::Incidence {
                 let mut entry = std::mem::replace(&mut self.head[c as usize], NIL);
                 while entry != NIL {
-                    let following = self.next[entry as usize];
+                    let following = self.next_of(entry);
                     let (slot, k) = (entry / 3, (entry % 3) as usize);
                     self.touch(slot);
                     self.slots[slot as usize].corners[k] = id;
@@ -400,34 +408,37 @@ impl Cut {
     /// The changes to the active triangle list since the last call, and a fresh journal.
     pub fn take_changes(&mut self) -> Changes {
         self.refresh_lazy_corners();
-        let mut before: FxHashMap<u32, [u32; 3]> = FxHashMap::default();
-        before.reserve(self.journal.len());
-        for &(_, triangle, corners) in &self.journal {
+        let mut changes = Changes::default();
+        // Triangles active before the frame can only have left touched slots: mark them.
+        for &(_, triangle, _) in &self.journal {
             if triangle != NIL {
-                before.insert(triangle, corners);
+                self.seen_before[triangle as usize] = self.epoch;
             }
         }
-        let mut changes = Changes::default();
         for &(slot, triangle, corners) in &self.journal {
-            let now = self.slots[slot as usize];
+            if triangle != NIL {
+                match self.slot_of_triangle[triangle as usize] {
+                    NIL => changes.removed += 1,
+                    now if self.slots[now as usize].corners != corners => changes.changed += 1,
+                    _ => {}
+                }
+            }
+            let now = &self.slots[slot as usize];
             if now.triangle != triangle || now.corners != corners {
                 changes.dirty_slots.push(slot);
             }
-            if now.triangle == NIL {
-                continue;
-            }
-            match before.remove(&now.triangle) {
-                Some(old) if old == now.corners => {}
-                Some(_) => changes.changed += 1,
-                None => changes.added += 1,
+            if now.triangle != NIL && self.seen_before[now.triangle as usize] != self.epoch {
+                changes.added += 1;
             }
         }
-        changes.removed = before.len() as u32;
         changes.dirty_slots.sort_unstable();
         self.journal.clear();
         self.epoch = self.epoch.wrapping_add(1);
         if self.epoch == 0 {
-            self.touched_epoch.fill(0);
+            for s in &mut self.slots {
+                s.touched = 0;
+            }
+            self.seen_before.fill(0);
             self.epoch = 1;
         }
         changes
@@ -498,7 +509,7 @@ impl Cut {
                         return true;
                     }
                 }
-                entry = self.next[entry as usize];
+                entry = self.next_of(entry);
             }
         }
         false
@@ -508,22 +519,15 @@ impl Cut {
         let slot = match self.free_slots.pop() {
             Some(slot) => slot,
             None => {
-                let slot = self.slots.len() as u32;
                 self.slots.push(FREE_SLOT);
-                self.touched_epoch.push(0);
-                if self.tracking == CornerTracking::Incidence {
-                    self.next.extend([NIL; 3]);
-                    self.prev.extend([NIL; 3]);
-                }
-                slot
+                self.slots.len() as u32 - 1
             }
         };
         self.touch(slot);
-        self.slots[slot as usize] = Slot {
-            triangle,
-            leaves,
-            corners,
-        };
+        let s = &mut self.slots[slot as usize];
+        s.triangle = triangle;
+        s.leaves = leaves;
+        s.corners = corners;
         self.slot_of_triangle[triangle as usize] = slot;
         if self.tracking == CornerTracking::Incidence {
             for k in 0..3 {
@@ -542,7 +546,10 @@ impl Cut {
             }
         }
         self.slot_of_triangle[s.triangle as usize] = NIL;
-        self.slots[slot as usize] = FREE_SLOT;
+        self.slots[slot as usize] = Slot {
+            touched: s.touched,
+            ..FREE_SLOT
+        };
         self.free_slots.push(slot);
         self.active_triangle_count -= 1;
     }
@@ -550,34 +557,54 @@ impl Cut {
     /// Records a slot's contents before its first change since the last `take_changes`.
     #[inline]
     fn touch(&mut self, slot: u32) {
-        if self.touched_epoch[slot as usize] != self.epoch {
-            self.touched_epoch[slot as usize] = self.epoch;
-            let s = self.slots[slot as usize];
+        let s = &mut self.slots[slot as usize];
+        if s.touched != self.epoch {
+            s.touched = self.epoch;
             self.journal.push((slot, s.triangle, s.corners));
         }
     }
 
     #[inline]
+    fn next_of(&self, entry: u32) -> u32 {
+        self.slots[(entry / 3) as usize].next[(entry % 3) as usize]
+    }
+
+    #[inline]
+    fn prev_of(&self, entry: u32) -> u32 {
+        self.slots[(entry / 3) as usize].prev[(entry % 3) as usize]
+    }
+
+    #[inline]
+    fn set_next(&mut self, entry: u32, to: u32) {
+        self.slots[(entry / 3) as usize].next[(entry % 3) as usize] = to;
+    }
+
+    #[inline]
+    fn set_prev(&mut self, entry: u32, to: u32) {
+        self.slots[(entry / 3) as usize].prev[(entry % 3) as usize] = to;
+    }
+
+    #[inline]
     fn link(&mut self, node: u32, entry: u32) {
         let first = self.head[node as usize];
-        self.next[entry as usize] = first;
-        self.prev[entry as usize] = NIL;
+        self.set_next(entry, first);
+        self.set_prev(entry, NIL);
         if first != NIL {
-            self.prev[first as usize] = entry;
+            self.set_prev(first, entry);
         }
         self.head[node as usize] = entry;
     }
 
     #[inline]
     fn unlink(&mut self, node: u32, entry: u32) {
-        let (before, after) = (self.prev[entry as usize], self.next[entry as usize]);
+        let (before, after) = (self.prev_of(entry), self.next_of(entry));
         if before != NIL {
-            self.next[before as usize] = after;
+            self.set_next(before, after);
         } else {
             self.head[node as usize] = after;
         }
         if after != NIL {
-            self.prev[after as usize] = before;
+            self.set_prev(after, before);
         }
     }
 
@@ -693,12 +720,12 @@ impl Cut {
                     if s.triangle == NIL || s.corners[(entry % 3) as usize] != b {
                         return Err(format!("node {b}'s incidence list holds a stray entry"));
                     }
-                    if self.prev[entry as usize] != previous {
+                    if self.prev_of(entry) != previous {
                         return Err(format!("node {b}'s incidence list is mislinked"));
                     }
                     listed += 1;
                     previous = entry;
-                    entry = self.next[entry as usize];
+                    entry = self.next_of(entry);
                 }
             }
             if listed != 3 * self.active_triangle_count as usize {

@@ -165,6 +165,11 @@ pub struct NodeStore {
     nodes: Vec<Node>,
     hot: Vec<Hot>,
     shape: Vec<Shape>,
+    /// Per node: its first leaf rank, apart, so finding the child that holds a rank reads
+    /// one small contiguous run instead of several node records.
+    leaf_begin: Vec<u32>,
+    /// One bit per node: its children are loaded and checked ([`NodeStore::load_children`]).
+    children_ready: Vec<u64>,
     triangle_corners: Vec<[u32; 3]>,
     triangle_parts: Vec<u32>,
     scratch: Page,
@@ -195,6 +200,8 @@ impl NodeStore {
             nodes: bytemuck::zeroed_vec(node_count),
             hot: bytemuck::zeroed_vec(node_count),
             shape: bytemuck::zeroed_vec(node_count),
+            leaf_begin: bytemuck::zeroed_vec(node_count),
+            children_ready: vec![0; node_count.div_ceil(64)],
             triangle_corners: bytemuck::zeroed_vec(triangle_count),
             triangle_parts: bytemuck::zeroed_vec(triangle_count),
             scratch: Page {
@@ -281,6 +288,10 @@ impl NodeStore {
     /// validates each page on its own; this is the part of the tree's shape that spans
     /// pages, checked where it is first relied on.
     pub fn load_children(&mut self, id: u32) -> Result<(), VdtError> {
+        let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
+        if self.children_ready[word] & bit != 0 {
+            return Ok(());
+        }
         let node = self.nodes[id as usize];
         if node.is_leaf() {
             return Ok(());
@@ -316,6 +327,7 @@ impl NodeStore {
         let hot = &mut self.hot[id as usize];
         hot.group_radius = radius * (1.0 + 4.0 * f32::EPSILON);
         hot.group_error = error;
+        self.children_ready[word] |= bit;
         Ok(())
     }
 
@@ -343,6 +355,7 @@ impl NodeStore {
                     node.cone_cos
                 },
             };
+            self.leaf_begin[first + k] = node.leaf_begin;
             self.nodes[first + k] = node;
         }
         let first = page.first_triangle as usize;
@@ -369,13 +382,12 @@ impl NodeStore {
     /// The child of inner node `id` that supports `rank` (which `id` must support).
     #[inline]
     pub fn child_supporting(&self, id: u32, rank: u32) -> u32 {
-        let node = &self.nodes[id as usize];
-        debug_assert!(node.supports_rank(rank) && !node.is_leaf());
+        let hot = &self.hot[id as usize];
         // Children cover consecutive leaf ranges in id order, so the last child starting at
         // or before `rank` is the one.
-        let mut child = node.first_child;
-        for c in node.first_child + 1..node.first_child + u32::from(node.child_count) {
-            if self.nodes[c as usize].leaf_begin <= rank {
+        let mut child = hot.first_child;
+        for c in hot.first_child + 1..hot.first_child + hot.child_count {
+            if self.leaf_begin[c as usize] <= rank {
                 child = c;
             } else {
                 break;
