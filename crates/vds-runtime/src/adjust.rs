@@ -7,8 +7,8 @@
 //! detail unfolds (and its new children are checked in turn); an active node whose children
 //! are all on the boundary folds if it passes itself, and the fold goes on upwards.
 //!
-//! The traversal walks the active nodes in id order (page order, so memory streams) and asks
-//! two questions of each:
+//! The traversal walks a dense array of the active nodes (so memory streams) and asks two
+//! questions of each:
 //! - *Do its boundary children need anything?* One bound for the whole group answers "no"
 //!   for most of them ([`Judge::group_within`]: a ball around the node's proxy holding every
 //!   child's error ball, checked against the tightest threshold); only groups near the limit
@@ -128,13 +128,17 @@ impl Adjuster {
             }
         }
         let tight = judge.tightest(t);
-        // Active nodes in id order. Nodes unfolded on the way have larger ids than their
-        // parent and are met later; nodes folded on the way are skipped by the state check.
-        let mut from = 0;
-        while let Some(p) = cut.next_active(from) {
-            from = p + 1;
-            let hot = *cut.store().hot(p);
-            if u32::from(cut.active_children(p)) < hot.child_count {
+        // Backwards through the dense active list: an unfold appends nodes whose children
+        // it has just tested, so they need no visit now; a fold moves the last entry (already
+        // visited) into the folded node's place, so nothing unvisited is skipped.
+        let mut i = cut.active_entries().len();
+        while i > 0 {
+            i -= 1;
+            let Some(&entry) = cut.active_entries().get(i) else {
+                continue;
+            };
+            let hot = entry.hot;
+            if entry.active_children < hot.child_count {
                 self.stats.visited += 1;
                 self.stats.groups += 1;
                 if !judge.group_within(&hot, tight) {
@@ -148,8 +152,13 @@ impl Adjuster {
                     }
                 }
             }
+            let p = entry.id;
             if cut.active_children(p) == 0 && cut.state(p) == NodeState::Active {
-                self.coarsen(cut, judge, t, p, prevent_flips);
+                // Still at index `i`: refinement above only appended entries.
+                self.stats.visited += 1;
+                if judge.decide(cut.active_tested(i), t) == Decision::Fold {
+                    self.coarsen(cut, judge, t, p, prevent_flips);
+                }
             }
         }
         Ok(self.stats)
@@ -175,16 +184,22 @@ impl Adjuster {
         Ok(())
     }
 
-    /// Folds `id` and its ancestors while each may fold and passes the test.
+    /// Folds `id` (which may fold and was decided to) and then its ancestors while each may
+    /// fold and passes the test.
     fn coarsen(&mut self, cut: &mut Cut, judge: &Judge, t: f32, mut id: u32, prevent: bool) {
-        while id != NIL && cut.can_fold(id) && self.decision(cut, judge, t, id) == Decision::Fold
-        {
+        loop {
             if !cut.fold_node(id, prevent) {
                 self.stats.refused_folds += 1;
                 return;
             }
             self.stats.folds += 1;
-            id = cut.node(id).parent;
+            id = cut.store().parent(id);
+            if id == NIL
+                || !cut.can_fold(id)
+                || self.decision(cut, judge, t, id) != Decision::Fold
+            {
+                return;
+            }
         }
     }
 

@@ -29,7 +29,7 @@
 
 use vds_format::VdtError;
 
-use crate::store::{Node, NodeStore};
+use crate::store::{Hot, Node, NodeStore, Shape, Tested};
 
 /// "None" for slot, list and node links.
 pub const NIL: u32 = u32::MAX;
@@ -107,6 +107,18 @@ pub struct Changes {
     pub changed: u32,
 }
 
+/// One active node as the per-frame traversal reads it: a copy of its [`Hot`] record and its
+/// count of active children, kept in a dense array so the traversal streams through memory.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ActiveEntry {
+    /// The node's proxy, error radius and group bound.
+    pub hot: Hot,
+    /// The node id.
+    pub id: u32,
+    /// How many of its children are active (it may fold when none is).
+    pub active_children: u32,
+}
+
 /// The cut: node labels, the boundary path and the active triangles.
 pub struct Cut {
     pub(crate) store: NodeStore,
@@ -114,9 +126,12 @@ pub struct Cut {
     state: Vec<NodeState>,
     /// Per node: how many of its children are active. A node may fold when this is zero.
     active_children: Vec<u8>,
-    /// One bit per node: set for active nodes. The per-frame traversal walks it in id order,
-    /// which is page order, so node reads stream through memory instead of jumping.
-    active_bits: Vec<u64>,
+    /// The active nodes, densely: the per-frame traversal streams through this array (and
+    /// `active_shapes` beside it) instead of chasing node ids across the store.
+    active_list: Vec<ActiveEntry>,
+    active_shapes: Vec<Shape>,
+    /// Per node: its index in `active_list`, or [`NIL`].
+    active_index: Vec<u32>,
     active_node_count: u32,
     boundary_count: u32,
     slots: Vec<Slot>,
@@ -144,7 +159,9 @@ impl Cut {
             tracking,
             state: vec![NodeState::Inactive; nodes],
             active_children: vec![0; nodes],
-            active_bits: vec![0; nodes.div_ceil(64)],
+            active_list: Vec::new(),
+            active_shapes: Vec::new(),
+            active_index: vec![NIL; nodes],
             active_node_count: 0,
             boundary_count: 1,
             slots: Vec::new(),
@@ -177,7 +194,7 @@ impl Cut {
     /// Node `id`'s attributes; the node must be on or above the boundary, or a child of a
     /// boundary node's... in short, loaded: every node the cut has reached is.
     #[inline]
-    pub fn node(&self, id: u32) -> &Node {
+    pub fn node(&self, id: u32) -> Node {
         self.store.node(id)
     }
 
@@ -194,15 +211,12 @@ impl Cut {
         if self.state[0] == NodeState::Boundary {
             boundary.push(0);
         }
-        let mut from = 0;
-        while let Some(id) = self.next_active(from) {
+        for entry in &self.active_list {
+            let h = &entry.hot;
             boundary.extend(
-                self.store
-                    .node(id)
-                    .children()
+                (h.first_child..h.first_child + h.child_count)
                     .filter(|&c| self.state[c as usize] == NodeState::Boundary),
             );
-            from = id + 1;
         }
         boundary.sort_unstable();
         boundary
@@ -213,17 +227,20 @@ impl Cut {
         self.boundary_count
     }
 
-    /// The first active node with id `from` or above.
+    /// The active nodes, densely, in no particular order. Folds remove entries by moving the
+    /// last one into their place; unfolds append.
     #[inline]
-    pub fn next_active(&self, from: u32) -> Option<u32> {
-        let mut word = (from / 64) as usize;
-        let mut bits = *self.active_bits.get(word)? & (!0u64 << (from % 64));
-        loop {
-            if bits != 0 {
-                return Some(word as u32 * 64 + bits.trailing_zeros());
-            }
-            word += 1;
-            bits = *self.active_bits.get(word)?;
+    pub fn active_entries(&self) -> &[ActiveEntry] {
+        &self.active_list
+    }
+
+    /// What the criteria read of the active node at `index` of [`Cut::active_entries`],
+    /// from the dense arrays.
+    #[inline]
+    pub fn active_tested(&self, index: usize) -> Tested<'_> {
+        Tested {
+            hot: &self.active_list[index].hot,
+            shape: &self.active_shapes[index],
         }
     }
 
@@ -295,15 +312,13 @@ impl Cut {
     pub fn unfold_node(&mut self, id: u32) -> Result<(), VdtError> {
         assert!(self.can_unfold(id), "node {id} cannot unfold");
         self.store.load_children(id)?;
-        let node = *self.store.node(id);
+        let node = self.store.node(id);
         self.set_state(id, NodeState::Active);
         for c in node.children() {
             self.set_state(c, NodeState::Boundary);
         }
         self.boundary_count += u32::from(node.child_count) - 1;
-        if node.parent != NIL {
-            self.active_children[node.parent as usize] += 1;
-        }
+        self.count_active_child(node.parent, 1);
         self.active_node_count += 1;
         if self.tracking == CornerTracking::Incidence {
             let mut entry = std::mem::replace(&mut self.head[id as usize], NIL);
@@ -341,7 +356,7 @@ impl Cut {
         if prevent_flips && self.fold_would_flip(id) {
             return false;
         }
-        let node = *self.store.node(id);
+        let node = self.store.node(id);
         for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
             let slot = self.slot_of_triangle[t as usize];
             if slot != NIL {
@@ -367,9 +382,7 @@ impl Cut {
             self.lazy_dirty = true;
         }
         self.set_state(id, NodeState::Boundary);
-        if node.parent != NIL {
-            self.active_children[node.parent as usize] -= 1;
-        }
+        self.count_active_child(node.parent, -1);
         self.active_node_count -= 1;
         true
     }
@@ -465,7 +478,7 @@ impl Cut {
                     NodeState::Inactive => {
                         let mut up = node;
                         while self.state[up as usize] != NodeState::Boundary {
-                            up = self.store.node(up).parent;
+                            up = self.store.parent(up);
                         }
                         up
                     }
@@ -481,8 +494,8 @@ impl Cut {
     /// down through active nodes.
     fn boundary_node_of(&self, rank: u32, near: u32) -> u32 {
         let mut node = near;
-        while !self.store.node(node).supports_rank(rank) {
-            node = self.store.node(node).parent;
+        while !self.store.supports_rank(node, rank) {
+            node = self.store.parent(node);
         }
         self.store
             .descend(node, rank, |id| self.state[id as usize] == NodeState::Active)
@@ -608,13 +621,32 @@ impl Cut {
         }
     }
 
+    fn count_active_child(&mut self, parent: u32, change: i32) {
+        if parent != NIL {
+            let count = &mut self.active_children[parent as usize];
+            *count = (i32::from(*count) + change) as u8;
+            let index = self.active_index[parent as usize];
+            self.active_list[index as usize].active_children = u32::from(*count);
+        }
+    }
+
     fn set_state(&mut self, id: u32, state: NodeState) {
-        self.state[id as usize] = state;
-        let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
-        if state == NodeState::Active {
-            self.active_bits[word] |= bit;
-        } else {
-            self.active_bits[word] &= !bit;
+        let was = std::mem::replace(&mut self.state[id as usize], state);
+        if state == NodeState::Active && was != NodeState::Active {
+            self.active_index[id as usize] = self.active_list.len() as u32;
+            self.active_list.push(ActiveEntry {
+                hot: *self.store.hot(id),
+                id,
+                active_children: u32::from(self.active_children[id as usize]),
+            });
+            self.active_shapes.push(*self.store.tested(id).shape);
+        } else if was == NodeState::Active && state != NodeState::Active {
+            let index = std::mem::replace(&mut self.active_index[id as usize], NIL) as usize;
+            self.active_list.swap_remove(index);
+            self.active_shapes.swap_remove(index);
+            if let Some(moved) = self.active_list.get(index) {
+                self.active_index[moved.id as usize] = index as u32;
+            }
         }
     }
 
@@ -633,13 +665,15 @@ impl Cut {
         }
         while let Some(id) = stack.pop() {
             reached += 1;
-            let node = *self.store.node(id);
+            let node = self.store.node(id);
             match self.state[id as usize] {
                 NodeState::Inactive => return Err(format!("node {id} is inactive under an active parent")),
                 NodeState::Boundary => {}
                 NodeState::Active => {
-                    if self.next_active(id) != Some(id) {
-                        return Err(format!("active node {id} is not in the active set"));
+                    let index = self.active_index[id as usize] as usize;
+                    match self.active_list.get(index) {
+                        Some(e) if e.id == id && e.active_children == u32::from(self.active_children[id as usize]) => {}
+                        _ => return Err(format!("active node {id} is missing from the active list")),
                     }
                     let active = node
                         .children()
@@ -677,8 +711,7 @@ impl Cut {
         if boundary_count != self.boundary_count as usize {
             return Err("the boundary count is wrong".into());
         }
-        let active_bits: u32 = self.active_bits.iter().map(|w| w.count_ones()).sum();
-        if active_bits != self.active_node_count {
+        if self.active_list.len() != self.active_node_count as usize {
             return Err("the active set holds nodes that are not active".into());
         }
         let active_count = self.state.iter().filter(|&&s| s == NodeState::Active).count();

@@ -16,7 +16,7 @@ pub fn leaf_positions(store: &mut NodeStore) -> Result<Vec<[f32; 3]>, VdtError> 
     let mut stack = vec![0u32];
     while let Some(id) = stack.pop() {
         store.load_children(id)?;
-        let node = *store.node(id);
+        let node = store.node(id);
         if node.is_leaf() {
             positions[node.leaf_begin as usize] = node.proxy;
         } else {

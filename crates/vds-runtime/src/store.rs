@@ -156,13 +156,29 @@ pub struct Tested<'a> {
     pub shape: &'a Shape,
 }
 
+/// The rest of a node: where it sits in the tree and which triangles it owns.
+#[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
+struct Topology {
+    parent: u32,
+    leaf_end: u32,
+    subtri_begin: u32,
+    subtri_count: u32,
+    cone_half_angle: f32,
+    depth: u16,
+}
+
 /// Nodes and triangles of the pages loaded so far.
+///
+/// A node is kept as four records in four arrays, split by who reads them: [`Hot`] by the
+/// per-frame traversal, [`Shape`] by the full criteria, its first leaf rank by the descent
+/// along a vertex's path, and the rest by fold and unfold. [`NodeStore::node`] assembles
+/// them into a [`Node`].
 pub struct NodeStore {
     source: Box<dyn PageSource>,
     page_first_node: Vec<u32>,
     resident: Vec<bool>,
     resident_pages: u32,
-    nodes: Vec<Node>,
+    topology: Vec<Topology>,
     hot: Vec<Hot>,
     shape: Vec<Shape>,
     /// Per node: its first leaf rank, apart, so finding the child that holds a rank reads
@@ -197,7 +213,7 @@ impl NodeStore {
             resident_pages: 0,
             // Zeroed allocations: the operating system provides the pages lazily, so a
             // store over a huge file costs memory only for the pages actually loaded.
-            nodes: bytemuck::zeroed_vec(node_count),
+            topology: bytemuck::zeroed_vec(node_count),
             hot: bytemuck::zeroed_vec(node_count),
             shape: bytemuck::zeroed_vec(node_count),
             leaf_begin: bytemuck::zeroed_vec(node_count),
@@ -212,7 +228,7 @@ impl NodeStore {
             },
         };
         store.load_node(0)?;
-        let root = store.nodes[0];
+        let root = store.node(0);
         if root.leaf_begin != 0 || u64::from(root.leaf_end) != store.source.header().vertex_count.get() {
             return Err(VdtError::invalid("node 0", "the root does not cover every vertex"));
         }
@@ -221,7 +237,7 @@ impl NodeStore {
 
     /// Number of nodes in the tree.
     pub fn node_count(&self) -> u32 {
-        self.nodes.len() as u32
+        self.hot.len() as u32
     }
 
     /// Number of original vertices (leaves).
@@ -242,8 +258,47 @@ impl NodeStore {
     /// Node `id`. Its page must have been loaded ([`NodeStore::load_node`]); nodes of pages
     /// not yet loaded read as zeros.
     #[inline]
-    pub fn node(&self, id: u32) -> &Node {
-        &self.nodes[id as usize]
+    pub fn node(&self, id: u32) -> Node {
+        let (i, hot, shape) = (id as usize, &self.hot[id as usize], &self.shape[id as usize]);
+        let topology = &self.topology[i];
+        let empty_cone = shape.cone_cos > 1.0;
+        Node {
+            proxy: hot.proxy,
+            error_radius: hot.error_radius,
+            sphere_center: shape.center,
+            sphere_radius: shape.radius,
+            cone_axis: shape.cone_axis,
+            cone_half_angle: topology.cone_half_angle,
+            cone_cos: if empty_cone { 1.0 } else { shape.cone_cos },
+            cone_sin: topology.cone_half_angle.sin(),
+            parent: topology.parent,
+            first_child: hot.first_child,
+            leaf_begin: self.leaf_begin[i],
+            leaf_end: topology.leaf_end,
+            subtri_begin: topology.subtri_begin,
+            subtri_count: topology.subtri_count,
+            child_count: hot.child_count as u8,
+            depth: topology.depth,
+        }
+    }
+
+    /// Parent of node `id` ([`NO_NODE`] for the root).
+    #[inline]
+    pub fn parent(&self, id: u32) -> u32 {
+        self.topology[id as usize].parent
+    }
+
+    /// True when node `id` supports the vertex of leaf rank `rank`.
+    #[inline]
+    pub fn supports_rank(&self, id: u32, rank: u32) -> bool {
+        self.leaf_begin[id as usize] <= rank && rank < self.topology[id as usize].leaf_end
+    }
+
+    /// The subtris of node `id`, as a range of triangle indices.
+    #[inline]
+    pub fn subtris(&self, id: u32) -> std::ops::Range<u32> {
+        let t = &self.topology[id as usize];
+        t.subtri_begin..t.subtri_begin + t.subtri_count
     }
 
     /// The per-frame test data of node `id` (loaded, as for [`NodeStore::node`]).
@@ -288,11 +343,12 @@ impl NodeStore {
     /// validates each page on its own; this is the part of the tree's shape that spans
     /// pages, checked where it is first relied on.
     pub fn load_children(&mut self, id: u32) -> Result<(), VdtError> {
+        // Pages never unload in this store, so a node checked once stays checked.
         let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
         if self.children_ready[word] & bit != 0 {
             return Ok(());
         }
-        let node = self.nodes[id as usize];
+        let node = self.node(id);
         if node.is_leaf() {
             return Ok(());
         }
@@ -300,7 +356,7 @@ impl NodeStore {
         self.load_node(node.first_child + u32::from(node.child_count) - 1)?;
         let mut next_rank = node.leaf_begin;
         for c in node.children() {
-            let child = &self.nodes[c as usize];
+            let child = self.node(c);
             if child.parent != id || child.leaf_begin != next_rank || child.depth != node.depth + 1
             {
                 return Err(VdtError::invalid(
@@ -319,7 +375,7 @@ impl NodeStore {
         let center = glam::Vec3::from(node.proxy);
         let (mut radius, mut error) = (0.0f32, 0.0f32);
         for c in node.children() {
-            let child = &self.nodes[c as usize];
+            let child = &self.hot[c as usize];
             radius = radius.max(center.distance(glam::Vec3::from(child.proxy)) + child.error_radius);
             error = error.max(child.error_radius);
         }
@@ -356,7 +412,14 @@ impl NodeStore {
                 },
             };
             self.leaf_begin[first + k] = node.leaf_begin;
-            self.nodes[first + k] = node;
+            self.topology[first + k] = Topology {
+                parent: node.parent,
+                leaf_end: node.leaf_end,
+                subtri_begin: node.subtri_begin,
+                subtri_count: node.subtri_count,
+                cone_half_angle: node.cone_half_angle,
+                depth: node.depth,
+            };
         }
         let first = page.first_triangle as usize;
         for (k, t) in page.triangles.iter().enumerate() {

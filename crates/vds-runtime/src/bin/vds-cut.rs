@@ -159,7 +159,7 @@ fn run(args: &Args) -> Result<()> {
         Runtime::new(Box::new(file), tracking).with_context(|| format!("{}", args.file.display()))?;
     let open_ms = start.elapsed().as_secs_f64() * 1e3;
 
-    let root = *runtime.cut().node(0);
+    let root = runtime.cut().node(0);
     let camera = (!args.view_independent).then(|| {
         let (width, height) = args.size;
         let framing = Camera::framing(
