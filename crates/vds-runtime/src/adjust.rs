@@ -194,9 +194,7 @@ impl Adjuster {
             }
             self.stats.folds += 1;
             id = cut.store().parent(id);
-            if id == NIL
-                || !cut.can_fold(id)
-                || self.decision(cut, judge, t, id) != Decision::Fold
+            if id == NIL || !cut.can_fold(id) || self.decision(cut, judge, t, id) != Decision::Fold
             {
                 return;
             }
@@ -253,10 +251,7 @@ impl Adjuster {
             self.stats.folds += 1;
             self.after_fold(cut, judge, f);
         }
-        loop {
-            let Some(&(Priority(worst), Reverse(u))) = self.peek_unfold(cut) else {
-                break;
-            };
+        while let Some(&(Priority(worst), Reverse(u))) = self.peek_unfold(cut) {
             if worst <= 0.0 {
                 break;
             }

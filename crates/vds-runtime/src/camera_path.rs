@@ -19,7 +19,13 @@ pub struct CameraPath {
 impl CameraPath {
     /// An orbit around a bounding sphere (`center`, `radius`) in `frames` steps, swinging in
     /// height and distance (between 1.3 and 3.1 radii) so the cut both refines and coarsens.
-    pub fn orbit(center: [f32; 3], radius: f32, frames: u32, width: u32, height: u32) -> CameraPath {
+    pub fn orbit(
+        center: [f32; 3],
+        radius: f32,
+        frames: u32,
+        width: u32,
+        height: u32,
+    ) -> CameraPath {
         let c = Vec3::from(center);
         let cameras = (0..frames)
             .map(|i| {
@@ -51,9 +57,8 @@ impl CameraPath {
         height: u32,
     ) -> CameraPath {
         let c = Vec3::from(center);
-        let eye_at = |a: f32| {
-            c + radius * Vec3::new(0.6 * a.cos(), 0.2 * (2.0 * a).sin(), 0.6 * a.sin())
-        };
+        let eye_at =
+            |a: f32| c + radius * Vec3::new(0.6 * a.cos(), 0.2 * (2.0 * a).sin(), 0.6 * a.sin());
         let cameras = (0..frames)
             .map(|i| {
                 let a = TAU * i as f32 / frames.max(1) as f32;

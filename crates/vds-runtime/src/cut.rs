@@ -497,8 +497,9 @@ impl Cut {
         while !self.store.supports_rank(node, rank) {
             node = self.store.parent(node);
         }
-        self.store
-            .descend(node, rank, |id| self.state[id as usize] == NodeState::Active)
+        self.store.descend(node, rank, |id| {
+            self.state[id as usize] == NodeState::Active
+        })
     }
 
     fn fold_would_flip(&self, id: u32) -> bool {
@@ -667,13 +668,22 @@ impl Cut {
             reached += 1;
             let node = self.store.node(id);
             match self.state[id as usize] {
-                NodeState::Inactive => return Err(format!("node {id} is inactive under an active parent")),
+                NodeState::Inactive => {
+                    return Err(format!("node {id} is inactive under an active parent"));
+                }
                 NodeState::Boundary => {}
                 NodeState::Active => {
                     let index = self.active_index[id as usize] as usize;
                     match self.active_list.get(index) {
-                        Some(e) if e.id == id && e.active_children == u32::from(self.active_children[id as usize]) => {}
-                        _ => return Err(format!("active node {id} is missing from the active list")),
+                        Some(e)
+                            if e.id == id
+                                && e.active_children
+                                    == u32::from(self.active_children[id as usize]) => {}
+                        _ => {
+                            return Err(format!(
+                                "active node {id} is missing from the active list"
+                            ));
+                        }
                     }
                     let active = node
                         .children()
@@ -714,7 +724,11 @@ impl Cut {
         if self.active_list.len() != self.active_node_count as usize {
             return Err("the active set holds nodes that are not active".into());
         }
-        let active_count = self.state.iter().filter(|&&s| s == NodeState::Active).count();
+        let active_count = self
+            .state
+            .iter()
+            .filter(|&&s| s == NodeState::Active)
+            .count();
         if active_count != self.active_node_count as usize {
             return Err("the active node count is wrong".into());
         }
@@ -726,8 +740,8 @@ impl Cut {
         }
         expected.sort_unstable();
         actual.sort_unstable();
-        if let Some(k) = (0..expected.len().max(actual.len()))
-            .find(|&k| expected.get(k) != actual.get(k))
+        if let Some(k) =
+            (0..expected.len().max(actual.len())).find(|&k| expected.get(k) != actual.get(k))
         {
             return Err(format!(
                 "active triangles differ from the recomputed set: expected {:?}, found {:?} \

@@ -84,9 +84,7 @@ pub fn write_mesh(
             MeshFormat::Obj => write_obj(&mut out, mesh, part_names)?,
             MeshFormat::Ply => write_ply(&mut out, mesh)?,
         }
-        out.into_inner()
-            .map_err(|e| e.into_error())?
-            .sync_all()?;
+        out.into_inner().map_err(|e| e.into_error())?.sync_all()?;
         std::fs::rename(&temporary, path)
     })();
     if result.is_err() {
@@ -106,7 +104,9 @@ fn write_obj(out: &mut impl Write, mesh: &Mesh, part_names: &[String]) -> std::i
             current = Some(part);
             match part_names.get(part as usize) {
                 // OBJ names end at the line; keep them on one line.
-                Some(name) if !name.is_empty() => writeln!(out, "o {}", name.replace(['\n', '\r'], " "))?,
+                Some(name) if !name.is_empty() => {
+                    writeln!(out, "o {}", name.replace(['\n', '\r'], " "))?
+                }
                 _ => writeln!(out, "o part{part}")?,
             }
         }

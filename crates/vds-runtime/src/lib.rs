@@ -91,8 +91,13 @@ impl Runtime {
         let judge = Judge::new(viewpoint, criteria);
         let prevent = criteria.prevent_mesh_folds;
         let stats = match goal {
-            Goal::Threshold(t) => self.adjuster.adjust_threshold(&mut self.cut, &judge, t, prevent)?,
-            Goal::Budget(n) => self.adjuster.adjust_budget(&mut self.cut, &judge, n, prevent)?,
+            Goal::Threshold(t) => {
+                self.adjuster
+                    .adjust_threshold(&mut self.cut, &judge, t, prevent)?
+            }
+            Goal::Budget(n) => self
+                .adjuster
+                .adjust_budget(&mut self.cut, &judge, n, prevent)?,
         };
         Ok(Frame {
             changes: self.cut.take_changes(),

@@ -229,8 +229,13 @@ impl NodeStore {
         };
         store.load_node(0)?;
         let root = store.node(0);
-        if root.leaf_begin != 0 || u64::from(root.leaf_end) != store.source.header().vertex_count.get() {
-            return Err(VdtError::invalid("node 0", "the root does not cover every vertex"));
+        if root.leaf_begin != 0
+            || u64::from(root.leaf_end) != store.source.header().vertex_count.get()
+        {
+            return Err(VdtError::invalid(
+                "node 0",
+                "the root does not cover every vertex",
+            ));
         }
         Ok(store)
     }
@@ -259,7 +264,11 @@ impl NodeStore {
     /// not yet loaded read as zeros.
     #[inline]
     pub fn node(&self, id: u32) -> Node {
-        let (i, hot, shape) = (id as usize, &self.hot[id as usize], &self.shape[id as usize]);
+        let (i, hot, shape) = (
+            id as usize,
+            &self.hot[id as usize],
+            &self.shape[id as usize],
+        );
         let topology = &self.topology[i];
         let empty_cone = shape.cone_cos > 1.0;
         Node {
@@ -376,7 +385,8 @@ impl NodeStore {
         let (mut radius, mut error) = (0.0f32, 0.0f32);
         for c in node.children() {
             let child = &self.hot[c as usize];
-            radius = radius.max(center.distance(glam::Vec3::from(child.proxy)) + child.error_radius);
+            radius =
+                radius.max(center.distance(glam::Vec3::from(child.proxy)) + child.error_radius);
             error = error.max(child.error_radius);
         }
         // Widened by a few ulps so the ball holds the children's balls despite rounding.

@@ -25,7 +25,13 @@ pub struct Camera {
 impl Camera {
     /// A camera looking at a sphere (`center`, `radius`) from direction `from` (pointing from
     /// the centre towards the eye), placed so the sphere fills the vertical field of view.
-    pub fn framing(center: [f32; 3], radius: f32, from: [f32; 3], width: u32, height: u32) -> Camera {
+    pub fn framing(
+        center: [f32; 3],
+        radius: f32,
+        from: [f32; 3],
+        width: u32,
+        height: u32,
+    ) -> Camera {
         let fov_y_degrees = 45.0f32;
         let distance = radius.max(f32::MIN_POSITIVE) / (fov_y_degrees.to_radians() / 2.0).sin();
         let eye = Vec3::from(center) + Vec3::from(from).normalize_or(Vec3::Z) * distance;

@@ -29,7 +29,12 @@ fn sphere(segments: u32, rings: u32) -> Scene {
     for s in 0..segments {
         triangles.push([0, ring(1, s), ring(1, s + 1)]);
         for r in 1..rings - 1 {
-            let (a, b, c, d) = (ring(r, s), ring(r + 1, s), ring(r + 1, s + 1), ring(r, s + 1));
+            let (a, b, c, d) = (
+                ring(r, s),
+                ring(r + 1, s),
+                ring(r + 1, s + 1),
+                ring(r, s + 1),
+            );
             triangles.push([a, b, c]);
             triangles.push([a, c, d]);
         }
@@ -127,7 +132,10 @@ fn on_a_sphere_backfaces_fold_and_the_silhouette_keeps_the_tight_threshold() {
             })
             .count();
     }
-    assert!(back_triangles[0] > 1000, "without backface folding the far side stays detailed");
+    assert!(
+        back_triangles[0] > 1000,
+        "without backface folding the far side stays detailed"
+    );
     assert!(
         back_triangles[1] * 5 < back_triangles[0],
         "backfacing regions should fold: {back_triangles:?}"
@@ -176,7 +184,11 @@ fn mesh_fold_prevention_refuses_exactly_the_folds_that_flip_a_triangle() {
     let camera = Camera::framing(center, radius, [1.0, 0.2, 0.5], 800, 600);
     let mut runtime = runtime(&bytes, CornerTracking::Incidence);
     runtime
-        .adjust(&Viewpoint::Camera(camera), &Criteria::default(), Goal::Threshold(0.3))
+        .adjust(
+            &Viewpoint::Camera(camera),
+            &Criteria::default(),
+            Goal::Threshold(0.3),
+        )
         .unwrap();
     let normals = |runtime: &mut vds_runtime::Runtime| {
         let cut = runtime.cut_mut();
@@ -218,5 +230,8 @@ fn mesh_fold_prevention_refuses_exactly_the_folds_that_flip_a_triangle() {
         runtime.cut_mut().check().unwrap();
     }
     assert!(folded > 50, "too few folds tried ({folded})");
-    assert!(refused > 0, "no fold was refused, so the test proves nothing");
+    assert!(
+        refused > 0,
+        "no fold was refused, so the test proves nothing"
+    );
 }

@@ -6,8 +6,8 @@ mod common;
 
 use common::*;
 use vds_runtime::{
-    ActiveTriangle, Camera, CornerTracking, Criteria, FrustumMode, Goal, Judge, Runtime,
-    Viewpoint, measure,
+    ActiveTriangle, Camera, CornerTracking, Criteria, FrustumMode, Goal, Judge, Runtime, Viewpoint,
+    measure,
 };
 
 const MESHES: [&str; 3] = ["bunny.obj", "cow.obj", "as1_assembly.obj"];
@@ -97,7 +97,8 @@ fn threshold_bounds_every_visible_vertex_on_random_cameras() {
                 .adjust(&Viewpoint::Camera(camera), &criteria, Goal::Threshold(t))
                 .unwrap();
             runtime.cut_mut().check().unwrap();
-            let deviation = measure::screen_deviation(runtime.cut(), &camera.view(), &positions, None);
+            let deviation =
+                measure::screen_deviation(runtime.cut(), &camera.view(), &positions, None);
             assert!(
                 deviation.max_px <= f64::from(t) + slack(t),
                 "{name} step {step}: a vertex moved {} px > {t} px (camera {camera:?})",
@@ -119,7 +120,11 @@ fn threshold_zero_unfolds_every_visible_region_fully() {
     let camera = Camera::framing(center, radius, [1.0, 0.5, 2.0], 400, 300);
     let mut runtime = runtime(&bytes, CornerTracking::Incidence);
     runtime
-        .adjust(&Viewpoint::Camera(camera), &no_backface(), Goal::Threshold(0.0))
+        .adjust(
+            &Viewpoint::Camera(camera),
+            &no_backface(),
+            Goal::Threshold(0.0),
+        )
         .unwrap();
     // The whole cow is in view, so every node unfolds.
     assert_eq!(
@@ -175,12 +180,18 @@ fn incremental_adjusts_match_a_recomputation_and_the_journal_replays_them() {
             apply(&mut mirror, &mut eager, &frame.changes.dirty_slots);
             let cut = eager.cut_mut();
             let slots: Vec<_> = (0..cut.slot_count()).map(|s| cut.slot(s)).collect();
-            assert!(mirror == slots, "{name} step {step}: the journal missed a change");
+            assert!(
+                mirror == slots,
+                "{name} step {step}: the journal missed a change"
+            );
             let mut a = eager.cut_mut().active_triangles();
             let mut b = lazy.cut_mut().active_triangles();
             a.sort_unstable();
             b.sort_unstable();
-            assert!(a == b, "{name} step {step}: incidence and lazy tracking disagree");
+            assert!(
+                a == b,
+                "{name} step {step}: incidence and lazy tracking disagree"
+            );
         }
     }
 }
@@ -243,7 +254,11 @@ fn view_independent_budget_orders_by_object_space_error() {
     let mut previous_error = f32::INFINITY;
     for budget in [500u32, 2000, 8000, 30000] {
         runtime
-            .adjust(&Viewpoint::Independent, &Criteria::default(), Goal::Budget(budget))
+            .adjust(
+                &Viewpoint::Independent,
+                &Criteria::default(),
+                Goal::Budget(budget),
+            )
             .unwrap();
         // The largest error radius left on the boundary shrinks as the budget grows.
         let cut = runtime.cut();
@@ -252,9 +267,15 @@ fn view_independent_budget_orders_by_object_space_error() {
             .iter()
             .map(|&b| cut.node(b).error_radius)
             .fold(0.0f32, f32::max);
-        assert!(worst <= previous_error, "budget {budget}: {worst} > {previous_error}");
+        assert!(
+            worst <= previous_error,
+            "budget {budget}: {worst} > {previous_error}"
+        );
         previous_error = worst;
-        assert!(cut.active_triangle_count() > budget / 2, "budget {budget} is badly used");
+        assert!(
+            cut.active_triangle_count() > budget / 2,
+            "budget {budget} is badly used"
+        );
     }
 }
 
@@ -305,7 +326,11 @@ fn gaze_loosens_the_threshold_away_from_the_focus_and_keeps_its_bound() {
     let mut gazing = runtime(&bytes, CornerTracking::Incidence);
     let t = 1.0;
     plain
-        .adjust(&Viewpoint::Camera(camera), &no_backface(), Goal::Threshold(t))
+        .adjust(
+            &Viewpoint::Camera(camera),
+            &no_backface(),
+            Goal::Threshold(t),
+        )
         .unwrap();
     let criteria = Criteria {
         gaze: Some(vds_runtime::Gaze {
@@ -337,6 +362,9 @@ fn gaze_loosens_the_threshold_away_from_the_focus_and_keeps_its_bound() {
         let theta = gaze_direction.angle_between(v - view.eye);
         let limit = t * (1.0 + falloff * theta);
         let moved = (a[0] - b[0]).hypot(a[1] - b[1]);
-        assert!(moved <= f64::from(limit) + slack(limit), "vertex {rank}: {moved} > {limit}");
+        assert!(
+            moved <= f64::from(limit) + slack(limit),
+            "vertex {rank}: {moved} > {limit}"
+        );
     }
 }

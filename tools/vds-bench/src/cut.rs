@@ -11,7 +11,6 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use rayon::prelude::*;
 use vds_format::{VdtFile, WriteOptions, encode};
 use vds_runtime::{CameraPath, CornerTracking, Criteria, Goal, Runtime, Viewpoint};
 
@@ -111,9 +110,21 @@ pub fn paths(name: &str, file: &Path, frames: u32, fly: bool) -> Result<()> {
     let root = probe.cut().node(0);
     let (width, height) = (1920, 1080);
     let path = if fly {
-        CameraPath::fly_through(root.sphere_center, root.sphere_radius, frames, width, height)
+        CameraPath::fly_through(
+            root.sphere_center,
+            root.sphere_radius,
+            frames,
+            width,
+            height,
+        )
     } else {
-        CameraPath::orbit(root.sphere_center, root.sphere_radius, frames, width, height)
+        CameraPath::orbit(
+            root.sphere_center,
+            root.sphere_radius,
+            frames,
+            width,
+            height,
+        )
     };
     println!(
         "{name} ({} triangles), {} frames {} at {width}x{height}, one thread",
@@ -125,85 +136,44 @@ pub fn paths(name: &str, file: &Path, frames: u32, fly: bool) -> Result<()> {
         for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
             play(&bytes, &path, Goal::Threshold(t), tracking, true)?;
         }
-        play(&bytes, &path, Goal::Threshold(t), CornerTracking::Incidence, false)?;
+        play(
+            &bytes,
+            &path,
+            Goal::Threshold(t),
+            CornerTracking::Incidence,
+            false,
+        )?;
     }
     println!();
     Ok(())
 }
 
-/// Closest distance from `p` to triangle `abc` (Ericson, Real-Time Collision Detection §5.1.5).
-fn point_triangle_distance(p: glam::DVec3, a: glam::DVec3, b: glam::DVec3, c: glam::DVec3) -> f64 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return p.distance(a);
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return p.distance(b);
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return p.distance(a + ab * (d1 / (d1 - d3)));
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return p.distance(c);
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return p.distance(a + ac * (d2 / (d2 - d6)));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return p.distance(b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
-    }
-    let denominator = 1.0 / (va + vb + vc);
-    p.distance(a + ab * (vb * denominator) + ac * (vc * denominator))
-}
-
-/// Mean distance from each point to the nearest triangle (exhaustive, in parallel).
-fn mean_distance(points: &[[f32; 3]], positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> f64 {
-    let corners: Vec<[glam::DVec3; 3]> = triangles
-        .iter()
-        .map(|t| t.map(|v| glam::Vec3::from(positions[v as usize]).as_dvec3()))
-        .collect();
-    let sum: f64 = points
-        .par_iter()
-        .map(|&p| {
-            let p = glam::Vec3::from(p).as_dvec3();
-            corners
-                .iter()
-                .map(|[a, b, c]| point_triangle_distance(p, *a, *b, *c))
-                .fold(f64::INFINITY, f64::min)
-        })
-        .sum();
-    sum / points.len().max(1) as f64
-}
-
-/// The symmetric mean surface distance between the original mesh and a simplification,
-/// vertex to surface both ways, as a fraction of the bounding-box diagonal.
-fn mean_error(
-    original: &vds_import::Scene,
-    positions: &[[f32; 3]],
-    triangles: &[[u32; 3]],
-    diagonal: f64,
-) -> f64 {
-    let used: Vec<[f32; 3]> = {
-        let mut seen = vec![false; positions.len()];
-        triangles.iter().flatten().for_each(|&v| seen[v as usize] = true);
-        positions
+/// The symmetric mean surface distance between two meshes: points spread over each by area
+/// (200,000 per side), measured to the other; the mean of the two means, as a fraction of
+/// `diagonal`.
+fn mean_error(a: (&[[f32; 3]], &[[u32; 3]]), b: (&[[f32; 3]], &[[u32; 3]]), diagonal: f64) -> f64 {
+    use crate::distance::{NearestTriangle, mean_distance, surface_samples};
+    let corners = |(positions, triangles): (&[[f32; 3]], &[[u32; 3]])| -> Vec<[glam::DVec3; 3]> {
+        triangles
             .iter()
-            .zip(&seen)
-            .filter(|(_, s)| **s)
-            .map(|(p, _)| *p)
+            .map(|t| t.map(|v| glam::Vec3::from(positions[v as usize]).as_dvec3()))
             .collect()
     };
-    let forward = mean_distance(&original.positions, positions, triangles);
-    let backward = mean_distance(&used, &original.positions, &original.triangles);
-    (forward + backward) / 2.0 / diagonal
+    let (ta, tb) = (corners(a), corners(b));
+    let (mut min, mut max) = (
+        glam::DVec3::splat(f64::INFINITY),
+        glam::DVec3::splat(f64::NEG_INFINITY),
+    );
+    for p in ta.iter().chain(&tb).flatten() {
+        min = min.min(*p);
+        max = max.max(*p);
+    }
+    let (sa, sb) = (surface_samples(&ta, 200_000), surface_samples(&tb, 200_000));
+    let (ga, gb) = (
+        NearestTriangle::new(ta, min, max),
+        NearestTriangle::new(tb, min, max),
+    );
+    (mean_distance(&sa, &gb) + mean_distance(&sb, &ga)) / 2.0 / diagonal
 }
 
 /// View-independent VDS cuts vs `simplify_sloppy` at equal triangle counts on `file`.
@@ -221,7 +191,7 @@ pub fn fidelity(file: &Path) -> Result<()> {
     let indices: Vec<u32> = scene.triangles.iter().flatten().copied().collect();
     let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&scene.positions), 12, 0)?;
     println!(
-        "fidelity on {} ({} triangles): mean symmetric vertex-to-surface distance, % of the diagonal",
+        "fidelity on {} ({} triangles): mean symmetric surface distance, % of the diagonal",
         file.display(),
         scene.triangles.len()
     );
@@ -234,10 +204,15 @@ pub fn fidelity(file: &Path) -> Result<()> {
             Box::new(VdtFile::from_bytes(bytes.clone())?),
             CornerTracking::Incidence,
         )?;
-        runtime.adjust(&Viewpoint::Independent, &Criteria::default(), Goal::Budget(count))?;
+        runtime.adjust(
+            &Viewpoint::Independent,
+            &Criteria::default(),
+            Goal::Budget(count),
+        )?;
         let mesh = vds_runtime::export::Mesh::from_cut(runtime.cut_mut());
-        let vds_error = mean_error(&scene, &mesh.positions, &mesh.triangles, diagonal);
-        let sloppy_error = mean_error(&scene, &scene.positions, &sloppy_triangles, diagonal);
+        let original = (&scene.positions[..], &scene.triangles[..]);
+        let vds_error = mean_error(original, (&mesh.positions, &mesh.triangles), diagonal);
+        let sloppy_error = mean_error(original, (&scene.positions, &sloppy_triangles), diagonal);
         println!(
             "  ~{target:>6}: vds {:>6} triangles {:.4}%   simplify_sloppy {:>6} triangles {:.4}%   ratio vds/sloppy {:.2}",
             mesh.triangles.len(),

@@ -8,6 +8,7 @@
 //! - `vds-bench cut`: the runtime along camera paths and its fidelity (see `cut.rs`).
 
 mod cut;
+mod distance;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

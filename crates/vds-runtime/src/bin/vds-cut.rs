@@ -93,7 +93,9 @@ fn parse_vec3(text: &str) -> Result<[f32; 3], String> {
     let values: Result<Vec<f32>, _> = parts.iter().map(|p| p.trim().parse::<f32>()).collect();
     match values {
         Ok(v) if v.len() == 3 && v.iter().all(|x| x.is_finite()) => Ok([v[0], v[1], v[2]]),
-        _ => Err(format!("expected X,Y,Z with three finite numbers, got {text:?}")),
+        _ => Err(format!(
+            "expected X,Y,Z with three finite numbers, got {text:?}"
+        )),
     }
 }
 
@@ -103,7 +105,9 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
         .ok_or_else(|| format!("expected WIDTHxHEIGHT, got {text:?}"))?;
     match (w.trim().parse::<u32>(), h.trim().parse::<u32>()) {
         (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
-        _ => Err(format!("expected WIDTHxHEIGHT with positive integers, got {text:?}")),
+        _ => Err(format!(
+            "expected WIDTHxHEIGHT with positive integers, got {text:?}"
+        )),
     }
 }
 
@@ -155,8 +159,8 @@ fn run(args: &Args) -> Result<()> {
     } else {
         CornerTracking::Incidence
     };
-    let mut runtime =
-        Runtime::new(Box::new(file), tracking).with_context(|| format!("{}", args.file.display()))?;
+    let mut runtime = Runtime::new(Box::new(file), tracking)
+        .with_context(|| format!("{}", args.file.display()))?;
     let open_ms = start.elapsed().as_secs_f64() * 1e3;
 
     let root = runtime.cut().node(0);
