@@ -16,6 +16,14 @@ ci:
 bench:
     cargo run --release -p vds-bench
 
+# The runtime along camera paths, and its fidelity against simplify_sloppy (docs/benchmarks.md).
+bench-cut:
+    cargo run --release -p vds-bench -- cut
+
+# Export the cut of a .vdt file from the default camera: just cut out/bunny.vdt out/cut.obj 1
+cut FILE OUT THRESHOLD:
+    cargo run --release -p vds-runtime --bin vds-cut -- {{FILE}} -o {{OUT}} --threshold {{THRESHOLD}}
+
 # Generate a CAD-like scene: just gen 1M out/cad-1M.ply
 gen COUNT OUT:
     cargo run --release -p vds-gen -- --triangles {{COUNT}} --out {{OUT}}
