@@ -368,3 +368,33 @@ fn gaze_loosens_the_threshold_away_from_the_focus_and_keeps_its_bound() {
         );
     }
 }
+
+#[test]
+fn threshold_holds_on_every_frame_of_a_smooth_path() {
+    for name in ["bunny.obj", "as1_assembly.obj"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+        let positions = runtime.leaf_positions().unwrap();
+        let path = vds_runtime::CameraPath::fly_through(center, radius * 1.5, 40, 480, 320);
+        for (frame, camera) in path.cameras.iter().enumerate() {
+            let t = 1.0;
+            runtime
+                .adjust(
+                    &Viewpoint::Camera(*camera),
+                    &no_backface(),
+                    Goal::Threshold(t),
+                )
+                .unwrap();
+            let deviation =
+                measure::screen_deviation(runtime.cut(), &camera.view(), &positions, None);
+            assert!(
+                deviation.max_px <= f64::from(t) + slack(t),
+                "{name} frame {frame}: {} px",
+                deviation.max_px
+            );
+        }
+        runtime.cut_mut().check().unwrap();
+    }
+}
