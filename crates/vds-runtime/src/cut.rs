@@ -181,6 +181,11 @@ impl Cut {
         cut
     }
 
+    /// The node store, for taking the log of loaded pages ([`NodeStore::take_loaded`]).
+    pub fn store_mut(&mut self) -> &mut NodeStore {
+        &mut self.store
+    }
+
     /// How corners are tracked.
     pub fn tracking(&self) -> CornerTracking {
         self.tracking

@@ -188,6 +188,8 @@ pub struct NodeStore {
     children_ready: Vec<u64>,
     triangle_corners: Vec<[u32; 3]>,
     triangle_parts: Vec<u32>,
+    /// Node id ranges of the pages loaded since the last [`NodeStore::take_loaded`].
+    loaded: Vec<std::ops::Range<u32>>,
     scratch: Page,
 }
 
@@ -220,6 +222,7 @@ impl NodeStore {
             children_ready: vec![0; node_count.div_ceil(64)],
             triangle_corners: bytemuck::zeroed_vec(triangle_count),
             triangle_parts: bytemuck::zeroed_vec(triangle_count),
+            loaded: Vec::new(),
             scratch: Page {
                 first_node: 0,
                 first_triangle: 0,
@@ -253,6 +256,12 @@ impl NodeStore {
     /// Number of triangles in the tree.
     pub fn triangle_count(&self) -> u32 {
         self.triangle_corners.len() as u32
+    }
+
+    /// The node id ranges of the pages loaded since the last call: what a renderer must upload
+    /// before it draws triangles whose corners lie there.
+    pub fn take_loaded(&mut self) -> Vec<std::ops::Range<u32>> {
+        std::mem::take(&mut self.loaded)
     }
 
     /// Pages loaded so far, and pages in the file.
@@ -438,6 +447,8 @@ impl NodeStore {
         }
         self.resident[index as usize] = true;
         self.resident_pages += 1;
+        self.loaded
+            .push(page.first_node..page.first_node + page.nodes.len() as u32);
         Ok(())
     }
 

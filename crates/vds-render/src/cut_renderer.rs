@@ -1,0 +1,401 @@
+//! The GPU mirror of a cut and the pipeline that draws it.
+//!
+//! Four bindings (see `shaders/cut.wgsl`): per-frame uniforms, node records (`vec4` proxy and
+//! error radius, `vec2<u32>` depth and normal) indexed by node id, and the slot array. Updates
+//! write only the runs a [`CutUpdate`] carries; the slot buffer grows by reallocation (the old
+//! contents copied on the GPU) when the cut needs more slots than it holds.
+
+use bytemuck::{Pod, Zeroable};
+use glam::{Mat4, Vec3, Vec4};
+use vds_runtime::Camera;
+
+use crate::update::{CutUpdate, GpuNode};
+use crate::{Gpu, RenderError};
+
+/// How triangles are coloured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Colouring {
+    /// One pastel colour per part.
+    #[default]
+    Parts,
+    /// Blue (root) to red (deepest) by the depth of the triangle's deepest corner node.
+    Depth,
+    /// Blue to red by screen-space error, red at twice the threshold.
+    Error,
+}
+
+/// How triangles are shaded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Shading {
+    /// One normal per triangle.
+    #[default]
+    Faceted,
+    /// Normals interpolated from the nodes' normal-cone axes.
+    Smooth,
+}
+
+/// Everything about a frame's look.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Style {
+    /// Colouring mode.
+    pub colouring: Colouring,
+    /// Shading mode.
+    pub shading: Shading,
+    /// Draw triangle edges on top.
+    pub wireframe: bool,
+    /// The pixel threshold (for the error colouring).
+    pub threshold_px: f32,
+}
+
+/// Mirrors `Frame` in `cut.wgsl` (128 bytes).
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+#[repr(C)]
+struct FrameUniforms {
+    world_to_clip: [[f32; 4]; 4],
+    eye: [f32; 4],
+    light: [f32; 4],
+    threshold_px: f32,
+    colouring: u32,
+    shading: u32,
+    wireframe: u32,
+    max_depth: f32,
+    pad: [f32; 3],
+}
+
+const _: () = assert!(size_of::<FrameUniforms>() == 128);
+
+/// The colour format of every target the pipeline draws to.
+pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+/// The depth format (reversed Z: near is 1, far is 0).
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// The camera as a matrix to wgpu clip space, exactly matching the runtime's projection
+/// (`vds_runtime::View::project`): same focal length in pixels, and reversed depth with an
+/// infinite far plane (`z_ndc = near / depth`).
+pub fn world_to_clip(camera: &Camera) -> Mat4 {
+    let view = camera.view();
+    let (w, h) = (view.width as f32, view.height as f32);
+    let sx = 2.0 * view.focal_px / w;
+    let sy = 2.0 * view.focal_px / h;
+    let row =
+        |axis: Vec3, scale: f32| Vec4::new(axis.x, axis.y, axis.z, -axis.dot(view.eye)) * scale;
+    let rows = [
+        row(view.right, sx),
+        row(view.up, sy),
+        Vec4::new(0.0, 0.0, 0.0, view.near.max(1e-12)),
+        row(view.forward, 1.0),
+    ];
+    Mat4::from_cols_array_2d(&[
+        rows[0].into(),
+        rows[1].into(),
+        rows[2].into(),
+        rows[3].into(),
+    ])
+    .transpose()
+}
+
+/// The render pipeline and its bind group layout (created once).
+pub struct CutPipeline {
+    pipeline: wgpu::RenderPipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl CutPipeline {
+    /// Compiles `cut.wgsl` and builds the pipeline for [`COLOR_FORMAT`] or `format`.
+    pub fn new(gpu: &Gpu, format: wgpu::TextureFormat) -> CutPipeline {
+        let device = &gpu.device;
+        let shader = device.create_shader_module(wgpu::include_wgsl!("shaders/cut.wgsl"));
+        let storage = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::VERTEX,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("cut bind group layout"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                storage(1),
+                storage(2),
+                storage(3),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("cut pipeline layout"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("cut pipeline"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &shader,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState {
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                // CAD soup has no consistent winding: draw both sides.
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Greater),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &shader,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        CutPipeline { pipeline, layout }
+    }
+}
+
+/// A cut (or a brute-force mesh) on the GPU.
+pub struct GpuCut {
+    uniforms: wgpu::Buffer,
+    nodes: wgpu::Buffer,
+    node_attrs: wgpu::Buffer,
+    slots: wgpu::Buffer,
+    node_capacity: u32,
+    slot_capacity: u32,
+    slot_count: u32,
+    max_depth: u32,
+    bind_group: wgpu::BindGroup,
+}
+
+impl GpuCut {
+    /// Buffers for a tree of `node_count` nodes (or a mesh of that many vertices).
+    pub fn new(gpu: &Gpu, pipeline: &CutPipeline, node_count: u32) -> Result<GpuCut, RenderError> {
+        let limit = gpu.device.limits().max_storage_buffer_binding_size as u64;
+        let node_bytes = u64::from(node_count.max(1)) * 16;
+        if node_bytes > limit {
+            return Err(RenderError::TooLarge(format!(
+                "{node_count} nodes need {node_bytes} bytes of storage; the adapter binds at most {limit}"
+            )));
+        }
+        let buffer = |label, size: u64, usage| {
+            gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
+        let uniforms = buffer(
+            "frame uniforms",
+            size_of::<FrameUniforms>() as u64,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
+        let nodes = buffer("nodes", node_bytes, storage);
+        let node_attrs = buffer("node attrs", u64::from(node_count.max(1)) * 8, storage);
+        let slot_capacity = 1024;
+        let slots = buffer(
+            "slots",
+            u64::from(slot_capacity) * 16,
+            storage | wgpu::BufferUsages::COPY_SRC,
+        );
+        let bind_group = Self::bind(gpu, pipeline, &uniforms, &nodes, &node_attrs, &slots);
+        Ok(GpuCut {
+            uniforms,
+            nodes,
+            node_attrs,
+            slots,
+            node_capacity: node_count,
+            slot_capacity,
+            slot_count: 0,
+            max_depth: 0,
+            bind_group,
+        })
+    }
+
+    fn bind(
+        gpu: &Gpu,
+        pipeline: &CutPipeline,
+        uniforms: &wgpu::Buffer,
+        nodes: &wgpu::Buffer,
+        node_attrs: &wgpu::Buffer,
+        slots: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
+        let buffers = [uniforms, nodes, node_attrs, slots];
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
+            .iter()
+            .enumerate()
+            .map(|(binding, buffer)| wgpu::BindGroupEntry {
+                binding: binding as u32,
+                resource: buffer.as_entire_binding(),
+            })
+            .collect();
+        gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("cut bind group"),
+            layout: &pipeline.layout,
+            entries: &entries,
+        })
+    }
+
+    /// Number of slots drawn (free ones included, as empty triangles).
+    pub fn slot_count(&self) -> u32 {
+        self.slot_count
+    }
+
+    /// Writes `update` to the buffers and returns the bytes written (a slot-buffer
+    /// reallocation copies on the GPU and is not counted).
+    pub fn apply(
+        &mut self,
+        gpu: &Gpu,
+        pipeline: &CutPipeline,
+        update: &CutUpdate,
+    ) -> Result<u64, RenderError> {
+        if update.slot_count > self.slot_capacity {
+            self.grow_slots(gpu, pipeline, update.slot_count)?;
+        }
+        let mut bytes = 0u64;
+        for (first, records) in &update.nodes {
+            if u64::from(*first) + records.len() as u64 > u64::from(self.node_capacity) {
+                return Err(RenderError::TooLarge(format!(
+                    "node {} is beyond the {} nodes this mirror was made for",
+                    u64::from(*first) + records.len() as u64 - 1,
+                    self.node_capacity
+                )));
+            }
+            let positions: Vec<[f32; 4]> = records.iter().map(|n| n.position_error).collect();
+            let attrs: Vec<[u32; 2]> = records.iter().map(|n| n.attrs).collect();
+            gpu.queue.write_buffer(
+                &self.nodes,
+                u64::from(*first) * 16,
+                bytemuck::cast_slice(&positions),
+            );
+            gpu.queue.write_buffer(
+                &self.node_attrs,
+                u64::from(*first) * 8,
+                bytemuck::cast_slice(&attrs),
+            );
+            bytes += (records.len() * size_of::<GpuNode>()) as u64;
+        }
+        for (first, contents) in &update.slots {
+            let end = u64::from(*first) + contents.len() as u64;
+            if end > u64::from(self.slot_capacity) {
+                return Err(RenderError::TooLarge(format!(
+                    "slot {} is beyond the {} slots of the buffer",
+                    end - 1,
+                    self.slot_capacity
+                )));
+            }
+            gpu.queue.write_buffer(
+                &self.slots,
+                u64::from(*first) * 16,
+                bytemuck::cast_slice(contents),
+            );
+            bytes += (contents.len() * 16) as u64;
+        }
+        self.slot_count = update.slot_count;
+        self.max_depth = self.max_depth.max(update.max_depth);
+        Ok(bytes)
+    }
+
+    fn grow_slots(
+        &mut self,
+        gpu: &Gpu,
+        pipeline: &CutPipeline,
+        needed: u32,
+    ) -> Result<(), RenderError> {
+        let capacity = needed.max(self.slot_capacity.saturating_mul(3) / 2);
+        let size = u64::from(capacity) * 16;
+        let limit = gpu.device.limits().max_storage_buffer_binding_size as u64;
+        if size > limit {
+            return Err(RenderError::TooLarge(format!(
+                "{needed} slots need {size} bytes; the adapter binds at most {limit}"
+            )));
+        }
+        let slots = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("slots"),
+            size,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("grow slots"),
+            });
+        encoder.copy_buffer_to_buffer(
+            &self.slots,
+            0,
+            &slots,
+            0,
+            u64::from(self.slot_capacity) * 16,
+        );
+        gpu.queue.submit([encoder.finish()]);
+        self.slots = slots;
+        self.slot_capacity = capacity;
+        self.bind_group = Self::bind(
+            gpu,
+            pipeline,
+            &self.uniforms,
+            &self.nodes,
+            &self.node_attrs,
+            &self.slots,
+        );
+        Ok(())
+    }
+
+    /// Sets the camera and style for the next draw.
+    pub fn set_frame(&self, gpu: &Gpu, camera: &Camera, style: &Style) {
+        let view = camera.view();
+        // Headlight from above the eye, so faces square to the view are not all equally lit.
+        let light = (-view.forward + view.up * 0.35 + view.right * 0.2).normalize();
+        let uniforms = FrameUniforms {
+            world_to_clip: world_to_clip(camera).to_cols_array_2d(),
+            eye: [view.eye.x, view.eye.y, view.eye.z, view.focal_px],
+            light: [light.x, light.y, light.z, 0.25],
+            threshold_px: style.threshold_px,
+            colouring: style.colouring as u32,
+            shading: style.shading as u32,
+            wireframe: u32::from(style.wireframe),
+            max_depth: self.max_depth as f32,
+            pad: [0.0; 3],
+        };
+        gpu.queue
+            .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
+    }
+
+    /// Records the draw into `pass`.
+    pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, pipeline: &CutPipeline) {
+        if self.slot_count == 0 {
+            return;
+        }
+        pass.set_pipeline(&pipeline.pipeline);
+        pass.set_bind_group(0, &self.bind_group, &[]);
+        pass.draw(0..self.slot_count * 3, 0..1);
+    }
+}

@@ -1,0 +1,138 @@
+// The cut, drawn by vertex pulling: vertex `i` is corner `i % 3` of slot `i / 3`. Slots hold
+// node ids (and a part id); nodes hold proxy positions. A free slot becomes a triangle outside
+// the clip volume. Mirrors `FrameUniforms` and `GpuNode` in the Rust code.
+
+struct Frame {
+    world_to_clip: mat4x4<f32>,
+    // xyz: eye position; w: focal length in pixels.
+    eye: vec4<f32>,
+    // xyz: unit direction towards the light; w: ambient term.
+    light: vec4<f32>,
+    threshold_px: f32,
+    // 0: part colours, 1: node depth, 2: screen-space error.
+    colouring: u32,
+    // 0: faceted, 1: smooth (node normals).
+    shading: u32,
+    wireframe: u32,
+    max_depth: f32,
+    _pad0: f32,
+    _pad1: f32,
+    _pad2: f32,
+};
+
+@group(0) @binding(0) var<uniform> frame: Frame;
+@group(0) @binding(1) var<storage, read> nodes: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> node_attrs: array<vec2<u32>>;
+@group(0) @binding(3) var<storage, read> slots: array<vec4<u32>>;
+
+struct VertexOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) @interpolate(flat) colour: vec3<f32>,
+    @location(1) @interpolate(flat) face_normal: vec3<f32>,
+    @location(2) smooth_normal: vec3<f32>,
+    @location(3) world: vec3<f32>,
+    @location(4) barycentric: vec3<f32>,
+};
+
+fn hash(x: u32) -> u32 {
+    var h = x * 0x9E3779B1u;
+    h = h ^ (h >> 15u);
+    h = h * 0x85EBCA77u;
+    h = h ^ (h >> 13u);
+    return h;
+}
+
+fn hue(h: f32) -> vec3<f32> {
+    let k = vec3<f32>(0.0, 2.0 / 3.0, 1.0 / 3.0);
+    return clamp(abs(fract(vec3<f32>(h) + k) * 6.0 - 3.0) - 1.0, vec3<f32>(0.0), vec3<f32>(1.0));
+}
+
+// A blue → green → red ramp for debug colourings, `x` in [0, 1].
+fn ramp(x: f32) -> vec3<f32> {
+    return hue(0.66 * (1.0 - clamp(x, 0.0, 1.0)));
+}
+
+fn part_colour(part: u32) -> vec3<f32> {
+    let h = hash(part);
+    let base = hue(f32(h & 0xFFFFu) / 65535.0);
+    // Pastel: CAD parts read better lightly tinted than saturated.
+    return mix(vec3<f32>(0.85), base, 0.45);
+}
+
+fn decode_normal(packed: u32) -> vec3<f32> {
+    let x = f32(bitcast<i32>(packed << 16u) >> 16u) / 32767.0;
+    let y = f32(bitcast<i32>(packed) >> 16u) / 32767.0;
+    var n = vec3<f32>(x, y, 1.0 - abs(x) - abs(y));
+    if (n.z < 0.0) {
+        let xy = (1.0 - abs(n.yx)) * select(vec2<f32>(-1.0), vec2<f32>(1.0), n.xy >= vec2<f32>(0.0));
+        n = vec3<f32>(xy, n.z);
+    }
+    let l = length(n);
+    return select(vec3<f32>(0.0, 0.0, 1.0), n / l, l > 0.0);
+}
+
+fn screen_error(id: u32) -> f32 {
+    let node = nodes[id];
+    let distance = max(length(node.xyz - frame.eye.xyz), 1e-20);
+    return frame.eye.w * node.w / distance;
+}
+
+@vertex
+fn vs_main(@builtin(vertex_index) index: u32) -> VertexOut {
+    var out: VertexOut;
+    let slot = slots[index / 3u];
+    let k = index % 3u;
+    out.barycentric = vec3<f32>(f32(k == 0u), f32(k == 1u), f32(k == 2u));
+    if (slot.x == 0xFFFFFFFFu) {
+        out.clip = vec4<f32>(2.0, 2.0, 2.0, 1.0);
+        return out;
+    }
+    let p0 = nodes[slot.x].xyz;
+    let p1 = nodes[slot.y].xyz;
+    let p2 = nodes[slot.z].xyz;
+    var corner = slot.x;
+    if (k == 1u) {
+        corner = slot.y;
+    } else if (k == 2u) {
+        corner = slot.z;
+    }
+    let p = nodes[corner].xyz;
+    out.clip = frame.world_to_clip * vec4<f32>(p, 1.0);
+    out.world = p;
+    let n = cross(p1 - p0, p2 - p0);
+    let l = length(n);
+    out.face_normal = select(vec3<f32>(0.0, 0.0, 1.0), n / l, l > 0.0);
+    out.smooth_normal = decode_normal(node_attrs[corner].y);
+    if (frame.colouring == 1u) {
+        let depth = f32(max(max(node_attrs[slot.x].x, node_attrs[slot.y].x), node_attrs[slot.z].x));
+        out.colour = ramp(depth / max(frame.max_depth, 1.0));
+    } else if (frame.colouring == 2u) {
+        let e = max(max(screen_error(slot.x), screen_error(slot.y)), screen_error(slot.z));
+        out.colour = ramp(e / max(frame.threshold_px, 1e-6) * 0.5);
+    } else {
+        out.colour = part_colour(slot.w);
+    }
+    return out;
+}
+
+@fragment
+fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
+    var n = in.face_normal;
+    if (frame.shading == 1u) {
+        n = normalize(in.smooth_normal);
+    }
+    // CAD soup is not consistently oriented: light both sides.
+    let to_eye = frame.eye.xyz - in.world;
+    if (dot(n, to_eye) < 0.0) {
+        n = -n;
+    }
+    let diffuse = max(dot(n, frame.light.xyz), 0.0);
+    var colour = in.colour * (frame.light.w + (1.0 - frame.light.w) * diffuse);
+    if (frame.wireframe != 0u) {
+        let width = fwidth(in.barycentric);
+        let edge = smoothstep(vec3<f32>(0.0), width * 1.2, in.barycentric);
+        let on_edge = 1.0 - min(edge.x, min(edge.y, edge.z));
+        colour = mix(colour, vec3<f32>(0.08, 0.08, 0.1), on_edge * 0.85);
+    }
+    return vec4<f32>(colour, 1.0);
+}
