@@ -194,7 +194,7 @@ pub struct GpuCut {
 impl GpuCut {
     /// Buffers for a tree of `node_count` nodes (or a mesh of that many vertices).
     pub fn new(gpu: &Gpu, pipeline: &CutPipeline, node_count: u32) -> Result<GpuCut, RenderError> {
-        let limit = gpu.device.limits().max_storage_buffer_binding_size as u64;
+        let limit = gpu.device.limits().max_storage_buffer_binding_size;
         let node_bytes = u64::from(node_count.max(1)) * 16;
         if node_bytes > limit {
             return Err(RenderError::TooLarge(format!(
@@ -329,7 +329,7 @@ impl GpuCut {
     ) -> Result<(), RenderError> {
         let capacity = needed.max(self.slot_capacity.saturating_mul(3) / 2);
         let size = u64::from(capacity) * 16;
-        let limit = gpu.device.limits().max_storage_buffer_binding_size as u64;
+        let limit = gpu.device.limits().max_storage_buffer_binding_size;
         if size > limit {
             return Err(RenderError::TooLarge(format!(
                 "{needed} slots need {size} bytes; the adapter binds at most {limit}"
