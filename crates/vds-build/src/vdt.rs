@@ -179,3 +179,23 @@ pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
     };
     Ok((tree, scene))
 }
+
+/// The `.vdt` bytes of `scene`, built in memory: snaps the scene to the file's grid, builds the
+/// tree and encodes it (what `vds-view model.obj` and the tests use instead of a file).
+pub fn encode_scene(
+    scene: &mut Scene,
+    tool: &str,
+    options: &vds_format::WriteOptions,
+) -> Result<Vec<u8>, VdtError> {
+    let grid = snap_to_grid(scene);
+    let tree = crate::build_tree(scene);
+    let metadata = vds_format::Metadata {
+        tool: tool.to_string(),
+        part_names: scene.part_names.clone(),
+        input_vertices: scene.stats.input_vertices,
+        input_triangles: scene.stats.input_triangles,
+        degree_histogram: tree.degree_histogram(),
+        ..Default::default()
+    };
+    Ok(vds_format::encode(&tree_content(&tree, scene, metadata, grid), options)?.0)
+}

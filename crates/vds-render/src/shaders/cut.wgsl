@@ -53,10 +53,12 @@ fn ramp(x: f32) -> vec3<f32> {
 }
 
 fn part_colour(part: u32) -> vec3<f32> {
-    let h = hash(part);
-    let base = hue(f32(h & 0xFFFFu) / 65535.0);
-    // Pastel: CAD parts read better lightly tinted than saturated.
-    return mix(vec3<f32>(0.85), base, 0.45);
+    // Golden-ratio steps around the hue circle keep neighbouring part ids far apart; the
+    // hash varies the lightness a little so that parts of similar hue still separate.
+    let base = hue(fract(f32(part) * 0.618034 + 0.13));
+    let light = 0.75 + 0.2 * f32(hash(part) & 0xFFu) / 255.0;
+    // Pastel: CAD parts read better tinted than saturated.
+    return mix(vec3<f32>(light), base, 0.5);
 }
 
 fn decode_normal(packed: u32) -> vec3<f32> {

@@ -1,0 +1,213 @@
+//! Headless runs: a camera path rendered offscreen, one PNG and one row of figures per frame.
+//! What CI and benchmarks use; the same simplifier, uploads and pipeline as the window.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use vds_render::{CutPipeline, CutUpdate, Gpu, GpuCut, Offscreen, Style};
+use vds_runtime::CameraPath;
+
+use crate::model::Model;
+use crate::simplify::{AdjustFigures, AsyncSimplifier, Batch, Settings, Simplifier, fingerprint};
+
+/// What a headless run does.
+pub struct Headless {
+    /// The cameras.
+    pub path: CameraPath,
+    /// Where PNGs go (`frame-00000.png`, ...); none: render without writing.
+    pub out: Option<PathBuf>,
+    /// Where the per-frame CSV goes.
+    pub stats: Option<PathBuf>,
+    /// Threshold or budget and criteria.
+    pub settings: Settings,
+    /// Look.
+    pub style: Style,
+    /// Simplify on a separate thread (frames show whatever complete adjusts are queued).
+    pub asynchronous: bool,
+    /// Draw the original mesh every frame instead of the cut.
+    pub brute_force: bool,
+    /// Check every cut and that every rendered frame shows exactly one adjust's cut.
+    pub verify: bool,
+}
+
+/// One row of the per-frame table.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FrameRow {
+    /// Frame index.
+    pub frame: usize,
+    /// The adjust behind this frame's newest applied batch (0 when none arrived).
+    pub adjust: AdjustFigures,
+    /// Bytes uploaded before this frame.
+    pub upload_bytes: u64,
+    /// GPU time of the draw, where timestamp queries exist.
+    pub gpu_ms: Option<f64>,
+    /// CPU time of the frame: simplification (when synchronous), uploads, draw and readback.
+    pub cpu_frame_ms: f64,
+    /// Triangles drawn (slots, free ones included).
+    pub drawn_slots: u32,
+    /// Batches applied before this frame.
+    pub batches: usize,
+}
+
+const CSV_HEADER: &str = "frame,adjust_ms,upload_bytes,gpu_ms,cpu_frame_ms,active_triangles,added,removed,changed,drawn_slots,batches";
+
+impl FrameRow {
+    fn csv(&self) -> String {
+        format!(
+            "{},{:.4},{},{},{:.4},{},{},{},{},{},{}",
+            self.frame,
+            self.adjust.adjust_ms,
+            self.upload_bytes,
+            self.gpu_ms.map_or(String::new(), |g| format!("{g:.4}")),
+            self.cpu_frame_ms,
+            self.adjust.active_triangles,
+            self.adjust.added,
+            self.adjust.removed,
+            self.adjust.changed,
+            self.drawn_slots,
+            self.batches
+        )
+    }
+}
+
+/// A CPU copy of the slot array, kept in verify mode to fingerprint what the GPU holds.
+#[derive(Default)]
+struct Mirror {
+    slots: Vec<[u32; 4]>,
+}
+
+impl Mirror {
+    fn apply(&mut self, update: &CutUpdate) {
+        self.slots
+            .resize(update.slot_count as usize, vds_render::update::EMPTY_SLOT);
+        for (first, contents) in &update.slots {
+            let first = *first as usize;
+            self.slots[first..first + contents.len()].copy_from_slice(contents);
+        }
+    }
+}
+
+/// Runs `headless` over `model` and returns the rows.
+pub fn run(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
+    let gpu = Gpu::headless()?;
+    let pipeline = CutPipeline::new(&gpu, vds_render::target_format());
+    let first = headless.path.cameras.first().context("the camera path is empty")?;
+    let target = Offscreen::new(&gpu, first.width, first.height);
+    if let Some(out) = &headless.out {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    }
+    let mut csv = match &headless.stats {
+        Some(path) => {
+            let mut file = std::io::BufWriter::new(
+                std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+            );
+            writeln!(file, "{CSV_HEADER}")?;
+            Some(file)
+        }
+        None => None,
+    };
+
+    let mut rows = Vec::new();
+    if headless.brute_force {
+        let mesh = model.mesh.take().context("brute force needs the original mesh")?;
+        let mut gpu_cut = GpuCut::new(&gpu, &pipeline, mesh.positions.len() as u32)?;
+        let update = CutUpdate::whole_mesh(&mesh.positions, &mesh.triangles, &mesh.triangle_parts);
+        let upload = gpu_cut.apply(&gpu, &pipeline, &update)?;
+        for (i, camera) in headless.path.cameras.iter().enumerate() {
+            let start = Instant::now();
+            gpu_cut.set_frame(&gpu, camera, &headless.style);
+            let gpu_ms = target.render(&gpu, &gpu_cut, &pipeline)?;
+            let image = target.read(&gpu)?;
+            let row = FrameRow {
+                frame: i,
+                upload_bytes: if i == 0 { upload } else { 0 },
+                gpu_ms,
+                cpu_frame_ms: start.elapsed().as_secs_f64() * 1e3,
+                drawn_slots: gpu_cut.slot_count(),
+                adjust: AdjustFigures {
+                    active_triangles: mesh.triangles.len() as u32,
+                    ..Default::default()
+                },
+                batches: 0,
+            };
+            finish_frame(headless, &image, &row, csv.as_mut())?;
+            rows.push(row);
+        }
+        return Ok(rows);
+    }
+
+    let node_count = model.runtime.cut().store().node_count();
+    let mut gpu_cut = GpuCut::new(&gpu, &pipeline, node_count)?;
+    let mut mirror = headless.verify.then(Mirror::default);
+    let mut simplifier = Some(Simplifier::new(model.runtime, headless.verify));
+    let asynchronous = headless
+        .asynchronous
+        .then(|| AsyncSimplifier::spawn(simplifier.take().expect("not yet moved")));
+    for (i, camera) in headless.path.cameras.iter().enumerate() {
+        let start = Instant::now();
+        let batches: Vec<Batch> = match (&mut simplifier, &asynchronous) {
+            (Some(simplifier), _) => vec![simplifier.step(camera, &headless.settings)?],
+            (None, Some(worker)) => {
+                worker.request(*camera, headless.settings);
+                let mut queued = worker.drain()?;
+                if i == 0 && queued.is_empty() {
+                    // Nothing to show yet on the very first frame: wait for the first cut.
+                    queued.push(worker.wait()?);
+                }
+                queued
+            }
+            (None, None) => unreachable!("one of the two modes"),
+        };
+        // All queued batches go up together at the start of the frame.
+        let mut upload_bytes = 0;
+        let mut figures = AdjustFigures::default();
+        for batch in &batches {
+            upload_bytes += gpu_cut.apply(&gpu, &pipeline, &batch.update)?;
+            figures = batch.figures;
+            if let (Some(mirror), Some(expected)) = (&mut mirror, batch.fingerprint) {
+                mirror.apply(&batch.update);
+                let got = fingerprint(mirror.slots.iter().copied());
+                anyhow::ensure!(
+                    got == expected,
+                    "frame {i}: the renderer's triangles differ from the cut after the adjust"
+                );
+            }
+        }
+        gpu_cut.set_frame(&gpu, camera, &headless.style);
+        let gpu_ms = target.render(&gpu, &gpu_cut, &pipeline)?;
+        let image = target.read(&gpu)?;
+        let row = FrameRow {
+            frame: i,
+            adjust: figures,
+            upload_bytes,
+            gpu_ms,
+            cpu_frame_ms: start.elapsed().as_secs_f64() * 1e3,
+            drawn_slots: gpu_cut.slot_count(),
+            batches: batches.len(),
+        };
+        finish_frame(headless, &image, &row, csv.as_mut())?;
+        rows.push(row);
+    }
+    if let Some(file) = &mut csv {
+        file.flush()?;
+    }
+    Ok(rows)
+}
+
+fn finish_frame(
+    headless: &Headless,
+    image: &vds_render::Image,
+    row: &FrameRow,
+    csv: Option<&mut std::io::BufWriter<std::fs::File>>,
+) -> Result<()> {
+    if let Some(out) = &headless.out {
+        let path = out.join(format!("frame-{:05}.png", row.frame));
+        image.write_png(&path)?;
+    }
+    if let Some(csv) = csv {
+        writeln!(csv, "{}", row.csv())?;
+    }
+    Ok(())
+}

@@ -1,0 +1,255 @@
+//! `vds-view`: the vds viewer.
+//!
+//! `vds-view [FILE]` opens a window on a `.vdt` file, a mesh file (its tree is built in memory
+//! first) or, with no file, the bundled demo assembly. `--headless` renders a camera path
+//! offscreen instead: PNGs and a CSV of per-frame figures. Exit codes: 0 success, 1 failure
+//! (named), 2 bad command line.
+
+mod controls;
+mod headless;
+mod model;
+mod simplify;
+mod window;
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, ValueEnum};
+use vds_render::{Colouring, Shading, Style};
+use vds_runtime::{CameraPath, Criteria, FrustumMode, Gaze, Goal};
+
+use crate::headless::Headless;
+use crate::simplify::Settings;
+
+#[derive(Parser)]
+#[command(version, about = "View a model with view-dependent simplification")]
+struct Args {
+    /// A .vdt file or a mesh (.obj, .gltf, .glb, .ply, .stl); the bundled demo when absent.
+    file: Option<PathBuf>,
+    /// Render offscreen along a camera path instead of opening a window.
+    #[arg(long)]
+    headless: bool,
+    /// Camera path JSON: {"cameras": [{"eye": [x,y,z], "target": [x,y,z], "up": [x,y,z],
+    /// "fov_y_degrees": f, "width": w, "height": h, "near": n}, ...]}.
+    #[arg(long, conflicts_with = "orbit")]
+    camera_path: Option<PathBuf>,
+    /// Generate an orbit around the model as the camera path.
+    #[arg(long)]
+    orbit: bool,
+    /// Frames of the generated orbit (or the first N of a camera path).
+    #[arg(long)]
+    frames: Option<usize>,
+    /// Image or window size WIDTHxHEIGHT.
+    #[arg(long, value_parser = parse_size, default_value = "1280x720")]
+    size: (u32, u32),
+    /// Directory for the PNGs of a headless run.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// CSV file for per-frame figures of a headless run.
+    #[arg(long)]
+    stats: Option<PathBuf>,
+    /// Screen-space error threshold in pixels.
+    #[arg(long, default_value_t = 1.0, conflicts_with = "budget")]
+    threshold: f32,
+    /// Triangle budget instead of a threshold.
+    #[arg(long)]
+    budget: Option<u32>,
+    /// Simplify on a separate thread (frames never wait for simplification).
+    #[arg(long = "async")]
+    asynchronous: bool,
+    /// Draw the original mesh instead of the cut (for comparison).
+    #[arg(long)]
+    brute_force: bool,
+    /// Triangle colouring.
+    #[arg(long, value_enum, default_value_t = ColouringArg::Parts)]
+    colouring: ColouringArg,
+    /// Shading.
+    #[arg(long, value_enum, default_value_t = ShadingArg::Faceted)]
+    shading: ShadingArg,
+    /// Draw triangle edges.
+    #[arg(long)]
+    wireframe: bool,
+    /// Do not hold silhouettes to a tighter threshold.
+    #[arg(long)]
+    no_silhouette: bool,
+    /// Do not fold backfacing regions.
+    #[arg(long)]
+    no_backface: bool,
+    /// What nodes outside the view frustum do.
+    #[arg(long, value_enum, default_value_t = FrustumArg::Fold)]
+    frustum: FrustumArg,
+    /// Gaze falloff per radian away from the view direction (0: off).
+    #[arg(long, default_value_t = 0.0)]
+    gaze_falloff: f32,
+    /// Check every cut and every rendered frame's consistency (slow).
+    #[arg(long)]
+    verify: bool,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ColouringArg {
+    Parts,
+    Depth,
+    Error,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ShadingArg {
+    Faceted,
+    Smooth,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum FrustumArg {
+    Fold,
+    Ignore,
+    Off,
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = text
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got {text:?}"))?;
+    match (w.trim().parse::<u32>(), h.trim().parse::<u32>()) {
+        (Ok(w), Ok(h)) if (1..=16384).contains(&w) && (1..=16384).contains(&h) => Ok((w, h)),
+        _ => Err(format!("expected WIDTHxHEIGHT between 1 and 16384, got {text:?}")),
+    }
+}
+
+impl Args {
+    fn settings(&self) -> Settings {
+        Settings {
+            goal: match self.budget {
+                Some(n) => Goal::Budget(n),
+                None => Goal::Threshold(self.threshold.max(0.0)),
+            },
+            criteria: Criteria {
+                silhouette_factor: (!self.no_silhouette).then_some(0.25),
+                backface: !self.no_backface,
+                frustum: match self.frustum {
+                    FrustumArg::Fold => FrustumMode::Fold,
+                    FrustumArg::Ignore => FrustumMode::Ignore,
+                    FrustumArg::Off => FrustumMode::Off,
+                },
+                // The focus follows the view direction; the runtime takes it per frame.
+                gaze: (self.gaze_falloff > 0.0).then_some(Gaze {
+                    direction: [0.0, 0.0, -1.0],
+                    falloff: self.gaze_falloff,
+                }),
+                prevent_mesh_folds: false,
+            },
+        }
+    }
+
+    fn style(&self) -> Style {
+        Style {
+            colouring: match self.colouring {
+                ColouringArg::Parts => Colouring::Parts,
+                ColouringArg::Depth => Colouring::Depth,
+                ColouringArg::Error => Colouring::Error,
+            },
+            shading: match self.shading {
+                ShadingArg::Faceted => Shading::Faceted,
+                ShadingArg::Smooth => Shading::Smooth,
+            },
+            wireframe: self.wireframe,
+            threshold_px: self.threshold,
+        }
+    }
+}
+
+fn main() {
+    let args = Args::parse();
+    if let Err(error) = run(&args) {
+        eprintln!("vds-view: {error:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(args: &Args) -> Result<()> {
+    if !args.headless {
+        if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none()
+        {
+            bail!(
+                "no display: neither DISPLAY nor WAYLAND_DISPLAY is set. To render without a \
+                 window, use --headless (for example: vds-view {}--headless --orbit --frames \
+                 60 --out frames --stats stats.csv)",
+                args.file
+                    .as_ref()
+                    .map_or(String::new(), |f| format!("{} ", f.display()))
+            );
+        }
+        let model = model::open(args.file.as_deref(), false)?;
+        return window::run(model, args.settings(), args.style(), args.size, args.asynchronous);
+    }
+    let model = model::open(args.file.as_deref(), args.brute_force)?;
+    let (width, height) = args.size;
+    let root = model.runtime.cut().node(0);
+    let mut path = match &args.camera_path {
+        Some(file) => {
+            let text = std::fs::read_to_string(file)
+                .with_context(|| format!("reading {}", file.display()))?;
+            serde_json::from_str::<CameraPath>(&text)
+                .with_context(|| format!("{}: not a camera path", file.display()))?
+        }
+        None => CameraPath::orbit(
+            root.sphere_center,
+            root.sphere_radius,
+            args.frames.unwrap_or(120) as u32,
+            width,
+            height,
+        ),
+    };
+    if let Some(frames) = args.frames {
+        path.cameras.truncate(frames);
+    }
+    if path.cameras.is_empty() {
+        bail!("the camera path has no cameras");
+    }
+    let first = path.cameras[0];
+    if path.cameras.iter().any(|c| (c.width, c.height) != (first.width, first.height)) {
+        bail!("every camera of a path must have the same size");
+    }
+    let headless = Headless {
+        path,
+        out: args.out.clone(),
+        stats: args.stats.clone(),
+        settings: args.settings(),
+        style: args.style(),
+        asynchronous: args.asynchronous,
+        brute_force: args.brute_force,
+        verify: args.verify,
+    };
+    let name = model.name.clone();
+    let triangles = model.triangles;
+    let rows = headless::run(model, &headless)?;
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    let after_first: Vec<_> = rows.iter().skip(1).collect();
+    let gpu: Vec<f64> = after_first.iter().filter_map(|r| r.gpu_ms).collect();
+    println!(
+        "{name}: {} frames at {}x{} of {triangles} triangles{}; medians after the first frame: \
+         adjust {:.3} ms, CPU frame {:.2} ms{}, {:.0} active triangles, {:.0} upload bytes",
+        rows.len(),
+        first.width,
+        first.height,
+        if args.brute_force { " (brute force)" } else { "" },
+        median(after_first.iter().map(|r| r.adjust.adjust_ms).collect()),
+        median(after_first.iter().map(|r| r.cpu_frame_ms).collect()),
+        if gpu.is_empty() {
+            String::new()
+        } else {
+            format!(", GPU {:.2} ms", median(gpu))
+        },
+        median(
+            after_first
+                .iter()
+                .map(|r| f64::from(r.adjust.active_triangles))
+                .collect()
+        ),
+        median(after_first.iter().map(|r| r.upload_bytes as f64).collect()),
+    );
+    Ok(())
+}

@@ -1,0 +1,91 @@
+//! Opening what the user gave: a `.vdt` file (memory-mapped, pages loaded as the cut reaches
+//! them), any mesh file the importer reads (the tree is built in memory first), or nothing
+//! (the bundled demo assembly, embedded in the binary).
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use vds_format::VdtFile;
+use vds_runtime::{CornerTracking, Runtime};
+
+/// The bundled demo: the CAx-IF AS1 assembly (18 solids), see `testdata/README.md`.
+const DEMO_OBJ: &[u8] = include_bytes!("../../../testdata/as1_assembly.obj");
+
+/// An opened model.
+pub struct Model {
+    /// The runtime over its tree.
+    pub runtime: Runtime,
+    /// What to call it in messages.
+    pub name: String,
+    /// Triangles in the tree (the full-detail triangle count).
+    pub triangles: u64,
+    /// The original mesh, for brute-force comparison draws (kept only when asked for).
+    pub mesh: Option<vds_import::Scene>,
+}
+
+/// Opens `path` (or the demo when `None`). `keep_mesh` keeps the original triangles for
+/// brute-force draws (only possible for mesh inputs: a `.vdt` file is decoded fully for it).
+pub fn open(path: Option<&Path>, keep_mesh: bool) -> Result<Model> {
+    let tracking = CornerTracking::Incidence;
+    let (scene, name) = match path {
+        Some(path) if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vdt")) => {
+            let file = VdtFile::open(path)?;
+            let triangles = file.header().triangle_count.get();
+            let mut runtime = Runtime::new(Box::new(file), tracking)?;
+            let mesh = keep_mesh.then(|| mesh_of(&mut runtime)).transpose()?;
+            return Ok(Model {
+                runtime,
+                name: path.display().to_string(),
+                triangles,
+                mesh,
+            });
+        }
+        Some(path) => (
+            vds_import::load_file(path, &Default::default())?,
+            path.display().to_string(),
+        ),
+        None => {
+            let mut soup = vds_import::MeshSoup::default();
+            vds_import::read_bytes(DEMO_OBJ, vds_import::Format::Obj, "as1", &mut soup)
+                .map_err(|e| anyhow::anyhow!("the bundled demo model: {e:?}"))?;
+            (
+                vds_import::weld(soup, vds_import::Weld::Exact),
+                "bundled demo (AS1 assembly)".to_string(),
+            )
+        }
+    };
+    let mut scene = scene;
+    let bytes = vds_build::encode_scene(
+        &mut scene,
+        concat!("vds-view ", env!("CARGO_PKG_VERSION")),
+        &Default::default(),
+    )
+    .with_context(|| format!("building the tree of {name}"))?;
+    let file = VdtFile::from_bytes(bytes)?;
+    let runtime = Runtime::new(Box::new(file), tracking)?;
+    Ok(Model {
+        runtime,
+        name,
+        triangles: scene.triangles.len() as u64,
+        mesh: keep_mesh.then_some(scene),
+    })
+}
+
+/// The original mesh of a `.vdt` file: leaves as vertices, every triangle by leaf rank.
+fn mesh_of(runtime: &mut Runtime) -> Result<vds_import::Scene> {
+    let positions = runtime.leaf_positions()?;
+    let store = runtime.cut().store();
+    let triangles: Vec<[u32; 3]> = (0..store.triangle_count())
+        .map(|t| store.triangle_corners(t))
+        .collect();
+    let triangle_parts = (0..store.triangle_count())
+        .map(|t| store.triangle_part(t))
+        .collect();
+    Ok(vds_import::Scene {
+        positions,
+        triangles,
+        triangle_parts,
+        part_names: Vec::new(),
+        stats: Default::default(),
+    })
+}

@@ -1,0 +1,243 @@
+//! Simplification for the viewer, synchronous or asynchronous (Luebke & Erikson §4.4, and
+//! Luebke's dissertation §6.2).
+//!
+//! In asynchronous mode a SIMPLIFY thread owns the runtime: it waits for the latest camera,
+//! adjusts the cut, and queues the resulting [`Batch`] (a complete [`CutUpdate`]: one adjust's
+//! changes). The RENDER thread never waits for it: at the start of each frame it applies every
+//! batch queued so far, in order, as one upload. A frame therefore always shows the cut after
+//! some complete adjust — never half of one — and when the camera jumps the scene stays coarse
+//! for a few frames instead of the frame time spiking.
+
+use std::collections::hash_map::DefaultHasher;
+use std::hash::{Hash, Hasher};
+use std::sync::mpsc::{Receiver, Sender, TryRecvError};
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use vds_render::CutUpdate;
+use vds_runtime::{Camera, Criteria, Goal, Runtime, Viewpoint};
+
+/// What the cut is asked for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    /// Threshold or budget.
+    pub goal: Goal,
+    /// Criteria.
+    pub criteria: Criteria,
+}
+
+/// Figures of one adjust.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct AdjustFigures {
+    /// Adjust time in milliseconds (including collecting the update).
+    pub adjust_ms: f64,
+    /// Active triangles after it.
+    pub active_triangles: u32,
+    /// Active nodes after it.
+    pub active_nodes: u32,
+    /// Triangles added, removed, re-cornered.
+    pub added: u32,
+    /// See `added`.
+    pub removed: u32,
+    /// See `added`.
+    pub changed: u32,
+    /// Pages resident.
+    pub pages_resident: u32,
+}
+
+/// One adjust's worth of GPU updates.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    /// The update.
+    pub update: CutUpdate,
+    /// The adjust's figures.
+    pub figures: AdjustFigures,
+    /// With verification on: a fingerprint of the whole active triangle set after this
+    /// adjust, to compare with what the renderer's mirror holds after applying the batch.
+    pub fingerprint: Option<u64>,
+}
+
+/// A fingerprint of a set of slot contents (`[corner, corner, corner, part]`, empty slots
+/// ignored), independent of which slot holds what.
+pub fn fingerprint(slots: impl Iterator<Item = [u32; 4]>) -> u64 {
+    let mut triangles: Vec<[u32; 4]> = slots
+        .filter(|s| *s != vds_render::update::EMPTY_SLOT)
+        .collect();
+    triangles.sort_unstable();
+    let mut hasher = DefaultHasher::new();
+    triangles.hash(&mut hasher);
+    hasher.finish()
+}
+
+/// The runtime and how to turn its adjusts into batches.
+pub struct Simplifier {
+    runtime: Runtime,
+    verify: bool,
+}
+
+impl Simplifier {
+    /// A simplifier over `runtime`; `verify` checks the cut after every adjust and
+    /// fingerprints it (slow: for tests).
+    pub fn new(runtime: Runtime, verify: bool) -> Simplifier {
+        Simplifier { runtime, verify }
+    }
+
+    /// The runtime.
+    pub fn runtime(&self) -> &Runtime {
+        &self.runtime
+    }
+
+    /// Adjusts for `camera` and returns the batch.
+    pub fn step(&mut self, camera: &Camera, settings: &Settings) -> anyhow::Result<Batch> {
+        let start = Instant::now();
+        let frame = self
+            .runtime
+            .adjust(&Viewpoint::Camera(*camera), &settings.criteria, settings.goal)?;
+        let update = CutUpdate::collect(self.runtime.cut_mut(), &frame.changes);
+        let adjust_ms = start.elapsed().as_secs_f64() * 1e3;
+        let fingerprint = if self.verify {
+            self.runtime
+                .cut_mut()
+                .check()
+                .map_err(|e| anyhow::anyhow!("inconsistent cut: {e}"))?;
+            let cut = self.runtime.cut_mut();
+            let slots: Vec<[u32; 4]> = cut
+                .active_triangles()
+                .iter()
+                .map(|t| {
+                    let part = cut.store().triangle_part(t.triangle);
+                    [t.corners[0], t.corners[1], t.corners[2], part]
+                })
+                .collect();
+            Some(fingerprint(slots.into_iter()))
+        } else {
+            None
+        };
+        let cut = self.runtime.cut();
+        Ok(Batch {
+            update,
+            figures: AdjustFigures {
+                adjust_ms,
+                active_triangles: cut.active_triangle_count(),
+                active_nodes: cut.active_node_count(),
+                added: frame.changes.added,
+                removed: frame.changes.removed,
+                changed: frame.changes.changed,
+                pages_resident: cut.store().pages_resident().0,
+            },
+            fingerprint,
+        })
+    }
+}
+
+struct Shared {
+    request: Mutex<Request>,
+    wake: Condvar,
+}
+
+#[derive(Default)]
+struct Request {
+    latest: Option<(Camera, Settings)>,
+    stop: bool,
+}
+
+/// The SIMPLIFY thread and the queue between it and the renderer.
+pub struct AsyncSimplifier {
+    shared: Arc<Shared>,
+    batches: Receiver<anyhow::Result<Batch>>,
+    thread: Option<JoinHandle<Simplifier>>,
+}
+
+impl AsyncSimplifier {
+    /// Starts the thread; it owns `simplifier` from now on.
+    pub fn spawn(mut simplifier: Simplifier) -> AsyncSimplifier {
+        let shared = Arc::new(Shared {
+            request: Mutex::new(Request::default()),
+            wake: Condvar::new(),
+        });
+        let (sender, batches): (Sender<anyhow::Result<Batch>>, _) = std::sync::mpsc::channel();
+        let thread_shared = Arc::clone(&shared);
+        let thread = std::thread::Builder::new()
+            .name("vds simplify".into())
+            .spawn(move || {
+                loop {
+                    let (camera, settings) = {
+                        let mut request = thread_shared.request.lock().expect("request lock");
+                        loop {
+                            if request.stop {
+                                return simplifier;
+                            }
+                            if let Some(latest) = request.latest.take() {
+                                break latest;
+                            }
+                            request = thread_shared.wake.wait(request).expect("request lock");
+                        }
+                    };
+                    let batch = simplifier.step(&camera, &settings);
+                    let failed = batch.is_err();
+                    if sender.send(batch).is_err() || failed {
+                        return simplifier;
+                    }
+                }
+            })
+            .expect("spawning the simplify thread");
+        AsyncSimplifier {
+            shared,
+            batches,
+            thread: Some(thread),
+        }
+    }
+
+    /// Asks for a cut for `camera`, replacing any request not yet taken (latest wins).
+    pub fn request(&self, camera: Camera, settings: Settings) {
+        let mut request = self.shared.request.lock().expect("request lock");
+        request.latest = Some((camera, settings));
+        self.shared.wake.notify_one();
+    }
+
+    /// Every batch queued so far, in order, without waiting.
+    pub fn drain(&self) -> anyhow::Result<Vec<Batch>> {
+        let mut batches = Vec::new();
+        loop {
+            match self.batches.try_recv() {
+                Ok(batch) => batches.push(batch?),
+                Err(TryRecvError::Empty) => return Ok(batches),
+                Err(TryRecvError::Disconnected) => {
+                    anyhow::bail!("the simplify thread stopped")
+                }
+            }
+        }
+    }
+
+    /// Waits for the next batch.
+    pub fn wait(&self) -> anyhow::Result<Batch> {
+        self.batches
+            .recv()
+            .map_err(|_| anyhow::anyhow!("the simplify thread stopped"))?
+    }
+}
+
+impl AsyncSimplifier {
+    /// Stops the thread (after the adjust in progress) and hands the simplifier back with the
+    /// batches still queued, which the renderer must apply to stay in step with the cut.
+    pub fn stop(mut self) -> (Option<Simplifier>, Vec<Batch>) {
+        let simplifier = self.halt();
+        let queued = self.batches.try_iter().filter_map(Result::ok).collect();
+        (simplifier, queued)
+    }
+
+    fn halt(&mut self) -> Option<Simplifier> {
+        if let Ok(mut request) = self.shared.request.lock() {
+            request.stop = true;
+        }
+        self.shared.wake.notify_one();
+        self.thread.take().and_then(|thread| thread.join().ok())
+    }
+}
+
+impl Drop for AsyncSimplifier {
+    fn drop(&mut self) {
+        self.halt();
+    }
+}
