@@ -98,7 +98,9 @@ impl Controls {
     /// A scroll by `lines` (positive: towards the model / faster).
     pub fn scroll(&mut self, lines: f32) {
         match self.mode {
-            Mode::Orbit => self.distance = (self.distance * 0.9f32.powf(lines)).max(self.scale * 1e-3),
+            Mode::Orbit => {
+                self.distance = (self.distance * 0.9f32.powf(lines)).max(self.scale * 1e-3)
+            }
             Mode::Fly => self.speed *= 1.25f32.powf(lines),
         }
     }

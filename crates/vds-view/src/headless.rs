@@ -93,7 +93,11 @@ impl Mirror {
 pub fn run(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
     let gpu = Gpu::headless()?;
     let pipeline = CutPipeline::new(&gpu, vds_render::target_format());
-    let first = headless.path.cameras.first().context("the camera path is empty")?;
+    let first = headless
+        .path
+        .cameras
+        .first()
+        .context("the camera path is empty")?;
     let target = Offscreen::new(&gpu, first.width, first.height);
     if let Some(out) = &headless.out {
         std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -101,7 +105,8 @@ pub fn run(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
     let mut csv = match &headless.stats {
         Some(path) => {
             let mut file = std::io::BufWriter::new(
-                std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+                std::fs::File::create(path)
+                    .with_context(|| format!("creating {}", path.display()))?,
             );
             writeln!(file, "{CSV_HEADER}")?;
             Some(file)
@@ -111,7 +116,10 @@ pub fn run(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
 
     let mut rows = Vec::new();
     if headless.brute_force {
-        let mesh = model.mesh.take().context("brute force needs the original mesh")?;
+        let mesh = model
+            .mesh
+            .take()
+            .context("brute force needs the original mesh")?;
         let mut gpu_cut = GpuCut::new(&gpu, &pipeline, mesh.positions.len() as u32)?;
         let update = CutUpdate::whole_mesh(&mesh.positions, &mesh.triangles, &mesh.triangle_parts);
         let upload = gpu_cut.apply(&gpu, &pipeline, &update)?;

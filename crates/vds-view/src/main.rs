@@ -112,7 +112,9 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
         .ok_or_else(|| format!("expected WIDTHxHEIGHT, got {text:?}"))?;
     match (w.trim().parse::<u32>(), h.trim().parse::<u32>()) {
         (Ok(w), Ok(h)) if (1..=16384).contains(&w) && (1..=16384).contains(&h) => Ok((w, h)),
-        _ => Err(format!("expected WIDTHxHEIGHT between 1 and 16384, got {text:?}")),
+        _ => Err(format!(
+            "expected WIDTHxHEIGHT between 1 and 16384, got {text:?}"
+        )),
     }
 }
 
@@ -168,8 +170,7 @@ fn main() {
 
 fn run(args: &Args) -> Result<()> {
     if !args.headless {
-        if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none()
-        {
+        if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
             bail!(
                 "no display: neither DISPLAY nor WAYLAND_DISPLAY is set. To render without a \
                  window, use --headless (for example: vds-view {}--headless --orbit --frames \
@@ -180,7 +181,13 @@ fn run(args: &Args) -> Result<()> {
             );
         }
         let model = model::open(args.file.as_deref(), false)?;
-        return window::run(model, args.settings(), args.style(), args.size, args.asynchronous);
+        return window::run(
+            model,
+            args.settings(),
+            args.style(),
+            args.size,
+            args.asynchronous,
+        );
     }
     let model = model::open(args.file.as_deref(), args.brute_force)?;
     let (width, height) = args.size;
@@ -207,7 +214,11 @@ fn run(args: &Args) -> Result<()> {
         bail!("the camera path has no cameras");
     }
     let first = path.cameras[0];
-    if path.cameras.iter().any(|c| (c.width, c.height) != (first.width, first.height)) {
+    if path
+        .cameras
+        .iter()
+        .any(|c| (c.width, c.height) != (first.width, first.height))
+    {
         bail!("every camera of a path must have the same size");
     }
     let headless = Headless {
@@ -235,7 +246,11 @@ fn run(args: &Args) -> Result<()> {
         rows.len(),
         first.width,
         first.height,
-        if args.brute_force { " (brute force)" } else { "" },
+        if args.brute_force {
+            " (brute force)"
+        } else {
+            ""
+        },
         median(after_first.iter().map(|r| r.adjust.adjust_ms).collect()),
         median(after_first.iter().map(|r| r.cpu_frame_ms).collect()),
         if gpu.is_empty() {

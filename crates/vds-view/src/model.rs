@@ -28,7 +28,11 @@ pub struct Model {
 pub fn open(path: Option<&Path>, keep_mesh: bool) -> Result<Model> {
     let tracking = CornerTracking::Incidence;
     let (scene, name) = match path {
-        Some(path) if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vdt")) => {
+        Some(path)
+            if path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("vdt")) =>
+        {
             let file = VdtFile::open(path)?;
             let triangles = file.header().triangle_count.get();
             let mut runtime = Runtime::new(Box::new(file), tracking)?;

@@ -91,9 +91,11 @@ impl Simplifier {
     /// Adjusts for `camera` and returns the batch.
     pub fn step(&mut self, camera: &Camera, settings: &Settings) -> anyhow::Result<Batch> {
         let start = Instant::now();
-        let frame = self
-            .runtime
-            .adjust(&Viewpoint::Camera(*camera), &settings.criteria, settings.goal)?;
+        let frame = self.runtime.adjust(
+            &Viewpoint::Camera(*camera),
+            &settings.criteria,
+            settings.goal,
+        )?;
         let update = CutUpdate::collect(self.runtime.cut_mut(), &frame.changes);
         let adjust_ms = start.elapsed().as_secs_f64() * 1e3;
         let fingerprint = if self.verify {

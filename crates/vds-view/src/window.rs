@@ -148,7 +148,9 @@ impl App {
 
     fn toggle_async(&mut self) {
         self.engine = match self.engine.take() {
-            Some(Engine::Sync(simplifier)) => Some(Engine::Async(AsyncSimplifier::spawn(simplifier))),
+            Some(Engine::Sync(simplifier)) => {
+                Some(Engine::Async(AsyncSimplifier::spawn(simplifier)))
+            }
             Some(Engine::Async(worker)) => {
                 let (simplifier, queued) = worker.stop();
                 if let Err(e) = self.apply(queued) {
@@ -165,7 +167,10 @@ impl App {
             return Ok(());
         };
         for batch in batches {
-            self.hud.upload_bytes += state.gpu_cut.apply(&state.gpu, &state.pipeline, &batch.update)?;
+            self.hud.upload_bytes +=
+                state
+                    .gpu_cut
+                    .apply(&state.gpu, &state.pipeline, &batch.update)?;
             self.hud.adjust = batch.figures;
         }
         Ok(())
@@ -173,7 +178,11 @@ impl App {
 
     fn frame(&mut self) -> Result<()> {
         let now = Instant::now();
-        let seconds = self.hud.last.map_or(0.0, |l| (now - l).as_secs_f32()).min(0.1);
+        let seconds = self
+            .hud
+            .last
+            .map_or(0.0, |l| (now - l).as_secs_f32())
+            .min(0.1);
         self.hud.last = Some(now);
         let key = |k| f32::from(u8::from(self.keys.contains(&k)));
         self.controls.fly(
@@ -185,7 +194,9 @@ impl App {
         let Some(state) = &self.state else {
             return Ok(());
         };
-        let camera = self.controls.camera(state.config.width, state.config.height);
+        let camera = self
+            .controls
+            .camera(state.config.width, state.config.height);
         let mut settings = self.settings;
         if let Some(gaze) = &mut settings.criteria.gaze {
             gaze.direction = camera.view().forward.into();
@@ -214,7 +225,8 @@ impl App {
         };
         state.gpu_cut.set_frame(&state.gpu, &camera, &style);
         let texture = match state.surface.get_current_texture() {
-            wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            wgpu::CurrentSurfaceTexture::Success(t)
+            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
             wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
                 state.surface.configure(&state.gpu.device, &state.config);
                 return Ok(());
@@ -222,10 +234,13 @@ impl App {
             _ => return Ok(()),
         };
         let view = texture.texture.create_view(&Default::default());
-        let mut encoder = state
-            .gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        let mut encoder =
+            state
+                .gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("frame"),
+                });
         vds_render::target::draw_pass(
             &mut encoder,
             &view,
@@ -266,8 +281,16 @@ impl App {
             a.active_nodes,
             self.hud.upload_bytes,
             a.pages_resident,
-            if matches!(self.engine, Some(Engine::Async(_))) { "async" } else { "sync" },
-            if criteria.silhouette_factor.is_some() { " silhouette" } else { "" },
+            if matches!(self.engine, Some(Engine::Async(_))) {
+                "async"
+            } else {
+                "sync"
+            },
+            if criteria.silhouette_factor.is_some() {
+                " silhouette"
+            } else {
+                ""
+            },
             if criteria.backface { " backface" } else { "" },
             match criteria.frustum {
                 FrustumMode::Fold => " frustum",
