@@ -2,8 +2,8 @@
 //!
 //! Four bindings (see `shaders/cut.wgsl`): per-frame uniforms, node records (`vec4` proxy and
 //! error radius, `vec2<u32>` depth and normal) indexed by node id, and the slot array. Updates
-//! write only the runs a [`CutUpdate`] carries; the slot buffer grows by reallocation (the old
-//! contents copied on the GPU) when the cut needs more slots than it holds.
+//! write only the runs a [`CutUpdate`] carries; the slot array grows by reallocation (the old
+//! contents copied on the GPU) and is split into chunks no larger than the adapter can bind.
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3, Vec4};
@@ -178,22 +178,41 @@ impl CutPipeline {
     }
 }
 
+/// One chunk of the slot array: adapters bind at most `max_storage_buffer_binding_size`
+/// bytes per buffer (128 MiB on llvmpipe: 8 M slots), so large cuts span several chunks, each
+/// with its own buffer, bind group and draw call.
+struct SlotChunk {
+    buffer: wgpu::Buffer,
+    capacity: u32,
+    bind_group: wgpu::BindGroup,
+}
+
 /// A cut (or a brute-force mesh) on the GPU.
 pub struct GpuCut {
     uniforms: wgpu::Buffer,
     nodes: wgpu::Buffer,
     node_attrs: wgpu::Buffer,
-    slots: wgpu::Buffer,
     node_capacity: u32,
-    slot_capacity: u32,
+    /// Slots per full chunk.
+    chunk_slots: u32,
+    chunks: Vec<SlotChunk>,
     slot_count: u32,
     max_depth: u32,
-    bind_group: wgpu::BindGroup,
 }
 
 impl GpuCut {
     /// Buffers for a tree of `node_count` nodes (or a mesh of that many vertices).
-    pub fn new(gpu: &Gpu, pipeline: &CutPipeline, node_count: u32) -> Result<GpuCut, RenderError> {
+    pub fn new(gpu: &Gpu, node_count: u32) -> Result<GpuCut, RenderError> {
+        GpuCut::with_chunk_slots(gpu, node_count, u32::MAX)
+    }
+
+    /// [`GpuCut::new`] with slot chunks of at most `chunk_slots` slots (the adapter's limit
+    /// applies too); small chunks exercise the chunked path in tests.
+    pub fn with_chunk_slots(
+        gpu: &Gpu,
+        node_count: u32,
+        chunk_slots: u32,
+    ) -> Result<GpuCut, RenderError> {
         let limit = gpu.device.limits().max_storage_buffer_binding_size;
         let node_bytes = u64::from(node_count.max(1)) * 16;
         if node_bytes > limit {
@@ -201,6 +220,7 @@ impl GpuCut {
                 "{node_count} nodes need {node_bytes} bytes of storage; the adapter binds at most {limit}"
             )));
         }
+        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         let buffer = |label, size: u64, usage| {
             gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -209,43 +229,34 @@ impl GpuCut {
                 mapped_at_creation: false,
             })
         };
-        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let uniforms = buffer(
-            "frame uniforms",
-            size_of::<FrameUniforms>() as u64,
-            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        );
-        let nodes = buffer("nodes", node_bytes, storage);
-        let node_attrs = buffer("node attrs", u64::from(node_count.max(1)) * 8, storage);
-        let slot_capacity = 1024;
-        let slots = buffer(
-            "slots",
-            u64::from(slot_capacity) * 16,
-            storage | wgpu::BufferUsages::COPY_SRC,
-        );
-        let bind_group = Self::bind(gpu, pipeline, &uniforms, &nodes, &node_attrs, &slots);
         Ok(GpuCut {
-            uniforms,
-            nodes,
-            node_attrs,
-            slots,
+            uniforms: buffer(
+                "frame uniforms",
+                size_of::<FrameUniforms>() as u64,
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            ),
+            nodes: buffer("nodes", node_bytes, storage),
+            node_attrs: buffer("node attrs", u64::from(node_count.max(1)) * 8, storage),
             node_capacity: node_count,
-            slot_capacity,
+            chunk_slots: (limit / 16)
+                .min(u64::from(u32::MAX / 3))
+                .min(u64::from(chunk_slots.max(1))) as u32,
+            chunks: Vec::new(),
             slot_count: 0,
             max_depth: 0,
-            bind_group,
         })
     }
 
-    fn bind(
-        gpu: &Gpu,
-        pipeline: &CutPipeline,
-        uniforms: &wgpu::Buffer,
-        nodes: &wgpu::Buffer,
-        node_attrs: &wgpu::Buffer,
-        slots: &wgpu::Buffer,
-    ) -> wgpu::BindGroup {
-        let buffers = [uniforms, nodes, node_attrs, slots];
+    fn chunk(&self, gpu: &Gpu, pipeline: &CutPipeline, capacity: u32) -> SlotChunk {
+        let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("slots"),
+            size: u64::from(capacity.max(1)) * 16,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let buffers = [&self.uniforms, &self.nodes, &self.node_attrs, &buffer];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
             .enumerate()
@@ -254,11 +265,16 @@ impl GpuCut {
                 resource: buffer.as_entire_binding(),
             })
             .collect();
-        gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("cut bind group"),
             layout: &pipeline.layout,
             entries: &entries,
-        })
+        });
+        SlotChunk {
+            buffer,
+            capacity,
+            bind_group,
+        }
     }
 
     /// Number of slots drawn (free ones included, as empty triangles).
@@ -274,9 +290,7 @@ impl GpuCut {
         pipeline: &CutPipeline,
         update: &CutUpdate,
     ) -> Result<u64, RenderError> {
-        if update.slot_count > self.slot_capacity {
-            self.grow_slots(gpu, pipeline, update.slot_count)?;
-        }
+        self.reserve(gpu, pipeline, update.slot_count);
         let mut bytes = 0u64;
         for (first, records) in &update.nodes {
             if u64::from(*first) + records.len() as u64 > u64::from(self.node_capacity) {
@@ -301,72 +315,85 @@ impl GpuCut {
             bytes += (records.len() * size_of::<GpuNode>()) as u64;
         }
         for (first, contents) in &update.slots {
-            let end = u64::from(*first) + contents.len() as u64;
-            if end > u64::from(self.slot_capacity) {
-                return Err(RenderError::TooLarge(format!(
-                    "slot {} is beyond the {} slots of the buffer",
-                    end - 1,
-                    self.slot_capacity
-                )));
+            // A run may cross chunk boundaries: write it piece by piece.
+            let mut slot = *first;
+            let mut rest = &contents[..];
+            while !rest.is_empty() {
+                let (chunk, offset) = (slot / self.chunk_slots, slot % self.chunk_slots);
+                let Some(target) = self.chunks.get(chunk as usize) else {
+                    return Err(RenderError::TooLarge(format!(
+                        "slot {slot} is beyond the slots of this mirror"
+                    )));
+                };
+                let take = rest
+                    .len()
+                    .min((target.capacity - offset.min(target.capacity)) as usize);
+                if take == 0 {
+                    return Err(RenderError::TooLarge(format!(
+                        "slot {slot} is beyond the slots of this mirror"
+                    )));
+                }
+                gpu.queue.write_buffer(
+                    &target.buffer,
+                    u64::from(offset) * 16,
+                    bytemuck::cast_slice(&rest[..take]),
+                );
+                bytes += (take * 16) as u64;
+                slot += take as u32;
+                rest = &rest[take..];
             }
-            gpu.queue.write_buffer(
-                &self.slots,
-                u64::from(*first) * 16,
-                bytemuck::cast_slice(contents),
-            );
-            bytes += (contents.len() * 16) as u64;
         }
         self.slot_count = update.slot_count;
         self.max_depth = self.max_depth.max(update.max_depth);
         Ok(bytes)
     }
 
-    fn grow_slots(
-        &mut self,
-        gpu: &Gpu,
-        pipeline: &CutPipeline,
-        needed: u32,
-    ) -> Result<(), RenderError> {
-        let capacity = needed.max(self.slot_capacity.saturating_mul(3) / 2);
-        let size = u64::from(capacity) * 16;
-        let limit = gpu.device.limits().max_storage_buffer_binding_size;
-        if size > limit {
-            return Err(RenderError::TooLarge(format!(
-                "{needed} slots need {size} bytes; the adapter binds at most {limit}"
-            )));
+    /// Makes room for `needed` slots: full chunks first, the last one grown by 1.5× with its
+    /// contents copied on the GPU.
+    fn reserve(&mut self, gpu: &Gpu, pipeline: &CutPipeline, needed: u32) {
+        let have: u64 = self.chunks.iter().map(|c| u64::from(c.capacity)).sum();
+        if u64::from(needed) <= have {
+            return;
         }
-        let slots = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("slots"),
-            size,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_DST
-                | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let mut encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("grow slots"),
-            });
-        encoder.copy_buffer_to_buffer(
-            &self.slots,
-            0,
-            &slots,
-            0,
-            u64::from(self.slot_capacity) * 16,
-        );
-        gpu.queue.submit([encoder.finish()]);
-        self.slots = slots;
-        self.slot_capacity = capacity;
-        self.bind_group = Self::bind(
-            gpu,
-            pipeline,
-            &self.uniforms,
-            &self.nodes,
-            &self.node_attrs,
-            &self.slots,
-        );
-        Ok(())
+        // Fill the last chunk up to a full one.
+        if let Some(last) = self.chunks.last()
+            && last.capacity < self.chunk_slots
+        {
+            let before: u32 = self.chunks.len() as u32 - 1;
+            let wanted = needed - before * self.chunk_slots;
+            let capacity = wanted
+                .max(last.capacity.saturating_mul(3) / 2)
+                .min(self.chunk_slots);
+            let grown = self.chunk(gpu, pipeline, capacity);
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("grow slots"),
+                });
+            encoder.copy_buffer_to_buffer(
+                &last.buffer,
+                0,
+                &grown.buffer,
+                0,
+                u64::from(last.capacity) * 16,
+            );
+            gpu.queue.submit([encoder.finish()]);
+            *self.chunks.last_mut().expect("checked above") = grown;
+        }
+        while self
+            .chunks
+            .iter()
+            .map(|c| u64::from(c.capacity))
+            .sum::<u64>()
+            < u64::from(needed)
+        {
+            let before = self.chunks.len() as u32 * self.chunk_slots;
+            let capacity = (needed - before)
+                .max(1024.min(self.chunk_slots))
+                .min(self.chunk_slots);
+            let chunk = self.chunk(gpu, pipeline, capacity);
+            self.chunks.push(chunk);
+        }
     }
 
     /// Sets the camera and style for the next draw.
@@ -389,13 +416,18 @@ impl GpuCut {
             .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
     }
 
-    /// Records the draw into `pass`.
+    /// Records the draw into `pass`: one draw call per slot chunk.
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, pipeline: &CutPipeline) {
-        if self.slot_count == 0 {
-            return;
-        }
         pass.set_pipeline(&pipeline.pipeline);
-        pass.set_bind_group(0, &self.bind_group, &[]);
-        pass.draw(0..self.slot_count * 3, 0..1);
+        let mut left = self.slot_count;
+        for chunk in &self.chunks {
+            let count = left.min(chunk.capacity);
+            if count == 0 {
+                break;
+            }
+            pass.set_bind_group(0, &chunk.bind_group, &[]);
+            pass.draw(0..count * 3, 0..1);
+            left -= count;
+        }
     }
 }

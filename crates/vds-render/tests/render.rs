@@ -77,7 +77,7 @@ impl Renderer {
             .adjust(&Viewpoint::Camera(camera), criteria, goal)
             .unwrap();
         let node_count = runtime.cut().store().node_count();
-        let mut gpu_cut = GpuCut::new(&self.gpu, &self.pipeline, node_count).unwrap();
+        let mut gpu_cut = GpuCut::new(&self.gpu, node_count).unwrap();
         let update = CutUpdate::collect(runtime.cut_mut(), &frame.changes);
         gpu_cut.apply(&self.gpu, &self.pipeline, &update).unwrap();
         self.draw(&gpu_cut, camera, style)
@@ -86,8 +86,7 @@ impl Renderer {
     fn mesh(&self, scene: &Scene, camera: Camera, style: &Style) -> Image {
         let update =
             CutUpdate::whole_mesh(&scene.positions, &scene.triangles, &scene.triangle_parts);
-        let mut gpu_cut =
-            GpuCut::new(&self.gpu, &self.pipeline, scene.positions.len() as u32).unwrap();
+        let mut gpu_cut = GpuCut::new(&self.gpu, scene.positions.len() as u32).unwrap();
         gpu_cut.apply(&self.gpu, &self.pipeline, &update).unwrap();
         self.draw(&gpu_cut, camera, style)
     }
@@ -237,4 +236,37 @@ fn png_round_trip() {
     assert_eq!(Image::read_png(&path).unwrap(), image);
     std::fs::remove_file(&path).unwrap();
     assert!(Image::read_png(Path::new("/nonexistent/x.png")).is_err());
+}
+
+#[test]
+fn chunked_slot_buffers_draw_the_same_image() {
+    let renderer = Renderer::new();
+    let (_, bytes) = build(vds_import::load_file(shared("cow.obj"), &Default::default()).unwrap());
+    let criteria = Criteria {
+        backface: false,
+        ..Criteria::default()
+    };
+    let style = Style::default();
+    let mut images = Vec::new();
+    for chunk_slots in [u32::MAX, 700] {
+        let mut runtime = runtime(&bytes);
+        let camera = framing(&runtime, [1.0, 0.4, 1.3], 320, 240);
+        let node_count = runtime.cut().store().node_count();
+        let mut gpu_cut = GpuCut::with_chunk_slots(&renderer.gpu, node_count, chunk_slots).unwrap();
+        // Coarse, then full detail, then coarser again: slots grow across chunk boundaries
+        // and later updates write runs that straddle them.
+        for t in [16.0, 0.0, 3.0] {
+            let frame = runtime
+                .adjust(&Viewpoint::Camera(camera), &criteria, Goal::Threshold(t))
+                .unwrap();
+            let update = CutUpdate::collect(runtime.cut_mut(), &frame.changes);
+            gpu_cut
+                .apply(&renderer.gpu, &renderer.pipeline, &update)
+                .unwrap();
+        }
+        assert!(gpu_cut.slot_count() > 2_000);
+        images.push(renderer.draw(&gpu_cut, camera, &style));
+    }
+    assert!(covered_pixels(&images[0]) > 5_000);
+    assert_eq!(differing_pixels(&images[0], &images[1], 0), 0);
 }

@@ -30,6 +30,9 @@ pub struct Headless {
     pub brute_force: bool,
     /// Check every cut and that every rendered frame shows exactly one adjust's cut.
     pub verify: bool,
+    /// Stop adjusting after this frame and keep drawing the frozen cut along the path (the
+    /// paper's "what did VDS do" views).
+    pub freeze_after: Option<usize>,
 }
 
 /// One row of the per-frame table.
@@ -90,7 +93,7 @@ impl Mirror {
 }
 
 /// Runs `headless` over `model` and returns the rows.
-pub fn run(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
+pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
     let gpu = Gpu::headless()?;
     let pipeline = CutPipeline::new(&gpu, vds_render::target_format());
     let first = headless
@@ -120,7 +123,7 @@ pub fn run(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
             .mesh
             .take()
             .context("brute force needs the original mesh")?;
-        let mut gpu_cut = GpuCut::new(&gpu, &pipeline, mesh.positions.len() as u32)?;
+        let mut gpu_cut = GpuCut::new(&gpu, mesh.positions.len() as u32)?;
         let update = CutUpdate::whole_mesh(&mesh.positions, &mesh.triangles, &mesh.triangle_parts);
         let upload = gpu_cut.apply(&gpu, &pipeline, &update)?;
         for (i, camera) in headless.path.cameras.iter().enumerate() {
@@ -147,15 +150,18 @@ pub fn run(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
     }
 
     let node_count = model.runtime.cut().store().node_count();
-    let mut gpu_cut = GpuCut::new(&gpu, &pipeline, node_count)?;
+    let mut gpu_cut = GpuCut::new(&gpu, node_count)?;
     let mut mirror = headless.verify.then(Mirror::default);
     let mut simplifier = Some(Simplifier::new(model.runtime, headless.verify));
     let asynchronous = headless
         .asynchronous
         .then(|| AsyncSimplifier::spawn(simplifier.take().expect("not yet moved")));
+    let mut last_figures = AdjustFigures::default();
     for (i, camera) in headless.path.cameras.iter().enumerate() {
         let start = Instant::now();
+        let frozen = headless.freeze_after.is_some_and(|f| i > f);
         let batches: Vec<Batch> = match (&mut simplifier, &asynchronous) {
+            _ if frozen => Vec::new(),
             (Some(simplifier), _) => vec![simplifier.step(camera, &headless.settings)?],
             (None, Some(worker)) => {
                 worker.request(*camera, headless.settings);
@@ -170,10 +176,18 @@ pub fn run(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
         };
         // All queued batches go up together at the start of the frame.
         let mut upload_bytes = 0;
-        let mut figures = AdjustFigures::default();
+        // Without a new batch, the cut on screen is the last one: same counts, no work.
+        let mut figures = AdjustFigures {
+            adjust_ms: 0.0,
+            added: 0,
+            removed: 0,
+            changed: 0,
+            ..last_figures
+        };
         for batch in &batches {
             upload_bytes += gpu_cut.apply(&gpu, &pipeline, &batch.update)?;
             figures = batch.figures;
+            last_figures = batch.figures;
             if let (Some(mirror), Some(expected)) = (&mut mirror, batch.fingerprint) {
                 mirror.apply(&batch.update);
                 let got = fingerprint(mirror.slots.iter().copied());

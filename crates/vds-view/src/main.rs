@@ -84,6 +84,14 @@ struct Args {
     /// Check every cut and every rendered frame's consistency (slow).
     #[arg(long)]
     verify: bool,
+    /// Headless: stop adjusting after frame N and draw the frozen cut along the rest of the
+    /// path.
+    #[arg(long)]
+    freeze_after: Option<usize>,
+    /// Headless: run the path twice in one process, with VDS and drawing the full model
+    /// brute force, and print both and their ratio.
+    #[arg(long, conflicts_with = "brute_force")]
+    compare: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -230,41 +238,112 @@ fn run(args: &Args) -> Result<()> {
         asynchronous: args.asynchronous,
         brute_force: args.brute_force,
         verify: args.verify,
+        freeze_after: args.freeze_after,
     };
-    let name = model.name.clone();
-    let triangles = model.triangles;
-    let rows = headless::run(model, &headless)?;
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    if !args.compare {
+        let summary = Summary::run(model, &headless)?;
+        println!("{summary}");
+        return Ok(());
+    }
+    // Same cameras, same process: first the cut, then the whole model.
+    let vds = Summary::run(model, &headless)?;
+    println!("{vds}");
+    let model = model::open(args.file.as_deref(), true)?;
+    let brute_force = Headless {
+        brute_force: true,
+        out: None,
+        stats: None,
+        ..headless
     };
-    let after_first: Vec<_> = rows.iter().skip(1).collect();
-    let gpu: Vec<f64> = after_first.iter().filter_map(|r| r.gpu_ms).collect();
+    let brute = Summary::run(model, &brute_force)?;
+    println!("{brute}");
     println!(
-        "{name}: {} frames at {}x{} of {triangles} triangles{}; medians after the first frame: \
-         adjust {:.3} ms, CPU frame {:.2} ms{}, {:.0} active triangles, {:.0} upload bytes",
-        rows.len(),
-        first.width,
-        first.height,
-        if args.brute_force {
-            " (brute force)"
-        } else {
-            ""
-        },
-        median(after_first.iter().map(|r| r.adjust.adjust_ms).collect()),
-        median(after_first.iter().map(|r| r.cpu_frame_ms).collect()),
-        if gpu.is_empty() {
-            String::new()
-        } else {
-            format!(", GPU {:.2} ms", median(gpu))
-        },
-        median(
-            after_first
-                .iter()
-                .map(|r| f64::from(r.adjust.active_triangles))
-                .collect()
-        ),
-        median(after_first.iter().map(|r| r.upload_bytes as f64).collect()),
+        "brute force / vds: CPU frame {:.2}×{}",
+        brute.cpu_frame_ms / vds.cpu_frame_ms,
+        match (brute.gpu_ms, vds.gpu_ms) {
+            (Some(b), Some(v)) => format!(", GPU {:.2}×", b / v),
+            _ => String::new(),
+        }
     );
     Ok(())
+}
+
+/// Medians of a headless run (frames after the first).
+struct Summary {
+    name: String,
+    frames: usize,
+    size: (u32, u32),
+    triangles: u64,
+    brute_force: bool,
+    adjust_ms: f64,
+    cpu_frame_ms: f64,
+    gpu_ms: Option<f64>,
+    active_triangles: f64,
+    upload_bytes: f64,
+}
+
+impl Summary {
+    fn run(model: model::Model, headless: &Headless) -> Result<Summary> {
+        let (name, triangles) = (model.name.clone(), model.triangles);
+        let rows = headless::run_model(model, headless)?;
+        Ok(Summary::of(name, triangles, headless, rows))
+    }
+
+    fn of(
+        name: String,
+        triangles: u64,
+        headless: &Headless,
+        rows: Vec<headless::FrameRow>,
+    ) -> Summary {
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(0.0)
+        };
+        let after: Vec<_> = rows.iter().skip(1).collect();
+        let gpu: Vec<f64> = after.iter().filter_map(|r| r.gpu_ms).collect();
+        let first = headless.path.cameras[0];
+        Summary {
+            name,
+            frames: rows.len(),
+            size: (first.width, first.height),
+            triangles,
+            brute_force: headless.brute_force,
+            adjust_ms: median(after.iter().map(|r| r.adjust.adjust_ms).collect()),
+            cpu_frame_ms: median(after.iter().map(|r| r.cpu_frame_ms).collect()),
+            gpu_ms: (!gpu.is_empty()).then(|| median(gpu)),
+            active_triangles: median(
+                after
+                    .iter()
+                    .map(|r| f64::from(r.adjust.active_triangles))
+                    .collect(),
+            ),
+            upload_bytes: median(after.iter().map(|r| r.upload_bytes as f64).collect()),
+        }
+    }
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}: {} frames at {}x{} of {} triangles{}; medians after the first frame: adjust \
+             {:.3} ms, CPU frame {:.2} ms{}, {:.0} triangles drawn, {:.0} upload bytes",
+            self.name,
+            self.frames,
+            self.size.0,
+            self.size.1,
+            self.triangles,
+            if self.brute_force {
+                " (brute force)"
+            } else {
+                " (vds)"
+            },
+            self.adjust_ms,
+            self.cpu_frame_ms,
+            self.gpu_ms
+                .map_or(String::new(), |g| format!(", GPU {g:.2} ms")),
+            self.active_triangles,
+            self.upload_bytes,
+        )
+    }
 }

@@ -130,7 +130,7 @@ impl App {
             Some(Engine::Sync(s)) => s.runtime().cut().store().node_count(),
             _ => unreachable!("the engine starts synchronous"),
         };
-        let gpu_cut = GpuCut::new(&gpu, &pipeline, node_count)?;
+        let gpu_cut = GpuCut::new(&gpu, node_count)?;
         let depth = vds_render::target::depth_texture(&gpu, config.width, config.height);
         if self.want_async {
             self.toggle_async();
