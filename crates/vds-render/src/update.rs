@@ -20,7 +20,7 @@ pub struct GpuNode {
 
 const _: () = assert!(size_of::<GpuNode>() == 24);
 
-/// A free slot: the shader turns it into a triangle outside the clip volume.
+/// A free slot: the shader turns it into a zero-area triangle.
 pub const EMPTY_SLOT: [u32; 4] = [u32::MAX; 4];
 
 /// One batch of GPU updates.

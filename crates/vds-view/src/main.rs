@@ -36,6 +36,9 @@ struct Args {
     /// Generate an orbit around the model as the camera path.
     #[arg(long)]
     orbit: bool,
+    /// Generate a loop flown through the model (at 60% of its radius) as the camera path.
+    #[arg(long, conflicts_with_all = ["orbit", "camera_path"])]
+    fly: bool,
     /// Frames of the generated orbit (or the first N of a camera path).
     #[arg(long)]
     frames: Option<usize>,
@@ -207,6 +210,13 @@ fn run(args: &Args) -> Result<()> {
             serde_json::from_str::<CameraPath>(&text)
                 .with_context(|| format!("{}: not a camera path", file.display()))?
         }
+        None if args.fly => CameraPath::fly_through(
+            root.sphere_center,
+            root.sphere_radius,
+            args.frames.unwrap_or(120) as u32,
+            width,
+            height,
+        ),
         None => CameraPath::orbit(
             root.sphere_center,
             root.sphere_radius,

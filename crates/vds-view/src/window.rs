@@ -40,7 +40,7 @@ pub fn run(
         name: model.name.clone(),
         controls: Controls::framing(root.sphere_center, root.sphere_radius),
         home: Controls::framing(root.sphere_center, root.sphere_radius),
-        engine: Some(Engine::Sync(Simplifier::new(model.runtime, false))),
+        engine: Some(Engine::Sync(Box::new(Simplifier::new(model.runtime, false)))),
         want_async: asynchronous,
         settings,
         style,
@@ -61,7 +61,8 @@ pub fn run(
 }
 
 enum Engine {
-    Sync(Simplifier),
+    /// Boxed: the runtime is large and the engine moves between the two modes.
+    Sync(Box<Simplifier>),
     Async(AsyncSimplifier),
 }
 
@@ -149,14 +150,14 @@ impl App {
     fn toggle_async(&mut self) {
         self.engine = match self.engine.take() {
             Some(Engine::Sync(simplifier)) => {
-                Some(Engine::Async(AsyncSimplifier::spawn(simplifier)))
+                Some(Engine::Async(AsyncSimplifier::spawn(*simplifier)))
             }
             Some(Engine::Async(worker)) => {
                 let (simplifier, queued) = worker.stop();
                 if let Err(e) = self.apply(queued) {
                     self.error = Some(e);
                 }
-                simplifier.map(Engine::Sync)
+                simplifier.map(|s| Engine::Sync(Box::new(s)))
             }
             None => None,
         };

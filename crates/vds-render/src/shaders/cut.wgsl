@@ -1,6 +1,9 @@
 // The cut, drawn by vertex pulling: vertex `i` is corner `i % 3` of slot `i / 3`. Slots hold
-// node ids (and a part id); nodes hold proxy positions. A free slot becomes a triangle outside
-// the clip volume. Mirrors `FrameUniforms` and `GpuNode` in the Rust code.
+// node ids (and a part id); nodes hold proxy positions. A free slot becomes a zero-area
+// triangle. Each vertex reads only its own corner's node (on the software rasteriser
+// the vertex fetches dominate, and slots are in no spatial order): the face normal comes from
+// screen-space derivatives of the position, and per-triangle colours from the provoking
+// (first) vertex. Mirrors `FrameUniforms` and `GpuNode` in the Rust code.
 
 struct Frame {
     world_to_clip: mat4x4<f32>,
@@ -28,10 +31,9 @@ struct Frame {
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) @interpolate(flat) colour: vec3<f32>,
-    @location(1) @interpolate(flat) face_normal: vec3<f32>,
-    @location(2) smooth_normal: vec3<f32>,
-    @location(3) world: vec3<f32>,
-    @location(4) barycentric: vec3<f32>,
+    @location(1) smooth_normal: vec3<f32>,
+    @location(2) world: vec3<f32>,
+    @location(3) barycentric: vec3<f32>,
 };
 
 fn hash(x: u32) -> u32 {
@@ -86,31 +88,29 @@ fn vs_main(@builtin(vertex_index) index: u32) -> VertexOut {
     let k = index % 3u;
     out.barycentric = vec3<f32>(f32(k == 0u), f32(k == 1u), f32(k == 2u));
     if (slot.x == 0xFFFFFFFFu) {
-        out.clip = vec4<f32>(2.0, 2.0, 2.0, 1.0);
+        // A free slot: all three corners on one point inside the clip volume, so the
+        // rasteriser drops a zero-area triangle. (A triangle outside the volume would be
+        // culled too, but makes software rasterisers such as llvmpipe send the whole draw
+        // through their clipping path: 2.5 M free slots cost 3.5 s a frame that way.)
+        out.clip = vec4<f32>(0.0, 0.0, 0.5, 1.0);
         return out;
     }
-    let p0 = nodes[slot.x].xyz;
-    let p1 = nodes[slot.y].xyz;
-    let p2 = nodes[slot.z].xyz;
     var corner = slot.x;
     if (k == 1u) {
         corner = slot.y;
     } else if (k == 2u) {
         corner = slot.z;
     }
-    let p = nodes[corner].xyz;
-    out.clip = frame.world_to_clip * vec4<f32>(p, 1.0);
-    out.world = p;
-    let n = cross(p1 - p0, p2 - p0);
-    let l = length(n);
-    out.face_normal = select(vec3<f32>(0.0, 0.0, 1.0), n / l, l > 0.0);
-    out.smooth_normal = decode_normal(node_attrs[corner].y);
+    let node = nodes[corner];
+    let attrs = node_attrs[corner];
+    out.clip = frame.world_to_clip * vec4<f32>(node.xyz, 1.0);
+    out.world = node.xyz;
+    out.smooth_normal = decode_normal(attrs.y);
+    // Flat outputs take the first vertex's value: for debug colourings that is corner 0.
     if (frame.colouring == 1u) {
-        let depth = f32(max(max(node_attrs[slot.x].x, node_attrs[slot.y].x), node_attrs[slot.z].x));
-        out.colour = ramp(depth / max(frame.max_depth, 1.0));
+        out.colour = ramp(f32(attrs.x) / max(frame.max_depth, 1.0));
     } else if (frame.colouring == 2u) {
-        let e = max(max(screen_error(slot.x), screen_error(slot.y)), screen_error(slot.z));
-        out.colour = ramp(e / max(frame.threshold_px, 1e-6) * 0.5);
+        out.colour = ramp(screen_error(corner) / max(frame.threshold_px, 1e-6) * 0.5);
     } else {
         out.colour = part_colour(slot.w);
     }
@@ -119,7 +119,9 @@ fn vs_main(@builtin(vertex_index) index: u32) -> VertexOut {
 
 @fragment
 fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
-    var n = in.face_normal;
+    var n = cross(dpdx(in.world), dpdy(in.world));
+    let l = length(n);
+    n = select(vec3<f32>(0.0, 0.0, 1.0), n / l, l > 0.0);
     if (frame.shading == 1u) {
         n = normalize(in.smooth_normal);
     }
