@@ -39,9 +39,13 @@ struct Args {
     /// Generate a loop flown through the model (at 60% of its radius) as the camera path.
     #[arg(long, conflicts_with_all = ["orbit", "camera_path"])]
     fly: bool,
-    /// Frames of the generated orbit (or the first N of a camera path).
+    /// Frames to render: the first N of the camera path.
     #[arg(long)]
     frames: Option<usize>,
+    /// Length of a generated orbit or fly-through loop in frames (default: --frames, or 120);
+    /// with a longer loop, `--frames` renders its first steps at that smaller pace.
+    #[arg(long)]
+    path_frames: Option<usize>,
     /// Image or window size WIDTHxHEIGHT.
     #[arg(long, value_parser = parse_size, default_value = "1280x720")]
     size: (u32, u32),
@@ -203,6 +207,7 @@ fn run(args: &Args) -> Result<()> {
     let model = model::open(args.file.as_deref(), args.brute_force)?;
     let (width, height) = args.size;
     let root = model.runtime.cut().node(0);
+    let loop_frames = args.path_frames.or(args.frames).unwrap_or(120) as u32;
     let mut path = match &args.camera_path {
         Some(file) => {
             let text = std::fs::read_to_string(file)
@@ -213,14 +218,14 @@ fn run(args: &Args) -> Result<()> {
         None if args.fly => CameraPath::fly_through(
             root.sphere_center,
             root.sphere_radius,
-            args.frames.unwrap_or(120) as u32,
+            loop_frames,
             width,
             height,
         ),
         None => CameraPath::orbit(
             root.sphere_center,
             root.sphere_radius,
-            args.frames.unwrap_or(120) as u32,
+            loop_frames,
             width,
             height,
         ),
