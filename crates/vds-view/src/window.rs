@@ -40,7 +40,10 @@ pub fn run(
         name: model.name.clone(),
         controls: Controls::framing(root.sphere_center, root.sphere_radius),
         home: Controls::framing(root.sphere_center, root.sphere_radius),
-        engine: Some(Engine::Sync(Box::new(Simplifier::new(model.runtime, false)))),
+        engine: Some(Engine::Sync(Box::new(Simplifier::new(
+            model.runtime,
+            false,
+        )))),
         want_async: asynchronous,
         settings,
         style,
