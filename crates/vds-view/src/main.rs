@@ -7,6 +7,7 @@
 
 mod controls;
 mod headless;
+mod hud;
 mod model;
 mod simplify;
 mod window;

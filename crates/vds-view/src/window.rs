@@ -1,7 +1,6 @@
-//! The interactive viewer: a winit window, a wgpu surface, the orbit/fly controls, and the
-//! keys that change the cut and the look. The HUD (frame rate, frame time, simplification
-//! time, triangles, nodes, threshold or budget, uploads, resident pages, modes) is the
-//! window title, refreshed four times a second.
+//! The interactive viewer: a winit window, a wgpu surface, the orbit/fly controls, the panel
+//! (`hud.rs`: figures, a threshold or budget slider, every criterion and mode) and keys for
+//! the same. The window title repeats the main figures four times a second.
 //!
 //! Keys: Tab orbit/fly · WASD QE fly · drag look/turn · wheel zoom/speed · +/- threshold or
 //! budget · B threshold/budget · C silhouettes · V backfaces · F frustum mode · G gaze ·
@@ -21,7 +20,8 @@ use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
 use winit::keyboard::{KeyCode, PhysicalKey};
 use winit::window::{Window, WindowId};
 
-use crate::controls::Controls;
+use crate::controls::{Controls, Mode};
+use crate::hud::{Panel, PanelModel};
 use crate::model::Model;
 use crate::simplify::{AdjustFigures, AsyncSimplifier, Batch, Settings, Simplifier};
 
@@ -77,6 +77,8 @@ struct State {
     pipeline: CutPipeline,
     gpu_cut: GpuCut,
     depth: wgpu::TextureView,
+    panel: Panel,
+    pages: u32,
 }
 
 #[derive(Default)]
@@ -87,6 +89,7 @@ struct Hud {
     last: Option<Instant>,
     adjust: AdjustFigures,
     upload_bytes: u64,
+    fps: f64,
 }
 
 struct App {
@@ -135,6 +138,11 @@ impl App {
             _ => unreachable!("the engine starts synchronous"),
         };
         let gpu_cut = GpuCut::new(&gpu, node_count)?;
+        let pages = match &self.engine {
+            Some(Engine::Sync(s)) => s.runtime().cut().store().pages_resident().1,
+            _ => 0,
+        };
+        let panel = Panel::new(&window, &gpu, config.format);
         let depth = vds_render::target::depth_texture(&gpu, config.width, config.height);
         if self.want_async {
             self.toggle_async();
@@ -147,6 +155,8 @@ impl App {
             pipeline,
             gpu_cut,
             depth,
+            panel,
+            pages,
         })
     }
 
@@ -253,17 +263,45 @@ impl App {
             &state.pipeline,
             None,
         );
+        let mut model = PanelModel {
+            settings: self.settings,
+            style: self.style,
+            frozen: self.frozen,
+            asynchronous: matches!(self.engine, Some(Engine::Async(_))),
+            fps: self.hud.fps,
+            frame_ms: self.hud.frame_ms,
+            adjust: self.hud.adjust,
+            upload_bytes: self.hud.upload_bytes,
+            pages: state.pages,
+            flying: self.controls.mode == Mode::Fly,
+        };
+        let size = [state.config.width, state.config.height];
+        state.panel.draw(
+            &state.window,
+            &state.gpu,
+            &mut encoder,
+            &view,
+            size,
+            &mut model,
+        );
         state.gpu.queue.submit([encoder.finish()]);
         state.window.pre_present_notify();
         state.gpu.queue.present(texture);
+        self.settings = model.settings;
+        self.style = model.style;
+        self.frozen = model.frozen;
+        let window = state.window.clone();
+        if model.asynchronous != matches!(self.engine, Some(Engine::Async(_))) {
+            self.toggle_async();
+        }
         self.hud.frames += 1;
         self.hud.frame_ms = now.elapsed().as_secs_f64() * 1e3;
         let since = *self.hud.since.get_or_insert(now);
         if now.duration_since(since).as_secs_f64() >= 0.25 {
             let fps = f64::from(self.hud.frames) / now.duration_since(since).as_secs_f64();
+            self.hud.fps = fps;
             self.hud.since = Some(now);
             self.hud.frames = 0;
-            let window = state.window.clone();
             window.set_title(&self.title(fps));
         }
         Ok(())
@@ -385,6 +423,24 @@ impl ApplicationHandler for App {
     }
 
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
+        let mut for_panel = false;
+        if let Some(state) = &mut self.state {
+            let consumed = state.panel.on_event(&state.window, &event);
+            let pointer = matches!(
+                event,
+                WindowEvent::MouseInput { .. }
+                    | WindowEvent::CursorMoved { .. }
+                    | WindowEvent::MouseWheel { .. }
+            );
+            for_panel = consumed || (pointer && state.panel.wants_pointer());
+        }
+        if for_panel {
+            if let WindowEvent::CursorMoved { position, .. } = event {
+                self.last_cursor = Some((position.x, position.y));
+            }
+            self.dragging = false;
+            return;
+        }
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) => {
