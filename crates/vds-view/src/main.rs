@@ -30,8 +30,8 @@ struct Args {
     /// Render offscreen along a camera path instead of opening a window.
     #[arg(long)]
     headless: bool,
-    /// Camera path JSON: {"cameras": [{"eye": [x,y,z], "target": [x,y,z], "up": [x,y,z],
-    /// "fov_y_degrees": f, "width": w, "height": h, "near": n}, ...]}.
+    /// Camera path JSON: `{"cameras": [camera, ...]}`, each camera with `eye`, `target`,
+    /// `up` (three numbers each), `fov_y_degrees`, `width`, `height` and `near`.
     #[arg(long, conflicts_with = "orbit")]
     camera_path: Option<PathBuf>,
     /// Generate an orbit around the model as the camera path.
