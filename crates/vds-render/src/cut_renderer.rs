@@ -45,9 +45,13 @@ pub struct Style {
     pub wireframe: bool,
     /// The pixel threshold (for the error colouring).
     pub threshold_px: f32,
+    /// Skip triangles with a corner node entirely outside the view frustum: at full detail
+    /// such a triangle is invisible, and its coarse stand-in (stretched to the proxy of a
+    /// region folded for being off-screen) would only draw a sliver across the view.
+    pub cull_outside: bool,
 }
 
-/// Mirrors `Frame` in `cut.wgsl` (128 bytes).
+/// Mirrors `Frame` in `cut.wgsl` (208 bytes).
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 #[repr(C)]
 struct FrameUniforms {
@@ -59,10 +63,14 @@ struct FrameUniforms {
     shading: u32,
     wireframe: u32,
     max_depth: f32,
-    pad: [f32; 3],
+    cull_outside: u32,
+    pad: [f32; 2],
+    /// Outward frustum planes (near, right, left, top, bottom): `dot(n, x) + d` is the
+    /// signed distance of `x` outside.
+    planes: [[f32; 4]; 5],
 }
 
-const _: () = assert!(size_of::<FrameUniforms>() == 128);
+const _: () = assert!(size_of::<FrameUniforms>() == 208);
 
 /// The colour format of every target the pipeline draws to.
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
@@ -92,6 +100,28 @@ pub fn world_to_clip(camera: &Camera) -> Mat4 {
         rows[3].into(),
     ])
     .transpose()
+}
+
+/// The frustum's outward planes in world space, as `View::sphere_outside` tests them.
+fn frustum_planes(camera: &Camera) -> [[f32; 4]; 5] {
+    let view = camera.view();
+    let plane = |n: Vec3| {
+        let n = n.normalize();
+        [n.x, n.y, n.z, -n.dot(view.eye)]
+    };
+    let near = -view.forward;
+    [
+        [
+            near.x,
+            near.y,
+            near.z,
+            view.forward.dot(view.eye) + view.near,
+        ],
+        plane(view.right - view.forward * view.tan_x),
+        plane(-view.right - view.forward * view.tan_x),
+        plane(view.up - view.forward * view.tan_y),
+        plane(-view.up - view.forward * view.tan_y),
+    ]
 }
 
 /// The render pipeline and its bind group layout (created once).
@@ -131,6 +161,7 @@ impl CutPipeline {
                 storage(1),
                 storage(2),
                 storage(3),
+                storage(4),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -192,6 +223,7 @@ pub struct GpuCut {
     uniforms: wgpu::Buffer,
     nodes: wgpu::Buffer,
     node_attrs: wgpu::Buffer,
+    node_spheres: wgpu::Buffer,
     node_capacity: u32,
     /// Slots per full chunk.
     chunk_slots: u32,
@@ -237,6 +269,7 @@ impl GpuCut {
             ),
             nodes: buffer("nodes", node_bytes, storage),
             node_attrs: buffer("node attrs", u64::from(node_count.max(1)) * 8, storage),
+            node_spheres: buffer("node spheres", node_bytes, storage),
             node_capacity: node_count,
             chunk_slots: (limit / 16)
                 .min(u64::from(u32::MAX / 3))
@@ -256,7 +289,13 @@ impl GpuCut {
                 | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let buffers = [&self.uniforms, &self.nodes, &self.node_attrs, &buffer];
+        let buffers = [
+            &self.uniforms,
+            &self.nodes,
+            &self.node_attrs,
+            &buffer,
+            &self.node_spheres,
+        ];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
             .enumerate()
@@ -302,6 +341,12 @@ impl GpuCut {
             }
             let positions: Vec<[f32; 4]> = records.iter().map(|n| n.position_error).collect();
             let attrs: Vec<[u32; 2]> = records.iter().map(|n| n.attrs).collect();
+            let spheres: Vec<[f32; 4]> = records.iter().map(|n| n.sphere).collect();
+            gpu.queue.write_buffer(
+                &self.node_spheres,
+                u64::from(*first) * 16,
+                bytemuck::cast_slice(&spheres),
+            );
             gpu.queue.write_buffer(
                 &self.nodes,
                 u64::from(*first) * 16,
@@ -410,7 +455,9 @@ impl GpuCut {
             shading: style.shading as u32,
             wireframe: u32::from(style.wireframe),
             max_depth: self.max_depth as f32,
-            pad: [0.0; 3],
+            cull_outside: u32::from(style.cull_outside),
+            pad: [0.0; 2],
+            planes: frustum_planes(camera),
         };
         gpu.queue
             .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));

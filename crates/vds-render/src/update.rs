@@ -7,8 +7,9 @@ use std::ops::Range;
 
 use vds_runtime::{Changes, Cut};
 
-/// One node as the shaders read it: `vec4(proxy, error radius)` and
-/// `vec2<u32>(depth, octahedral normal)` (mirrors `nodes` and `node_attrs` in `cut.wgsl`).
+/// One node as the shaders read it: `vec4(proxy, error radius)`,
+/// `vec2<u32>(depth, octahedral normal)` and `vec4(sphere centre, radius)` (mirrors `nodes`,
+/// `node_attrs` and `node_spheres` in `cut.wgsl`).
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct GpuNode {
@@ -16,9 +17,11 @@ pub struct GpuNode {
     pub position_error: [f32; 4],
     /// Depth below the root, and the node's normal (its cone axis) as two snorm16.
     pub attrs: [u32; 2],
+    /// The sphere holding every triangle that touches the node (for culling).
+    pub sphere: [f32; 4],
 }
 
-const _: () = assert!(size_of::<GpuNode>() == 24);
+const _: () = assert!(size_of::<GpuNode>() == 40);
 
 /// A free slot: the shader turns it into a zero-area triangle.
 pub const EMPTY_SLOT: [u32; 4] = [u32::MAX; 4];
@@ -89,6 +92,8 @@ impl CutUpdate {
             .map(|p| GpuNode {
                 position_error: [p[0], p[1], p[2], 0.0],
                 attrs: [0, 0],
+                // Never culled: a plain mesh draws everything.
+                sphere: [p[0], p[1], p[2], f32::MAX],
             })
             .collect();
         let slots = triangles
@@ -119,6 +124,18 @@ impl CutUpdate {
                         node.error_radius,
                     ],
                     attrs: [u32::from(node.depth), octahedral(node.cone_axis)],
+                    // Files store no bounds for leaves (they never unfold), so a leaf is
+                    // never culled.
+                    sphere: if node.is_leaf() {
+                        [node.proxy[0], node.proxy[1], node.proxy[2], f32::MAX]
+                    } else {
+                        [
+                            node.sphere_center[0],
+                            node.sphere_center[1],
+                            node.sphere_center[2],
+                            node.sphere_radius,
+                        ]
+                    },
                 }
             })
             .collect();

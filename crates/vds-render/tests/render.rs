@@ -124,31 +124,55 @@ fn threshold_zero_renders_exactly_the_original_mesh() {
     for name in ["cow.obj", "as1_assembly.obj"] {
         let (scene, bytes) =
             build(vds_import::load_file(shared(name), &Default::default()).unwrap());
-        let mut runtime = runtime(&bytes);
-        let camera = framing(&runtime, [1.0, 0.4, 1.3], 320, 240);
-        // Backface folding would (correctly) drop hidden geometry; everything else stays on.
-        let criteria = Criteria {
-            backface: false,
-            frustum: FrustumMode::Fold,
-            ..Criteria::default()
-        };
-        let style = Style::default();
-        let cut = renderer.cut(
-            &mut runtime,
-            camera,
-            &criteria,
-            Goal::Threshold(0.0),
-            &style,
-        );
-        let brute = renderer.mesh(&scene, camera, &style);
-        assert!(
-            covered_pixels(&brute) > 5_000,
-            "{name}: the model is not in view"
-        );
-        // Same triangles, same positions, same shader: identical images. Triangles are
-        // drawn in a different order, which only matters where two triangles cover a pixel
-        // at exactly the same depth (coincident duplicates); none of these meshes has any.
-        assert_eq!(differing_pixels(&cut, &brute, 0), 0, "{name}");
+        // The whole model in view, then a close-up that leaves much of it off-screen (where
+        // frustum folding and off-screen culling act).
+        for zoom in [1.0f32, 0.35] {
+            let mut runtime = runtime(&bytes);
+            let root = runtime.cut().node(0);
+            let camera = Camera::framing(
+                root.sphere_center,
+                root.sphere_radius * zoom,
+                [1.0, 0.4, 1.3],
+                320,
+                240,
+            );
+            // Backface folding would (correctly) drop hidden geometry; everything else stays on.
+            let criteria = Criteria {
+                backface: false,
+                frustum: FrustumMode::Fold,
+                ..Criteria::default()
+            };
+            // Culling triangles whose corner nodes are off-screen must not change anything at
+            // full detail: such triangles are entirely off-screen.
+            let culling = Style {
+                cull_outside: true,
+                ..Style::default()
+            };
+            let cut = renderer.cut(
+                &mut runtime,
+                camera,
+                &criteria,
+                Goal::Threshold(0.0),
+                &culling,
+            );
+            let brute = renderer.mesh(&scene, camera, &Style::default());
+            assert!(
+                covered_pixels(&brute) > 5_000,
+                "{name}: the model is not in view"
+            );
+            // Same triangles, same positions, same shader: identical images. Triangles are
+            // drawn in a different order, which only matters where two triangles cover a
+            // pixel at exactly the same depth (coincident duplicates); none of these meshes
+            // has any.
+            assert_eq!(differing_pixels(&cut, &brute, 0), 0, "{name}, zoom {zoom}");
+            // (The assembly's large plates reach into any close-up, so only the cow is checked.)
+            if zoom < 1.0 && name == "cow.obj" {
+                assert!(
+                    runtime.cut().active_triangle_count() < scene.triangles.len() as u32,
+                    "{name}: the close-up should fold off-screen regions"
+                );
+            }
+        }
     }
 }
 
@@ -210,6 +234,7 @@ fn golden_images_of_the_bunny_and_a_generated_scene() {
             let style = Style {
                 wireframe: true,
                 threshold_px: t,
+                cull_outside: true,
                 ..Style::default()
             };
             let image = renderer.cut(

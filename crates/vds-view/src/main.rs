@@ -172,6 +172,7 @@ impl Args {
             },
             wireframe: self.wireframe,
             threshold_px: self.threshold,
+            cull_outside: !matches!(self.frustum, FrustumArg::Off) && !self.brute_force,
         }
     }
 }

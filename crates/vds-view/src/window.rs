@@ -231,6 +231,7 @@ impl App {
             return Ok(());
         };
         let style = Style {
+            cull_outside: settings.criteria.frustum != FrustumMode::Off,
             threshold_px: match settings.goal {
                 Goal::Threshold(t) => t,
                 Goal::Budget(_) => 1.0,

@@ -18,15 +18,28 @@ struct Frame {
     shading: u32,
     wireframe: u32,
     max_depth: f32,
+    cull_outside: u32,
     _pad0: f32,
     _pad1: f32,
-    _pad2: f32,
+    // Outward frustum planes: dot(n, x) + d > 0 outside.
+    planes: array<vec4<f32>, 5>,
 };
 
 @group(0) @binding(0) var<uniform> frame: Frame;
 @group(0) @binding(1) var<storage, read> nodes: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> node_attrs: array<vec2<u32>>;
 @group(0) @binding(3) var<storage, read> slots: array<vec4<u32>>;
+@group(0) @binding(4) var<storage, read> node_spheres: array<vec4<f32>>;
+
+// True when the sphere (centre, radius) lies entirely outside one frustum plane.
+fn outside(sphere: vec4<f32>) -> bool {
+    for (var i = 0u; i < 5u; i = i + 1u) {
+        if (dot(frame.planes[i].xyz, sphere.xyz) + frame.planes[i].w > sphere.w) {
+            return true;
+        }
+    }
+    return false;
+}
 
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
@@ -87,7 +100,11 @@ fn vs_main(@builtin(vertex_index) index: u32) -> VertexOut {
     let slot = slots[index / 3u];
     let k = index % 3u;
     out.barycentric = vec3<f32>(f32(k == 0u), f32(k == 1u), f32(k == 2u));
-    if (slot.x == 0xFFFFFFFFu) {
+    // A triangle with a corner node entirely off-screen is off-screen at full detail: do not
+    // draw its coarse stand-in (see `Style::cull_outside`). All three vertices decide alike.
+    let culled = frame.cull_outside != 0u && slot.x != 0xFFFFFFFFu
+        && (outside(node_spheres[slot.x]) || outside(node_spheres[slot.y]) || outside(node_spheres[slot.z]));
+    if (slot.x == 0xFFFFFFFFu || culled) {
         // A free slot: all three corners on one point inside the clip volume, so the
         // rasteriser drops a zero-area triangle. (A triangle outside the volume would be
         // culled too, but makes software rasterisers such as llvmpipe send the whole draw
