@@ -52,15 +52,18 @@ fn octahedral(axis: [f32; 3]) -> [u8; 2] {
 }
 
 fn unoctahedral(e: [u8; 2]) -> [f32; 3] {
-    let [u, v] = e.map(|c| f64::from(c) / 255.0 * 2.0 - 1.0);
+    // In f32: the decoder runs this once per inner node, and the encoder measures the
+    // angle to exactly this result, so the widening covers whatever f32 rounding does.
+    let [u, v] = e.map(|c| f32::from(c) * (2.0 / 255.0) - 1.0);
     let z = 1.0 - u.abs() - v.abs();
     let (x, y) = if z < 0.0 {
         ((1.0 - v.abs()) * u.signum(), (1.0 - u.abs()) * v.signum())
     } else {
         (u, v)
     };
-    let n = (x * x + y * y + z * z).sqrt();
-    [x / n, y / n, z / n].map(|c| c as f32)
+    // |x| + |y| + |z| = 1, so the length is at least 1/√3: the division is safe.
+    let inverse = 1.0 / (x * x + y * y + z * z).sqrt();
+    [x * inverse, y * inverse, z * inverse]
 }
 
 fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
@@ -310,6 +313,17 @@ pub struct PageShape {
     pub triangle_count: u32,
 }
 
+/// Working arrays of [`decode_page`], kept by the caller so that decoding page after page
+/// allocates nothing.
+#[derive(Default)]
+pub struct Scratch {
+    /// Parent of each node of the page whose parent is also in it (from the child ranges).
+    parent_in_page: Vec<u32>,
+    /// Each node's grid coordinates as stored: a first child's position is predicted by its
+    /// parent's.
+    stored_q: Vec<[u32; 3]>,
+}
+
 /// Decodes a page encoded by [`encode_page`] into `nodes` and `triangles` (cleared first, so
 /// a caller decoding many pages can reuse them). Structural checks of the decoded records are
 /// the caller's; this checks the encoding itself (lengths, ranges, no trailing bytes).
@@ -317,6 +331,7 @@ pub fn decode_page(
     grid: &Grid,
     raw: &[u8],
     shape: &PageShape,
+    scratch: &mut Scratch,
     nodes: &mut Vec<NodeRecord>,
     triangles: &mut Vec<TriangleRecord>,
 ) -> Result<(), String> {
@@ -352,8 +367,14 @@ pub fn decode_page(
     let bad = |what: &str| format!("stream ends early or holds a bad value ({what})");
     let f = |x: f32| F32::new(x);
     nodes.reserve(node_count as usize);
-    // Parent of each node of this page whose parent is also in it, from the child ranges.
-    let mut parent_in_page = vec![NO_NODE; node_count as usize];
+    let Scratch {
+        parent_in_page,
+        stored_q,
+    } = scratch;
+    parent_in_page.clear();
+    parent_in_page.resize(node_count as usize, NO_NODE);
+    stored_q.clear();
+    stored_q.reserve(node_count as usize);
     let mut previous_q = [0i64; 3];
     let mut subtri_begin = u64::from(first_triangle);
     for k in 0..node_count {
@@ -372,7 +393,7 @@ pub fn decode_page(
             // The first child starts at its parent's first leaf, the others where the
             // previous sibling ends.
             let leaf_begin = if p.first_child.get() == id {
-                prediction = grid.quantize(p.proxy.map(|c| c.get())).map(i64::from);
+                prediction = stored_q[(in_page - first_node) as usize].map(i64::from);
                 p.leaf_begin.get()
             } else {
                 previous.ok_or_else(|| bad("leaf"))?.leaf_end.get()
@@ -428,6 +449,7 @@ pub fn decode_page(
                 .filter(|&c| c <= crate::grid::GRID_STEPS)
                 .ok_or_else(|| bad("position"))?;
         }
+        stored_q.push(q);
         let proxy = grid.dequantize(q);
         let mut node = NodeRecord {
             parent: U32::new(parent),

@@ -80,24 +80,33 @@ fn map(file: &std::fs::File) -> std::io::Result<memmap2::Mmap> {
     unsafe { memmap2::Mmap::map(file) }
 }
 
-thread_local! {
-    /// One zstd decompression context per thread: creating one per page cost more than
-    /// decoding a small page.
-    static DECOMPRESSOR: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
-        const { std::cell::RefCell::new(None) };
+/// What decoding a page needs besides the page itself, kept per thread and reused: a zstd
+/// context (creating one per page cost more than decoding a small page), the decompressed
+/// bytes and the codec's scratch arrays. Decoding page after page allocates nothing once
+/// these have grown.
+#[derive(Default)]
+struct PageDecoder {
+    zstd: Option<zstd::bulk::Decompressor<'static>>,
+    raw: Vec<u8>,
+    scratch: crate::codec::Scratch,
 }
 
-/// Decompresses a zstd frame into at most `capacity` bytes.
-fn decompress(frame: &[u8], capacity: usize) -> std::io::Result<Vec<u8>> {
-    DECOMPRESSOR.with(|cell| {
-        let mut slot = cell.borrow_mut();
-        if slot.is_none() {
-            *slot = Some(zstd::bulk::Decompressor::new()?);
-        }
-        slot.as_mut()
-            .expect("just created")
-            .decompress(frame, capacity)
-    })
+thread_local! {
+    static DECODER: std::cell::RefCell<PageDecoder> = std::cell::RefCell::new(PageDecoder::default());
+}
+
+impl PageDecoder {
+    /// Decompresses a zstd frame into `self.raw`, at most `capacity` bytes.
+    fn decompress(&mut self, frame: &[u8], capacity: usize) -> std::io::Result<()> {
+        let zstd = match &mut self.zstd {
+            Some(z) => z,
+            slot => slot.insert(zstd::bulk::Decompressor::new()?),
+        };
+        self.raw.clear();
+        self.raw.reserve(capacity);
+        zstd.decompress_to_buffer(frame, &mut self.raw)?;
+        Ok(())
+    }
 }
 
 fn check_range(
@@ -323,15 +332,6 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         let start = entry.offset.get() as usize;
         let frame = &self.bytes.as_ref()[start..start + entry.compressed_length.get() as usize];
         check_sum(&what, frame, entry.checksum.get())?;
-        let raw = decompress(frame, entry.raw_length.get() as usize).map_err(|e| {
-            VdtError::Decompress {
-                page: index,
-                message: e.to_string(),
-            }
-        })?;
-        if raw.len() != entry.raw_length.get() as usize {
-            return Err(VdtError::invalid(&what, "decodes to the wrong size"));
-        }
         let shape = crate::codec::PageShape {
             first_node: entry.first_node.get(),
             node_count: entry.node_count.get(),
@@ -340,14 +340,27 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         };
         page.first_node = shape.first_node;
         page.first_triangle = shape.first_triangle;
-        crate::codec::decode_page(
-            &self.grid(),
-            &raw,
-            &shape,
-            &mut page.nodes,
-            &mut page.triangles,
-        )
-        .map_err(|message| VdtError::invalid(&what, message))?;
+        DECODER.with(|cell| {
+            let decoder = &mut *cell.borrow_mut();
+            decoder
+                .decompress(frame, entry.raw_length.get() as usize)
+                .map_err(|e| VdtError::Decompress {
+                    page: index,
+                    message: e.to_string(),
+                })?;
+            if decoder.raw.len() != entry.raw_length.get() as usize {
+                return Err(VdtError::invalid(&what, "decodes to the wrong size"));
+            }
+            crate::codec::decode_page(
+                &self.grid(),
+                &decoder.raw,
+                &shape,
+                &mut decoder.scratch,
+                &mut page.nodes,
+                &mut page.triangles,
+            )
+            .map_err(|message| VdtError::invalid(&what, message))
+        })?;
         self.check_page(&what, page)
     }
 
@@ -384,16 +397,15 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             {
                 return Err(bad("subtris outside the page"));
             }
-            let floats = n
-                .proxy
-                .iter()
-                .chain(&n.sphere)
-                .chain(&n.cone)
-                .chain([&n.error_radius]);
-            if floats.map(|f| f.get()).any(|f| !f.is_finite())
-                || n.error_radius.get() < 0.0
-                || n.sphere[3].get() < 0.0
-            {
+            // One pass over the record's floats without early exits: this runs for every
+            // node of every page read.
+            let floats = [
+                n.proxy[0], n.proxy[1], n.proxy[2], n.error_radius, n.sphere[0], n.sphere[1],
+                n.sphere[2], n.sphere[3], n.cone[0], n.cone[1], n.cone[2], n.cone[3],
+            ];
+            // Finite means an exponent below all ones; the largest magnitude decides.
+            let largest = floats.iter().fold(0, |m, f| m.max(f.get().to_bits() & 0x7FFF_FFFF));
+            if largest >= 0x7F80_0000 || n.error_radius.get() < 0.0 || n.sphere[3].get() < 0.0 {
                 return Err(bad("non-finite or negative bound"));
             }
         }
