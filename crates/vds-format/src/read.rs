@@ -400,11 +400,23 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             // One pass over the record's floats without early exits: this runs for every
             // node of every page read.
             let floats = [
-                n.proxy[0], n.proxy[1], n.proxy[2], n.error_radius, n.sphere[0], n.sphere[1],
-                n.sphere[2], n.sphere[3], n.cone[0], n.cone[1], n.cone[2], n.cone[3],
+                n.proxy[0],
+                n.proxy[1],
+                n.proxy[2],
+                n.error_radius,
+                n.sphere[0],
+                n.sphere[1],
+                n.sphere[2],
+                n.sphere[3],
+                n.cone[0],
+                n.cone[1],
+                n.cone[2],
+                n.cone[3],
             ];
             // Finite means an exponent below all ones; the largest magnitude decides.
-            let largest = floats.iter().fold(0, |m, f| m.max(f.get().to_bits() & 0x7FFF_FFFF));
+            let largest = floats
+                .iter()
+                .fold(0, |m, f| m.max(f.get().to_bits() & 0x7FFF_FFFF));
             if largest >= 0x7F80_0000 || n.error_radius.get() < 0.0 || n.sphere[3].get() < 0.0 {
                 return Err(bad("non-finite or negative bound"));
             }

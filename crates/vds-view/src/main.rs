@@ -285,10 +285,13 @@ fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
-/// Medians of a headless run (frames after the first).
+/// Medians of a headless run: of the frames after the first (which starts the cut from the
+/// root and uploads everything), or of the only frame of a one-frame run.
 struct Summary {
     name: String,
     frames: usize,
+    /// Whether the medians cover the frames after the first (false: the only frame).
+    after_first: bool,
     size: (u32, u32),
     triangles: u64,
     brute_force: bool,
@@ -316,12 +319,14 @@ impl Summary {
             v.sort_by(f64::total_cmp);
             v.get(v.len() / 2).copied().unwrap_or(0.0)
         };
-        let after: Vec<_> = rows.iter().skip(1).collect();
+        let after_first = rows.len() > 1;
+        let after: Vec<_> = rows.iter().skip(usize::from(after_first)).collect();
         let gpu: Vec<f64> = after.iter().filter_map(|r| r.gpu_ms).collect();
         let first = headless.path.cameras[0];
         Summary {
             name,
             frames: rows.len(),
+            after_first,
             size: (first.width, first.height),
             triangles,
             brute_force: headless.brute_force,
@@ -343,7 +348,7 @@ impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{}: {} frames at {}x{} of {} triangles{}; medians after the first frame: adjust \
+            "{}: {} frames at {}x{} of {} triangles{}; {}: adjust \
              {:.3} ms, CPU frame {:.2} ms{}, {:.0} triangles drawn, {:.0} upload bytes",
             self.name,
             self.frames,
@@ -354,6 +359,11 @@ impl std::fmt::Display for Summary {
                 " (brute force)"
             } else {
                 " (vds)"
+            },
+            if self.after_first {
+                "medians after the first frame"
+            } else {
+                "the only frame"
             },
             self.adjust_ms,
             self.cpu_frame_ms,
