@@ -180,23 +180,55 @@ fn rejects_corrupted_page_by_checksum() {
 }
 
 /// Recomputes every checksum so mutations reach the validation behind them.
+/// The reader reuses one zstd context, output buffer and decode scratch per thread, and a page
+/// cache reuses its `Page`: whatever the order of reads, and after pages that failed to decode
+/// (of another file), every page decodes exactly as on a thread that never read anything.
+#[test]
+fn reused_decode_buffers_give_the_pages_of_a_fresh_thread() {
+    let bytes = encoded("cow.obj", &small_pages());
+    let fresh: Vec<vds_format::Page> = std::thread::spawn({
+        let bytes = bytes.clone();
+        move || {
+            VdtFile::from_bytes(bytes)
+                .unwrap()
+                .read_all_pages()
+                .unwrap()
+        }
+    })
+    .join()
+    .unwrap();
+    assert!(fresh.len() > 4);
+    // A copy whose pages decode to garbage: every page's body flipped, checksums made valid.
+    let mut broken = bytes.clone();
+    let file = VdtFile::from_bytes(bytes).unwrap();
+    for entry in file.directory() {
+        let start = entry.offset.get() as usize;
+        for b in &mut broken[start + 8..start + entry.compressed_length.get() as usize / 2] {
+            *b ^= 0x5A;
+        }
+    }
+    fix_checksums(&mut broken);
+    let broken = VdtFile::from_bytes(broken).unwrap();
+    let mut page = file.read_page(0).unwrap();
+    let count = fresh.len() as u32;
+    let mut failures = 0;
+    for step in 0..3 * count {
+        // Pages in a scrambled order, each read after a failed one.
+        let index = (step * 7 + 3) % count;
+        failures += usize::from(broken.read_page_into(count - 1 - index, &mut page).is_err());
+        file.read_page_into(index, &mut page).unwrap();
+        assert_eq!(page, fresh[index as usize], "page {index} at step {step}");
+    }
+    assert!(failures > 0, "the broken copy must fail somewhere");
+}
+
 fn fix_checksums(bytes: &mut [u8]) {
     let get = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
     let put = |b: &mut [u8], at: usize, v: u64| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
     if bytes.len() < 128 {
         return;
     }
-    // Sections: metadata at 56 (offset, length, checksum), directory at 80.
-    for at in [56usize, 80] {
-        let (offset, length) = (get(bytes, at) as usize, get(bytes, at + 8) as usize);
-        if let Some(section) = offset
-            .checked_add(length)
-            .and_then(|end| bytes.get(offset..end))
-        {
-            let sum = xxh3_64(section);
-            put(bytes, at + 16, sum);
-        }
-    }
+    // Pages first: their checksums live in the directory, whose own checksum comes next.
     let (dir_offset, dir_length) = (get(bytes, 80) as usize, get(bytes, 88) as usize);
     for i in 0..dir_length / 40 {
         let Some(entry) = dir_offset
@@ -213,6 +245,17 @@ fn fix_checksums(bytes: &mut [u8]) {
         {
             let sum = xxh3_64(frame);
             put(bytes, entry + 32, sum);
+        }
+    }
+    // Sections: metadata at 56 (offset, length, checksum), directory at 80.
+    for at in [56usize, 80] {
+        let (offset, length) = (get(bytes, at) as usize, get(bytes, at + 8) as usize);
+        if let Some(section) = offset
+            .checked_add(length)
+            .and_then(|end| bytes.get(offset..end))
+        {
+            let sum = xxh3_64(section);
+            put(bytes, at + 16, sum);
         }
     }
     let sum = xxh3_64(&bytes[..120]);
