@@ -51,6 +51,13 @@ impl Aabb {
 }
 
 /// A cone of normals: every bounded normal `n` satisfies `angle(axis, n) <= half_angle`.
+///
+/// The same type serves as a *two-sided* cone, which bounds normals up to sign: every `n`
+/// has `n` or `−n` within `half_angle` of `axis` ([`NormalCone::fit_two_sided`],
+/// [`NormalCone::merge_two_sided`]). CAD parts are thin shells: a cluster spanning both faces
+/// of a plate or a pipe wall has normals on both sides, so any one-sided cone around them is
+/// wider than a hemisphere and makes the node look like a silhouette from every view, while a
+/// two-sided cone around them is narrow.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NormalCone {
     /// Unit axis.
@@ -103,6 +110,34 @@ impl NormalCone {
         }
     }
 
+    /// A two-sided cone around `normals`: each normal is flipped into the hemisphere of the
+    /// first one, and the one-sided cone of the result is fitted.
+    pub fn fit_two_sided(normals: impl Iterator<Item = [f64; 3]> + Clone) -> NormalCone {
+        let mut all = normals.clone();
+        let Some(reference) = all.next() else {
+            return NormalCone::EMPTY;
+        };
+        NormalCone::fit(normals.map(move |n| {
+            if dot(n, reference) < 0.0 {
+                n.map(|c| -c)
+            } else {
+                n
+            }
+        }))
+    }
+
+    /// The two-sided cone containing two two-sided cones: `other`'s axis, which stands for
+    /// itself and its opposite, is taken on `self`'s side before the one-sided merge.
+    pub fn merge_two_sided(&self, other: &NormalCone) -> NormalCone {
+        if !self.is_empty() && !other.is_empty() && dot(self.axis, other.axis) < 0.0 {
+            return self.merge(&NormalCone {
+                axis: other.axis.map(|c| -c),
+                half_angle: other.half_angle,
+            });
+        }
+        self.merge(other)
+    }
+
     /// The smallest cone containing both cones (as an axis rotation in their common plane).
     pub fn merge(&self, other: &NormalCone) -> NormalCone {
         if other.is_empty() {
@@ -151,6 +186,11 @@ impl NormalCone {
     pub fn contains(&self, n: [f64; 3], tolerance: f64) -> bool {
         !self.is_empty() && angle_between(self.axis, n) <= self.half_angle + tolerance
     }
+
+    /// True when `n` or `−n` lies in the cone (the test of a two-sided cone).
+    pub fn contains_either_way(&self, n: [f64; 3], tolerance: f64) -> bool {
+        self.contains(n, tolerance) || self.contains(n.map(|c| -c), tolerance)
+    }
 }
 
 /// The angle between two unit vectors, robust near 0 and π (atan2 of sine and cosine).
@@ -193,6 +233,22 @@ mod tests {
         let b = NormalCone::fit([[0.0, 0.0, -1.0]].into_iter());
         let m = a.merge(&b);
         assert!(m.contains([0.0, 0.0, -1.0], 0.0) && m.contains([0.0, 0.0, 1.0], 0.0));
+    }
+
+    #[test]
+    fn two_sided_cones_of_opposite_faces_are_narrow() {
+        let plate = [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.0, 0.1f64.sin(), -(0.1f64.cos())]];
+        let one_sided = NormalCone::fit(plate.into_iter());
+        let two_sided = NormalCone::fit_two_sided(plate.into_iter());
+        assert!(one_sided.half_angle > 3.0);
+        assert!(two_sided.half_angle < 0.11, "{two_sided:?}");
+        let other = NormalCone::fit_two_sided([[0.0, 0.1, -1.0]].into_iter());
+        let merged = two_sided.merge_two_sided(&other);
+        for n in plate.into_iter().chain([[0.0, 0.1, -1.0]]) {
+            let length = dot(n, n).sqrt();
+            assert!(merged.contains_either_way(n.map(|c| c / length), 1e-9));
+        }
+        assert!(merged.half_angle < 0.2, "{merged:?}");
     }
 
     #[test]

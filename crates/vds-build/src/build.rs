@@ -138,6 +138,8 @@ struct Accumulator {
     vertex_box: Aabb,
     triangle_box: Aabb,
     cone: NormalCone,
+    /// The two-sided cone of the same normals.
+    two_sided: NormalCone,
 }
 
 fn widen(p: [f32; 3]) -> [f64; 3] {
@@ -268,11 +270,12 @@ fn leaf_attributes(
         .fold(distance_squared(widen(center), p), f64::max)
         .sqrt();
     let cone = NormalCone::fit(scratch.iter().filter_map(|t| t.normal));
+    let two_sided = NormalCone::fit_two_sided(scratch.iter().filter_map(|t| t.normal));
     node.proxy = position;
     node.error_radius = 0.0;
     node.sphere_center = center;
     node.sphere_radius = round_up_f32(radius);
-    store_cone(node, &cone);
+    store_cone(node, &cone, &two_sided);
     let mut vertex_box = Aabb::EMPTY;
     vertex_box.add_point(p);
     Accumulator {
@@ -281,6 +284,7 @@ fn leaf_attributes(
         vertex_box,
         triangle_box,
         cone,
+        two_sided,
     }
 }
 
@@ -293,6 +297,7 @@ impl Accumulator {
         self.vertex_box.add_box(&other.vertex_box);
         self.triangle_box.add_box(&other.triangle_box);
         self.cone = self.cone.merge(&other.cone);
+        self.two_sided = self.two_sided.merge_two_sided(&other.two_sided);
         self
     }
 }
@@ -318,16 +323,24 @@ fn inner_attributes(
         .fold(0.0, f64::max);
     node.sphere_center = center;
     node.sphere_radius = round_up_f32(sphere_radius);
-    store_cone(node, &sum.cone);
+    store_cone(node, &sum.cone, &sum.two_sided);
 }
 
-fn store_cone(node: &mut Node, cone: &NormalCone) {
-    node.cone_axis = cone.axis.map(|c| c as f32);
-    node.cone_half_angle = if cone.is_empty() {
+/// Stores the one-sided cone, or the two-sided one where the one-sided cone is wider than a
+/// hemisphere (no view then sees only backs, and every view sees a possible silhouette: the
+/// cone tells nothing) and the two-sided cone is narrower than a hemisphere.
+fn store_cone(node: &mut Node, cone: &NormalCone, two_sided: &NormalCone) {
+    let half_pi = std::f64::consts::FRAC_PI_2;
+    let use_two_sided =
+        !cone.is_empty() && cone.half_angle >= half_pi && two_sided.half_angle < half_pi;
+    let chosen = if use_two_sided { two_sided } else { cone };
+    node.cone_axis = chosen.axis.map(|c| c as f32);
+    node.cone_half_angle = if chosen.is_empty() {
         -1.0
     } else {
-        round_up_f32(cone.half_angle)
+        round_up_f32(chosen.half_angle)
     };
+    node.cone_two_sided = use_two_sided;
 }
 
 /// The largest squared distance from `from` to any of `points`. The error radius is exact,

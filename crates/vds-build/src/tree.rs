@@ -39,6 +39,10 @@ pub struct Node {
     pub cone_axis: [f32; 3],
     /// Half-angle of that cone in radians; negative when it bounds no normal.
     pub cone_half_angle: f32,
+    /// The cone is two-sided: every normal `n` has `n` or `−n` inside it (see
+    /// [`crate::bounds::NormalCone`]). Chosen when the one-sided cone is wider than a
+    /// hemisphere, where it could tell nothing anyway, and the two-sided one is narrower.
+    pub cone_two_sided: bool,
 }
 
 impl Node {
@@ -62,6 +66,7 @@ impl Node {
             sphere_radius: 0.0,
             cone_axis: [0.0, 0.0, 1.0],
             cone_half_angle: -1.0,
+            cone_two_sided: false,
         }
     }
 

@@ -19,7 +19,11 @@ fn record(node: &Node) -> NodeRecord {
             node.first_child
         }),
         child_count: node.child_count,
-        reserved: 0,
+        flags: if node.cone_two_sided {
+            vds_format::FLAG_TWO_SIDED_CONE
+        } else {
+            0
+        },
         depth: U16::new(node.depth),
         leaf_begin: U32::new(node.leaf_begin),
         leaf_end: U32::new(node.leaf_end),
@@ -134,6 +138,7 @@ pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
                 sphere_radius: sphere[3],
                 cone_axis: [cone[0], cone[1], cone[2]],
                 cone_half_angle: cone[3],
+                cone_two_sided: n.flags & vds_format::FLAG_TWO_SIDED_CONE != 0,
             });
         }
         for t in &page.triangles {

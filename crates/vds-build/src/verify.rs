@@ -284,8 +284,15 @@ fn verify_bounds(
                         )));
                     }
                 }
+                let inside = |normal| {
+                    if node.cone_two_sided {
+                        cone.contains_either_way(normal, ANGLE_SLACK)
+                    } else {
+                        cone.contains(normal, ANGLE_SLACK)
+                    }
+                };
                 if let Some(normal) = triangle_normal(a, b, c)
-                    && !cone.contains(normal, ANGLE_SLACK)
+                    && !inside(normal)
                 {
                     return Err(bound(format!("normal of triangle {t} is outside the cone")));
                 }

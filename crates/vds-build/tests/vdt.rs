@@ -148,14 +148,42 @@ fn rejects_bad_magic() {
 
 #[test]
 fn rejects_unknown_version_with_both_numbers() {
-    let mut bytes = encoded("cow.obj", &small_pages());
-    bytes[8..12].copy_from_slice(&3u32.to_le_bytes());
-    match VdtFile::from_bytes(bytes) {
-        Err(VdtError::Version {
-            expected: 2,
-            got: 3,
-        }) => {}
-        other => panic!("{:?}", other.err()),
+    for version in [1u32, vds_format::VDT_VERSION + 1] {
+        let mut bytes = encoded("cow.obj", &small_pages());
+        bytes[8..12].copy_from_slice(&version.to_le_bytes());
+        fix_checksums(&mut bytes);
+        match VdtFile::from_bytes(bytes) {
+            Err(VdtError::Version { expected, got })
+                if expected == vds_format::VDT_VERSION && got == version => {}
+            other => panic!("{:?}", other.err()),
+        }
+    }
+}
+
+/// Version 2 is version 3 without two-sided cones: such a file reads, and a flag in it is an
+/// error.
+#[test]
+fn reads_version_2_without_two_sided_cones() {
+    let bytes = encoded("bunny.obj", &small_pages());
+    let current = VdtFile::from_bytes(bytes.clone()).unwrap();
+    let pages = current.read_all_pages().unwrap();
+    let flagged = |page: &vds_format::Page| {
+        page.nodes
+            .iter()
+            .any(|n| n.flags & vds_format::FLAG_TWO_SIDED_CONE != 0)
+    };
+    assert!(pages.iter().any(flagged), "the bunny has a few two-sided cones");
+    let mut old = bytes;
+    old[8..12].copy_from_slice(&2u32.to_le_bytes());
+    fix_checksums(&mut old);
+    let old = VdtFile::from_bytes(old).unwrap();
+    for (index, page) in pages.iter().enumerate() {
+        let read = old.read_page(index as u32);
+        if flagged(page) {
+            assert!(read.is_err(), "page {index}");
+        } else {
+            assert_eq!(&read.unwrap(), page);
+        }
     }
 }
 

@@ -12,10 +12,13 @@ use zerocopy::little_endian::{F32, U16, U32};
 
 use crate::VdtError;
 use crate::grid::Grid;
-use crate::layout::{NO_NODE, NodeRecord, TriangleRecord};
+use crate::layout::{FLAG_TWO_SIDED_CONE, NO_NODE, NodeRecord, TriangleRecord};
 
 /// The streams of a page, in order.
 const STREAMS: usize = 12;
+
+/// Bit of a child-count byte (stream 0) marking an inner node's cone as two-sided.
+const TWO_SIDED_BIT: u8 = 0x80;
 
 fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     while v >= 0x80 {
@@ -128,7 +131,9 @@ pub fn encode_page(
         let id = first_node + k as u32;
         let proxy = n.proxy.map(|c| c.get());
         let exact_q = grid.quantize(proxy);
-        s[0].push(n.child_count);
+        // The child count, and for an inner node whose cone is two-sided the flag in bit 7.
+        let two_sided = n.child_count > 0 && n.flags & FLAG_TWO_SIDED_CONE != 0;
+        s[0].push(n.child_count | if two_sided { TWO_SIDED_BIT } else { 0 });
         // A parent in this page is implied by its child range, and a sibling of the previous
         // node shares its parent; either way the depth and first leaf follow. Only the first
         // node of a sibling group whose parent lies in another page spells them out.
@@ -382,7 +387,12 @@ pub fn decode_page(
         let [s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, ..] = &mut streams[..] else {
             unreachable!()
         };
-        let child_count = s0.byte().ok_or_else(|| bad("child count"))?;
+        let count_byte = s0.byte().ok_or_else(|| bad("child count"))?;
+        let two_sided = count_byte & TWO_SIDED_BIT != 0;
+        let child_count = count_byte & !TWO_SIDED_BIT;
+        if two_sided && child_count == 0 {
+            return Err(bad("two-sided cone on a leaf"));
+        }
         let parent_delta = s1.varint().ok_or_else(|| bad("parent"))?;
         let mut prediction = previous_q;
         let previous = nodes.last();
@@ -455,7 +465,7 @@ pub fn decode_page(
             parent: U32::new(parent),
             first_child: U32::new(NO_NODE),
             child_count,
-            reserved: 0,
+            flags: if two_sided { FLAG_TWO_SIDED_CONE } else { 0 },
             depth: U16::new(depth),
             leaf_begin: U32::new(leaf_begin),
             leaf_end: U32::new(leaf_begin.checked_add(1).ok_or_else(|| bad("leaf"))?),

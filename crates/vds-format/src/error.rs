@@ -21,7 +21,8 @@ pub enum VdtError {
     /// A version this reader does not know.
     #[error("unsupported .vdt version {got} (this reader knows version {expected})")]
     Version {
-        /// What this reader knows.
+        /// The newest version this reader knows (it reads
+        /// [`crate::OLDEST_READABLE_VERSION`] up to this one).
         expected: u32,
         /// What the file says.
         got: u32,

@@ -14,7 +14,15 @@ use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 pub const VDT_MAGIC: [u8; 8] = *b"VDT\x00\r\n\x1a\n";
 
 /// The format version this crate writes.
-pub const VDT_VERSION: u32 = 2;
+pub const VDT_VERSION: u32 = 3;
+
+/// The oldest version this crate reads. Version 2 differs only in having no two-sided cones
+/// (its child-count bytes never set the flag bit), so it decodes under version 3's rules.
+pub const OLDEST_READABLE_VERSION: u32 = 2;
+
+/// [`NodeRecord::flags`] bit: the node's cone of normals is two-sided (every normal `n`
+/// has `n` or `−n` within the half-angle of the axis).
+pub const FLAG_TWO_SIDED_CONE: u8 = 1;
 
 /// `parent` of the root and `first_child` of leaves.
 pub const NO_NODE: u32 = u32::MAX;
@@ -105,8 +113,8 @@ pub struct NodeRecord {
     pub first_child: U32,
     /// Number of children: 0 for a leaf, else 2..=8.
     pub child_count: u8,
-    /// Zero.
-    pub reserved: u8,
+    /// Bit flags: [`FLAG_TWO_SIDED_CONE`]; other bits zero.
+    pub flags: u8,
     /// Depth below the root.
     pub depth: U16,
     /// First leaf rank under the node.

@@ -22,8 +22,8 @@ mod write;
 pub use error::VdtError;
 pub use grid::{GRID_STEPS, Grid};
 pub use layout::{
-    HEADER_BYTES, Header, NO_NODE, NODE_BYTES, NodeRecord, PageEntry, TRIANGLE_BYTES,
-    TriangleRecord, VDT_MAGIC, VDT_VERSION,
+    FLAG_TWO_SIDED_CONE, HEADER_BYTES, Header, NO_NODE, NODE_BYTES, NodeRecord,
+    OLDEST_READABLE_VERSION, PageEntry, TRIANGLE_BYTES, TriangleRecord, VDT_MAGIC, VDT_VERSION,
 };
 pub use metadata::{BuildInfo, InputInfo, Metadata};
 pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};

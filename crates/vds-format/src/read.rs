@@ -153,7 +153,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             needed: HEADER_BYTES as u64,
             available: file_size,
         })?;
-        if header.version.get() != VDT_VERSION {
+        if !(OLDEST_READABLE_VERSION..=VDT_VERSION).contains(&header.version.get()) {
             return Err(VdtError::Version {
                 expected: VDT_VERSION,
                 got: header.version.get(),
@@ -387,6 +387,9 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             if n.leaf_begin.get() >= n.leaf_end.get() || u64::from(n.leaf_end.get()) > vertex_count
             {
                 return Err(bad("leaf range out of range"));
+            }
+            if n.flags & FLAG_TWO_SIDED_CONE != 0 && h.version.get() < 3 {
+                return Err(bad("two-sided cone in a version 2 file"));
             }
             if u64::from(n.depth.get()) > u64::from(h.max_depth.get()) {
                 return Err(bad("depth exceeds the header's"));

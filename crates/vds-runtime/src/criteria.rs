@@ -122,6 +122,9 @@ pub enum Facing {
     Front,
     /// Every triangle faces away.
     Back,
+    /// Triangles face both ways but none edge-on: a thin shell (a two-sided cone) seen
+    /// across its faces. Neither a silhouette nor foldable as backfacing.
+    BothSides,
     /// Some may face either way: the node may hold silhouette edges.
     Silhouette,
 }
@@ -322,11 +325,16 @@ impl Judge {
     /// `cos α·√(d² − R²) > sin α·R`, and then `γ + α + β < π/2` (backfacing) is
     /// `a·(c − e) > d·sin(α + β) = sin α·√(d² − R²) + cos α·R`, and `γ − α − β > π/2`
     /// (front-facing) is `a·(c − e) < −d·sin(α + β)`.
+    ///
+    /// A two-sided cone (negative [`crate::store::Shape::cone_cos`]) is the same test about the axis
+    /// taken either way: clear of the silhouette band when `|a·(c − e)| > d·sin(α + β)`.
     fn facing(&self, view: &View, n: Tested<'_>) -> Facing {
-        let cone_cos = n.shape.cone_cos;
-        if cone_cos > 1.0 {
+        let test = n.shape.cone_cos;
+        if test > 1.0 {
             return Facing::Front;
         }
+        let two_sided = test < 0.0;
+        let cone_cos = test.abs();
         let cone_sin = (1.0 - cone_cos * cone_cos).max(0.0).sqrt();
         let to_center = Vec3::from(n.shape.center) - view.eye;
         let d2 = to_center.length_squared();
@@ -340,6 +348,13 @@ impl Judge {
         }
         let sin_sum_d = cone_sin * cos_beta_d + cone_cos * r;
         let along = Vec3::from(n.shape.cone_axis).dot(to_center);
+        if two_sided {
+            return if along.abs() > sin_sum_d {
+                Facing::BothSides
+            } else {
+                Facing::Silhouette
+            };
+        }
         if along > sin_sum_d {
             Facing::Back
         } else if along < -sin_sum_d {

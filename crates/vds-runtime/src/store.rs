@@ -52,6 +52,9 @@ pub struct Node {
     pub cone_cos: f32,
     /// Sine of the half-angle.
     pub cone_sin: f32,
+    /// The cone is two-sided: every normal `n` has `n` or `−n` inside it (thin shells:
+    /// both faces of a plate), so it bounds where silhouettes can be but not backfacing.
+    pub cone_two_sided: bool,
     /// Parent id, or [`NO_NODE`] for the root.
     pub parent: u32,
     /// First child id; children are `first_child .. first_child + child_count`.
@@ -82,6 +85,7 @@ impl Node {
             cone_half_angle: r.cone[3].get(),
             cone_cos: r.cone[3].get().cos(),
             cone_sin: r.cone[3].get().sin(),
+            cone_two_sided: r.flags & vds_format::FLAG_TWO_SIDED_CONE != 0,
             parent: r.parent.get(),
             first_child: r.first_child.get(),
             leaf_begin: r.leaf_begin.get(),
@@ -143,8 +147,27 @@ pub struct Shape {
     pub radius: f32,
     /// Unit cone axis.
     pub cone_axis: [f32; 3],
-    /// Cosine of the cone's half-angle; above 1 when the cone bounds no normal.
+    /// The cone's test value ([`Shape::cone_test`]): the cosine of the half-angle of a
+    /// one-sided cone, minus that cosine for a two-sided one, above 1 for an empty cone.
     pub cone_cos: f32,
+}
+
+impl Shape {
+    /// The value [`Shape::cone_cos`] holds for a cone of `half_angle` radians (negative:
+    /// empty), one- or two-sided.
+    ///
+    /// One number carries the kind so the record stays 32 bytes. It is unambiguous because a
+    /// cone at least a hemisphere wide, of either kind, is stored as a hemisphere (cosine 0):
+    /// from every view such a cone may hold a silhouette and never only backs, which is all
+    /// the criteria ask of it. The narrower cones then have positive cosines (one-sided) or
+    /// negative ones (two-sided).
+    pub fn cone_test(half_angle: f32, two_sided: bool) -> f32 {
+        if half_angle < 0.0 {
+            return 2.0;
+        }
+        let cos = half_angle.cos().max(0.0);
+        if two_sided && cos > 0.0 { -cos } else { cos }
+    }
 }
 
 /// The two records the criteria read of one node.
@@ -165,6 +188,7 @@ struct Topology {
     subtri_count: u32,
     cone_half_angle: f32,
     depth: u16,
+    cone_two_sided: bool,
 }
 
 /// Nodes and triangles of the pages loaded so far.
@@ -279,7 +303,7 @@ impl NodeStore {
             &self.shape[id as usize],
         );
         let topology = &self.topology[i];
-        let empty_cone = shape.cone_cos > 1.0;
+        let empty_cone = topology.cone_half_angle < 0.0;
         Node {
             proxy: hot.proxy,
             error_radius: hot.error_radius,
@@ -287,8 +311,13 @@ impl NodeStore {
             sphere_radius: shape.radius,
             cone_axis: shape.cone_axis,
             cone_half_angle: topology.cone_half_angle,
-            cone_cos: if empty_cone { 1.0 } else { shape.cone_cos },
+            cone_cos: if empty_cone {
+                1.0
+            } else {
+                topology.cone_half_angle.cos()
+            },
             cone_sin: topology.cone_half_angle.sin(),
+            cone_two_sided: topology.cone_two_sided,
             parent: topology.parent,
             first_child: hot.first_child,
             leaf_begin: self.leaf_begin[i],
@@ -424,11 +453,7 @@ impl NodeStore {
                 center: node.sphere_center,
                 radius: node.sphere_radius,
                 cone_axis: node.cone_axis,
-                cone_cos: if node.cone_half_angle < 0.0 {
-                    2.0
-                } else {
-                    node.cone_cos
-                },
+                cone_cos: Shape::cone_test(node.cone_half_angle, node.cone_two_sided),
             };
             self.leaf_begin[first + k] = node.leaf_begin;
             self.topology[first + k] = Topology {
@@ -438,6 +463,7 @@ impl NodeStore {
                 subtri_count: node.subtri_count,
                 cone_half_angle: node.cone_half_angle,
                 depth: node.depth,
+                cone_two_sided: node.cone_two_sided,
             };
         }
         let first = page.first_triangle as usize;

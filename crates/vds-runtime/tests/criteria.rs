@@ -1,5 +1,5 @@
 //! Silhouettes, backfacing regions and mesh-fold prevention, on meshes where the answer is
-//! known: a sphere seen from outside, and the cow.
+//! known: a sphere seen from outside, a thin plate (a CAD-like shell), and the cow.
 
 mod common;
 
@@ -174,6 +174,131 @@ fn silhouette_preservation_costs_triangles_only_near_the_silhouette() {
     let tight = everywhere.cut().active_triangle_count();
     assert!(counts[1] > counts[0], "{counts:?}");
     assert!(counts[1] < tight, "{counts:?} vs {tight}");
+}
+
+/// A square plate of side 2 and thickness `2h` centred at the origin: an `n`×`n` grid on
+/// the top face (facing +z), the same grid on the bottom face (facing −z) and the four rim
+/// walls between their boundaries.
+fn plate(n: u32, h: f32) -> Scene {
+    let side = n + 1;
+    let at = |i: u32, j: u32| [2.0 * i as f32 / n as f32 - 1.0, 2.0 * j as f32 / n as f32 - 1.0];
+    let mut positions = Vec::new();
+    for z in [h, -h] {
+        for j in 0..side {
+            for i in 0..side {
+                let [x, y] = at(i, j);
+                positions.push([x, y, z]);
+            }
+        }
+    }
+    let top = |i: u32, j: u32| j * side + i;
+    let bottom = |i: u32, j: u32| side * side + j * side + i;
+    let mut triangles = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let (a, b, c, d) = (top(i, j), top(i + 1, j), top(i + 1, j + 1), top(i, j + 1));
+            triangles.push([a, b, c]);
+            triangles.push([a, c, d]);
+            let (a, b, c, d) = (
+                bottom(i, j),
+                bottom(i + 1, j),
+                bottom(i + 1, j + 1),
+                bottom(i, j + 1),
+            );
+            triangles.push([a, c, b]);
+            triangles.push([a, d, c]);
+        }
+    }
+    // The rim, walking the boundary counter-clockwise seen from +z (walls face outwards).
+    let mut boundary: Vec<(u32, u32)> = (0..n).map(|i| (i, 0)).collect();
+    boundary.extend((0..n).map(|j| (n, j)));
+    boundary.extend((0..n).map(|i| (n - i, n)));
+    boundary.extend((0..n).map(|j| (0, n - j)));
+    for k in 0..boundary.len() {
+        let (p, q) = (boundary[k], boundary[(k + 1) % boundary.len()]);
+        let (tp, tq, bp, bq) = (top(p.0, p.1), top(q.0, q.1), bottom(p.0, p.1), bottom(q.0, q.1));
+        triangles.push([bp, bq, tq]);
+        triangles.push([bp, tq, tp]);
+    }
+    let count = triangles.len();
+    Scene {
+        positions,
+        triangles,
+        triangle_parts: vec![0; count],
+        part_names: vec!["plate".into()],
+        stats: Default::default(),
+    }
+}
+
+/// CAD parts are thin shells. A cluster spanning both faces of a plate has normals on both
+/// sides: its one-sided cone is wider than a hemisphere (a silhouette from every view), its
+/// two-sided cone narrow. Seen across its faces, the plate must then keep the tight
+/// threshold only at its rim: every vertex with a front and a back face (the rim, here)
+/// within `t · factor`, every visible one within `t`, and far fewer triangles than the tight
+/// threshold everywhere.
+#[test]
+fn on_a_thin_plate_only_the_rim_is_a_silhouette() {
+    let mut scene = plate(96, 0.002);
+    let bytes = vdt_bytes(&mut scene);
+    let file = vds_format::VdtFile::from_bytes(bytes.clone()).unwrap();
+    let two_sided = file
+        .read_all_pages()
+        .unwrap()
+        .iter()
+        .flat_map(|page| page.nodes.iter())
+        .filter(|n| n.flags & vds_format::FLAG_TWO_SIDED_CONE != 0)
+        .count();
+    assert!(two_sided > 100, "nodes spanning both faces: {two_sided}");
+    let camera = Camera::framing([0.0; 3], 1.5, [0.2, 0.3, 1.0], 600, 600);
+    let view = camera.view();
+    let (positions, facing) = vertex_facing(&bytes, view.eye);
+    let (t, factor) = (8.0f32, 0.25f32);
+    let count = |criteria: &Criteria, t: f32| {
+        let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+        runtime
+            .adjust(&Viewpoint::Camera(camera), criteria, Goal::Threshold(t))
+            .unwrap();
+        runtime.cut_mut().check().unwrap();
+        runtime
+    };
+    let criteria = Criteria {
+        silhouette_factor: Some(factor),
+        ..Criteria::default()
+    };
+    let runtime = count(&criteria, t);
+    let cut = runtime.cut();
+    let mut rim_vertices = 0;
+    for (rank, &p) in positions.iter().enumerate() {
+        let v = Vec3::from(p);
+        let (front, back) = facing[rank];
+        if !view.contains(v) || !front {
+            continue;
+        }
+        let proxy = Vec3::from(cut.node(cut.current_proxy_node(rank as u32)).proxy);
+        let (a, b) = (view.project(v).unwrap(), view.project(proxy).unwrap());
+        let moved = (a[0] - b[0]).hypot(a[1] - b[1]);
+        let limit = if back {
+            rim_vertices += 1;
+            t * factor
+        } else {
+            t
+        };
+        assert!(
+            moved <= f64::from(limit) * (1.0 + 1e-4) + 1e-4,
+            "vertex {rank} moved {moved} px > {limit} px"
+        );
+    }
+    assert!(rim_vertices > 100, "the rim was not seen: {rim_vertices}");
+    let with_silhouettes = cut.active_triangle_count();
+    let no_silhouettes = Criteria {
+        silhouette_factor: None,
+        ..Criteria::default()
+    };
+    let tight_everywhere = count(&no_silhouettes, t * factor).cut().active_triangle_count();
+    assert!(
+        with_silhouettes * 3 < tight_everywhere,
+        "{with_silhouettes} triangles with silhouettes vs {tight_everywhere} at t·factor everywhere"
+    );
 }
 
 #[test]
