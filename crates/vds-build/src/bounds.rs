@@ -237,7 +237,11 @@ mod tests {
 
     #[test]
     fn two_sided_cones_of_opposite_faces_are_narrow() {
-        let plate = [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.0, 0.1f64.sin(), -(0.1f64.cos())]];
+        let plate = [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [0.0, 0.1f64.sin(), -(0.1f64.cos())],
+        ];
         let one_sided = NormalCone::fit(plate.into_iter());
         let two_sided = NormalCone::fit_two_sided(plate.into_iter());
         assert!(one_sided.half_angle > 3.0);

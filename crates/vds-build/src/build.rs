@@ -138,8 +138,11 @@ struct Accumulator {
     vertex_box: Aabb,
     triangle_box: Aabb,
     cone: NormalCone,
-    /// The two-sided cone of the same normals.
-    two_sided: NormalCone,
+    /// A two-sided cone of the same normals, or `None` where the one-sided cone is narrower
+    /// than a hemisphere and stands in for it (a one-sided cone bounds its normals up to sign
+    /// too). Fitting and merging two-sided cones only where one-sided ones fail keeps their
+    /// cost to thin-shell regions.
+    two_sided: Option<NormalCone>,
 }
 
 fn widen(p: [f32; 3]) -> [f64; 3] {
@@ -270,12 +273,13 @@ fn leaf_attributes(
         .fold(distance_squared(widen(center), p), f64::max)
         .sqrt();
     let cone = NormalCone::fit(scratch.iter().filter_map(|t| t.normal));
-    let two_sided = NormalCone::fit_two_sided(scratch.iter().filter_map(|t| t.normal));
+    let two_sided = (cone.half_angle >= std::f64::consts::FRAC_PI_2)
+        .then(|| NormalCone::fit_two_sided(scratch.iter().filter_map(|t| t.normal)));
     node.proxy = position;
     node.error_radius = 0.0;
     node.sphere_center = center;
     node.sphere_radius = round_up_f32(radius);
-    store_cone(node, &cone, &two_sided);
+    store_cone(node, &cone, two_sided.as_ref());
     let mut vertex_box = Aabb::EMPTY;
     vertex_box.add_point(p);
     Accumulator {
@@ -290,6 +294,7 @@ fn leaf_attributes(
 
 impl Accumulator {
     fn combine(mut self, other: &Accumulator) -> Accumulator {
+        let before = self.cone;
         self.quadric.add(&other.quadric);
         for k in 0..3 {
             self.position_sum[k] += other.position_sum[k];
@@ -297,7 +302,14 @@ impl Accumulator {
         self.vertex_box.add_box(&other.vertex_box);
         self.triangle_box.add_box(&other.triangle_box);
         self.cone = self.cone.merge(&other.cone);
-        self.two_sided = self.two_sided.merge_two_sided(&other.two_sided);
+        let narrow = self.cone.half_angle < std::f64::consts::FRAC_PI_2;
+        self.two_sided = match (self.two_sided, other.two_sided) {
+            (None, None) if narrow => None,
+            (mine, theirs) => Some(
+                mine.unwrap_or(before)
+                    .merge_two_sided(&theirs.unwrap_or(other.cone)),
+            ),
+        };
         self
     }
 }
@@ -323,17 +335,18 @@ fn inner_attributes(
         .fold(0.0, f64::max);
     node.sphere_center = center;
     node.sphere_radius = round_up_f32(sphere_radius);
-    store_cone(node, &sum.cone, &sum.two_sided);
+    store_cone(node, &sum.cone, sum.two_sided.as_ref());
 }
 
 /// Stores the one-sided cone, or the two-sided one where the one-sided cone is wider than a
 /// hemisphere (no view then sees only backs, and every view sees a possible silhouette: the
 /// cone tells nothing) and the two-sided cone is narrower than a hemisphere.
-fn store_cone(node: &mut Node, cone: &NormalCone, two_sided: &NormalCone) {
+fn store_cone(node: &mut Node, cone: &NormalCone, two_sided: Option<&NormalCone>) {
     let half_pi = std::f64::consts::FRAC_PI_2;
-    let use_two_sided =
-        !cone.is_empty() && cone.half_angle >= half_pi && two_sided.half_angle < half_pi;
-    let chosen = if use_two_sided { two_sided } else { cone };
+    let two_sided = two_sided
+        .filter(|c| !cone.is_empty() && cone.half_angle >= half_pi && c.half_angle < half_pi);
+    let use_two_sided = two_sided.is_some();
+    let chosen = two_sided.unwrap_or(cone);
     node.cone_axis = chosen.axis.map(|c| c as f32);
     node.cone_half_angle = if chosen.is_empty() {
         -1.0

@@ -172,7 +172,10 @@ fn reads_version_2_without_two_sided_cones() {
             .iter()
             .any(|n| n.flags & vds_format::FLAG_TWO_SIDED_CONE != 0)
     };
-    assert!(pages.iter().any(flagged), "the bunny has a few two-sided cones");
+    assert!(
+        pages.iter().any(flagged),
+        "the bunny has a few two-sided cones"
+    );
     let mut old = bytes;
     old[8..12].copy_from_slice(&2u32.to_le_bytes());
     fix_checksums(&mut old);

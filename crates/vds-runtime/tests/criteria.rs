@@ -181,7 +181,12 @@ fn silhouette_preservation_costs_triangles_only_near_the_silhouette() {
 /// walls between their boundaries.
 fn plate(n: u32, h: f32) -> Scene {
     let side = n + 1;
-    let at = |i: u32, j: u32| [2.0 * i as f32 / n as f32 - 1.0, 2.0 * j as f32 / n as f32 - 1.0];
+    let at = |i: u32, j: u32| {
+        [
+            2.0 * i as f32 / n as f32 - 1.0,
+            2.0 * j as f32 / n as f32 - 1.0,
+        ]
+    };
     let mut positions = Vec::new();
     for z in [h, -h] {
         for j in 0..side {
@@ -216,7 +221,12 @@ fn plate(n: u32, h: f32) -> Scene {
     boundary.extend((0..n).map(|j| (0, n - j)));
     for k in 0..boundary.len() {
         let (p, q) = (boundary[k], boundary[(k + 1) % boundary.len()]);
-        let (tp, tq, bp, bq) = (top(p.0, p.1), top(q.0, q.1), bottom(p.0, p.1), bottom(q.0, q.1));
+        let (tp, tq, bp, bq) = (
+            top(p.0, p.1),
+            top(q.0, q.1),
+            bottom(p.0, p.1),
+            bottom(q.0, q.1),
+        );
         triangles.push([bp, bq, tq]);
         triangles.push([bp, tq, tp]);
     }
@@ -294,7 +304,9 @@ fn on_a_thin_plate_only_the_rim_is_a_silhouette() {
         silhouette_factor: None,
         ..Criteria::default()
     };
-    let tight_everywhere = count(&no_silhouettes, t * factor).cut().active_triangle_count();
+    let tight_everywhere = count(&no_silhouettes, t * factor)
+        .cut()
+        .active_triangle_count();
     assert!(
         with_silhouettes * 3 < tight_everywhere,
         "{with_silhouettes} triangles with silhouettes vs {tight_everywhere} at t·factor everywhere"
