@@ -7,24 +7,26 @@
 
 use crate::quadric::{cross, dot, sub};
 
-/// An axis-aligned box; empty when `min > max`.
+/// An axis-aligned box of input positions; empty when `min > max`. Stored in `f32`: it only
+/// ever holds input coordinates, whose minima and maxima are exact in `f32`, and the build
+/// keeps one per node of two tree levels at once, so half the bytes matter.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Aabb {
     /// Lower corner.
-    pub min: [f64; 3],
+    pub min: [f32; 3],
     /// Upper corner.
-    pub max: [f64; 3],
+    pub max: [f32; 3],
 }
 
 impl Aabb {
     /// The empty box.
     pub const EMPTY: Aabb = Aabb {
-        min: [f64::INFINITY; 3],
-        max: [f64::NEG_INFINITY; 3],
+        min: [f32::INFINITY; 3],
+        max: [f32::NEG_INFINITY; 3],
     };
 
     /// Grows the box to contain `p`.
-    pub fn add_point(&mut self, p: [f64; 3]) {
+    pub fn add_point(&mut self, p: [f32; 3]) {
         for k in 0..3 {
             self.min[k] = self.min[k].min(p[k]);
             self.max[k] = self.max[k].max(p[k]);
@@ -39,14 +41,14 @@ impl Aabb {
         }
     }
 
-    /// The centre.
+    /// The centre (in `f64`, exactly the midpoint of the `f32` corners).
     pub fn center(&self) -> [f64; 3] {
-        [0, 1, 2].map(|k| 0.5 * (self.min[k] + self.max[k]))
+        [0, 1, 2].map(|k| 0.5 * (f64::from(self.min[k]) + f64::from(self.max[k])))
     }
 
     /// The nearest point of the box to `p`.
     pub fn clamp(&self, p: [f64; 3]) -> [f64; 3] {
-        [0, 1, 2].map(|k| p[k].clamp(self.min[k], self.max[k]))
+        [0, 1, 2].map(|k| p[k].clamp(f64::from(self.min[k]), f64::from(self.max[k])))
     }
 }
 
