@@ -104,17 +104,14 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
     nodes.push(Node::topology(0, positions.len() as u32, NO_PARENT, 0));
     let mut level_starts = vec![0u32];
     let mut level = 0..1usize;
-    // The bounds of each node of the current level, filled by its parent's split.
-    let mut level_bounds = vec![Bounds::of(&items)];
     let mut reading_first = true;
     while !level.is_empty() {
         // Hand each splittable node of this level its own slices of both buffers.
-        let mut work: Vec<(usize, Bounds, &mut [Item], &mut [Item])> =
-            Vec::with_capacity(level.len());
+        let mut work: Vec<(usize, &mut [Item], &mut [Item])> = Vec::with_capacity(level.len());
         let mut rest_first: &mut [Item] = &mut items;
         let mut rest_second: &mut [Item] = &mut second;
         let mut consumed = 0usize;
-        for (id, bounds) in level.clone().zip(&level_bounds) {
+        for id in level.clone() {
             let node = nodes[id];
             let (begin, end) = (node.leaf_begin as usize, node.leaf_end as usize);
             let (_, tail) = std::mem::take(&mut rest_first).split_at_mut(begin - consumed);
@@ -130,19 +127,17 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
                 } else {
                     (second, first)
                 };
-                work.push((id, *bounds, from, to));
+                work.push((id, from, to));
             } else if !reading_first {
                 first[0] = second[0];
             }
         }
         let splits: Vec<(usize, Children)> = work
             .into_par_iter()
-            .map(|(id, bounds, from, to)| (id, split(from, to, &bounds)))
+            .map(|(id, from, to)| (id, split(from, to)))
             .collect();
         reading_first = !reading_first;
         let next_start = nodes.len();
-        level_bounds.clear();
-        level_bounds.reserve(splits.iter().map(|(_, c)| c.count).sum());
         for (id, children) in splits {
             let parent = nodes[id];
             nodes[id].first_child = nodes.len() as u32;
@@ -156,7 +151,6 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
                     id as u32,
                     parent.depth + 1,
                 ));
-                level_bounds.push(children.bounds[k]);
                 begin += size;
             }
         }
@@ -172,17 +166,18 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
     }
 }
 
-/// A node's children, in order: sizes and bounds (at most eight; no heap allocation).
+/// A node's children, in order: their sizes (at most eight; no heap allocation). Small on
+/// purpose: a level's splits are all alive at once, millions on the widest level. (Returning
+/// the children's bounds too, 192 more bytes each, saved a pass over each node's items but
+/// made the clustering the build's peak of memory, and fresh memory costs more here.)
 struct Children {
     sizes: [u32; 8],
-    bounds: [Bounds; 8],
     count: usize,
 }
 
-/// Writes `from` (≥ 2 items, with bounds `bounds`) into `to`, grouped by child in order,
-/// and returns the children.
-fn split(from: &[Item], to: &mut [Item], bounds: &Bounds) -> Children {
-    let (min, max) = (bounds.min, bounds.max);
+/// Writes `from` (≥ 2 items) into `to`, grouped by child in order, and returns the children.
+fn split(from: &[Item], to: &mut [Item]) -> Children {
+    let Bounds { min, max } = Bounds::of(from);
     let side = (0..3).map(|k| max[k] - min[k]).fold(0.0f32, f32::max);
     if side > 0.0 {
         let mid = [0, 1, 2].map(|k| min[k] + 0.5 * side);
@@ -202,24 +197,19 @@ fn split(from: &[Item], to: &mut [Item], bounds: &Bounds) -> Children {
                 offsets[k] = total;
                 total += counts[k];
             }
-            // Stable scatter by octant; each child's bounds are gathered on the way, so the
-            // next level needs no separate pass to find them.
-            let mut child_bounds = [Bounds::EMPTY; 8];
+            // Stable scatter by octant.
             for item in from {
                 let o = octant(item.position);
                 to[offsets[o] as usize] = *item;
                 offsets[o] += 1;
-                child_bounds[o].add(item.position);
             }
             let mut children = Children {
                 sizes: [0; 8],
-                bounds: [Bounds::EMPTY; 8],
                 count: 0,
             };
             for k in 0..8 {
                 if counts[k] > 0 {
                     children.sizes[children.count] = counts[k];
-                    children.bounds[children.count] = child_bounds[k];
                     children.count += 1;
                 }
             }
@@ -232,15 +222,10 @@ fn split(from: &[Item], to: &mut [Item], bounds: &Bounds) -> Children {
     let parts = n.min(8);
     let mut children = Children {
         sizes: [0; 8],
-        bounds: [Bounds::EMPTY; 8],
         count: parts as usize,
     };
-    let mut begin = 0usize;
     for k in 0..parts as usize {
-        let size = n / parts + u32::from((k as u32) < n % parts);
-        children.sizes[k] = size;
-        children.bounds[k] = Bounds::of(&from[begin..begin + size as usize]);
-        begin += size as usize;
+        children.sizes[k] = n / parts + u32::from((k as u32) < n % parts);
     }
     children
 }
