@@ -1,4 +1,4 @@
-//! The page encoding of version 2: nodes and triangles as columns of small integers
+//! The page encoding (versions 2 and 3): nodes and triangles as columns of small integers
 //! (LEB128 varints, zig-zag for signed deltas), each column in its own stream so zstd sees
 //! similar bytes together. Positions are grid coordinates delta-coded against the previous
 //! node; leaf ids are coded relative to the owning node's leaf range; leaves carry no bounds
