@@ -1,9 +1,11 @@
 //! The GPU mirror of a cut and the pipeline that draws it.
 //!
-//! Four bindings (see `shaders/cut.wgsl`): per-frame uniforms, node records (`vec4` proxy and
-//! error radius, `vec2<u32>` depth and normal) indexed by node id, and the slot array. Updates
-//! write only the runs a [`CutUpdate`] carries; the slot array grows by reallocation (the old
-//! contents copied on the GPU) and is split into chunks no larger than the adapter can bind.
+//! Five bindings (see `shaders/cut.wgsl`): per-frame uniforms, vertex records (`vec4` proxy
+//! and error radius, `vec2<u32>` depth and normal, `vec4` sphere) indexed by the vertex
+//! indices a [`crate::update::VertexPool`] hands out, and the slot array. Updates write only
+//! the runs a [`CutUpdate`] carries; the vertex buffers and the slot array grow by
+//! reallocation (the old contents copied on the GPU), and the slot array is split into chunks
+//! no larger than the adapter can bind.
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3, Vec4};
@@ -218,13 +220,35 @@ struct SlotChunk {
     bind_group: wgpu::BindGroup,
 }
 
+/// Vertices a new mirror holds before its first growth.
+const INITIAL_VERTICES: u32 = 1 << 12;
+
+/// The three vertex buffers (positions and error radii, depth and normal, spheres) for
+/// `capacity` vertices.
+fn vertex_buffers(gpu: &Gpu, capacity: u32) -> [wgpu::Buffer; 3] {
+    let usage =
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC;
+    [("nodes", 16u64), ("node attrs", 8), ("node spheres", 16)].map(|(label, bytes)| {
+        gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: u64::from(capacity.max(1)) * bytes,
+            usage,
+            mapped_at_creation: false,
+        })
+    })
+}
+
 /// A cut (or a brute-force mesh) on the GPU.
 pub struct GpuCut {
     uniforms: wgpu::Buffer,
+    /// Vertex records (`nodes`, `node_attrs`, `node_spheres` in the shader), grown by
+    /// reallocation like the slots.
     nodes: wgpu::Buffer,
     node_attrs: wgpu::Buffer,
     node_spheres: wgpu::Buffer,
-    node_capacity: u32,
+    vertex_capacity: u32,
+    /// The most vertices one binding can hold on this adapter.
+    vertex_limit: u32,
     /// Slots per full chunk.
     chunk_slots: u32,
     chunks: Vec<SlotChunk>,
@@ -233,51 +257,81 @@ pub struct GpuCut {
 }
 
 impl GpuCut {
-    /// Buffers for a tree of `node_count` nodes (or a mesh of that many vertices).
-    pub fn new(gpu: &Gpu, node_count: u32) -> Result<GpuCut, RenderError> {
-        GpuCut::with_chunk_slots(gpu, node_count, u32::MAX)
+    /// An empty mirror; its buffers grow as updates need.
+    pub fn new(gpu: &Gpu) -> GpuCut {
+        GpuCut::with_chunk_slots(gpu, u32::MAX)
     }
 
     /// [`GpuCut::new`] with slot chunks of at most `chunk_slots` slots (the adapter's limit
     /// applies too); small chunks exercise the chunked path in tests.
-    pub fn with_chunk_slots(
-        gpu: &Gpu,
-        node_count: u32,
-        chunk_slots: u32,
-    ) -> Result<GpuCut, RenderError> {
+    pub fn with_chunk_slots(gpu: &Gpu, chunk_slots: u32) -> GpuCut {
         let limit = gpu.device.limits().max_storage_buffer_binding_size;
-        let node_bytes = u64::from(node_count.max(1)) * 16;
-        if node_bytes > limit {
-            return Err(RenderError::TooLarge(format!(
-                "{node_count} nodes need {node_bytes} bytes of storage; the adapter binds at most {limit}"
-            )));
-        }
-        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let buffer = |label, size: u64, usage| {
-            gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size,
-                usage,
+        let [nodes, node_attrs, node_spheres] = vertex_buffers(gpu, INITIAL_VERTICES);
+        GpuCut {
+            uniforms: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("frame uniforms"),
+                size: size_of::<FrameUniforms>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
-            })
-        };
-        Ok(GpuCut {
-            uniforms: buffer(
-                "frame uniforms",
-                size_of::<FrameUniforms>() as u64,
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            ),
-            nodes: buffer("nodes", node_bytes, storage),
-            node_attrs: buffer("node attrs", u64::from(node_count.max(1)) * 8, storage),
-            node_spheres: buffer("node spheres", node_bytes, storage),
-            node_capacity: node_count,
+            }),
+            nodes,
+            node_attrs,
+            node_spheres,
+            vertex_capacity: INITIAL_VERTICES,
+            vertex_limit: (limit / 16).min(u64::from(u32::MAX)) as u32,
             chunk_slots: (limit / 16)
                 .min(u64::from(u32::MAX / 3))
                 .min(u64::from(chunk_slots.max(1))) as u32,
             chunks: Vec::new(),
             slot_count: 0,
             max_depth: 0,
-        })
+        }
+    }
+
+    /// Vertices the buffers hold now.
+    pub fn vertex_capacity(&self) -> u32 {
+        self.vertex_capacity
+    }
+
+    /// Makes room for `needed` vertices: the three vertex buffers grow by at least 1.5×, their
+    /// contents copied on the GPU, and every slot chunk's bind group is remade over them.
+    fn reserve_vertices(
+        &mut self,
+        gpu: &Gpu,
+        pipeline: &CutPipeline,
+        needed: u32,
+    ) -> Result<(), RenderError> {
+        if needed <= self.vertex_capacity {
+            return Ok(());
+        }
+        if needed > self.vertex_limit {
+            return Err(RenderError::TooLarge(format!(
+                "{needed} vertices need {} bytes of storage; the adapter binds at most {}",
+                u64::from(needed) * 16,
+                u64::from(self.vertex_limit) * 16
+            )));
+        }
+        let capacity = needed
+            .max(self.vertex_capacity.saturating_mul(3) / 2)
+            .min(self.vertex_limit);
+        let grown = vertex_buffers(gpu, capacity);
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("grow vertices"),
+            });
+        let old = [&self.nodes, &self.node_attrs, &self.node_spheres];
+        for ((from, to), bytes) in old.into_iter().zip(&grown).zip([16u64, 8, 16]) {
+            encoder.copy_buffer_to_buffer(from, 0, to, 0, u64::from(self.vertex_capacity) * bytes);
+        }
+        gpu.queue.submit([encoder.finish()]);
+        [self.nodes, self.node_attrs, self.node_spheres] = grown;
+        self.vertex_capacity = capacity;
+        for k in 0..self.chunks.len() {
+            let bind_group = self.bind_group(gpu, pipeline, &self.chunks[k].buffer);
+            self.chunks[k].bind_group = bind_group;
+        }
+        Ok(())
     }
 
     fn chunk(&self, gpu: &Gpu, pipeline: &CutPipeline, capacity: u32) -> SlotChunk {
@@ -289,11 +343,26 @@ impl GpuCut {
                 | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
+        let bind_group = self.bind_group(gpu, pipeline, &buffer);
+        SlotChunk {
+            buffer,
+            capacity,
+            bind_group,
+        }
+    }
+
+    /// The bind group of one slot chunk over the current vertex buffers.
+    fn bind_group(
+        &self,
+        gpu: &Gpu,
+        pipeline: &CutPipeline,
+        slots: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
         let buffers = [
             &self.uniforms,
             &self.nodes,
             &self.node_attrs,
-            &buffer,
+            slots,
             &self.node_spheres,
         ];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
@@ -304,16 +373,11 @@ impl GpuCut {
                 resource: buffer.as_entire_binding(),
             })
             .collect();
-        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("cut bind group"),
             layout: &pipeline.layout,
             entries: &entries,
-        });
-        SlotChunk {
-            buffer,
-            capacity,
-            bind_group,
-        }
+        })
     }
 
     /// Number of slots drawn (free ones included, as empty triangles).
@@ -329,14 +393,15 @@ impl GpuCut {
         pipeline: &CutPipeline,
         update: &CutUpdate,
     ) -> Result<u64, RenderError> {
+        self.reserve_vertices(gpu, pipeline, update.vertex_count)?;
         self.reserve(gpu, pipeline, update.slot_count);
         let mut bytes = 0u64;
         for (first, records) in &update.nodes {
-            if u64::from(*first) + records.len() as u64 > u64::from(self.node_capacity) {
+            if u64::from(*first) + records.len() as u64 > u64::from(self.vertex_capacity) {
                 return Err(RenderError::TooLarge(format!(
-                    "node {} is beyond the {} nodes this mirror was made for",
+                    "vertex {} is beyond the update's vertex count {}",
                     u64::from(*first) + records.len() as u64 - 1,
-                    self.node_capacity
+                    update.vertex_count
                 )));
             }
             let positions: Vec<[f32; 4]> = records.iter().map(|n| n.position_error).collect();

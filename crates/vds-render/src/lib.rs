@@ -2,12 +2,14 @@
 //! uploads, drawn by one pipeline into a window surface or an offscreen target.
 //!
 //! - [`gpu`]: device creation (headless or for a surface).
-//! - [`update`]: the CPU-side batch of changes ([`CutUpdate`]) collected after an adjust.
+//! - [`update`]: the CPU-side batch of changes ([`CutUpdate`]) collected after an adjust by a
+//!   [`VertexPool`], which gives GPU vertices only to the nodes the cut uses.
 //! - [`cut_renderer`]: buffers, uploads, the pipeline and `shaders/cut.wgsl`.
 //! - [`target`]: offscreen targets, readback, PNG files.
 //!
-//! Positions are never re-uploaded per frame: node records go up once, when their page loads;
-//! per frame only the slots that changed are written.
+//! Positions are never re-uploaded per frame: a node's vertex record goes up when the cut
+//! starts to use it; per frame only those and the slots that changed are written. GPU memory
+//! follows the cut, not the model.
 
 #![deny(missing_docs)]
 
@@ -24,7 +26,7 @@ pub fn target_format() -> wgpu::TextureFormat {
 }
 pub use gpu::Gpu;
 pub use target::{Image, Offscreen};
-pub use update::{CutUpdate, GpuNode};
+pub use update::{CutUpdate, GpuNode, VertexPool};
 
 /// What can go wrong while rendering.
 #[derive(Debug, thiserror::Error)]

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use vds_build::{build_tree, snap_to_grid, tree_content};
 use vds_format::{VdtFile, WriteOptions, encode};
 use vds_import::Scene;
-use vds_render::{CutPipeline, CutUpdate, Gpu, GpuCut, Image, Offscreen, Style};
+use vds_render::{CutPipeline, CutUpdate, Gpu, GpuCut, Image, Offscreen, Style, VertexPool};
 use vds_runtime::{Camera, CornerTracking, Criteria, FrustumMode, Goal, Runtime, Viewpoint};
 
 fn shared(name: &str) -> PathBuf {
@@ -76,9 +76,8 @@ impl Renderer {
         let frame = runtime
             .adjust(&Viewpoint::Camera(camera), criteria, goal)
             .unwrap();
-        let node_count = runtime.cut().store().node_count();
-        let mut gpu_cut = GpuCut::new(&self.gpu, node_count).unwrap();
-        let update = CutUpdate::collect(runtime.cut_mut(), &frame.changes);
+        let mut gpu_cut = GpuCut::new(&self.gpu);
+        let update = VertexPool::new().collect(runtime.cut_mut(), &frame.changes);
         gpu_cut.apply(&self.gpu, &self.pipeline, &update).unwrap();
         self.draw(&gpu_cut, camera, style)
     }
@@ -86,7 +85,7 @@ impl Renderer {
     fn mesh(&self, scene: &Scene, camera: Camera, style: &Style) -> Image {
         let update =
             CutUpdate::whole_mesh(&scene.positions, &scene.triangles, &scene.triangle_parts);
-        let mut gpu_cut = GpuCut::new(&self.gpu, scene.positions.len() as u32).unwrap();
+        let mut gpu_cut = GpuCut::new(&self.gpu);
         gpu_cut.apply(&self.gpu, &self.pipeline, &update).unwrap();
         self.draw(&gpu_cut, camera, style)
     }
@@ -276,15 +275,15 @@ fn chunked_slot_buffers_draw_the_same_image() {
     for chunk_slots in [u32::MAX, 700] {
         let mut runtime = runtime(&bytes);
         let camera = framing(&runtime, [1.0, 0.4, 1.3], 320, 240);
-        let node_count = runtime.cut().store().node_count();
-        let mut gpu_cut = GpuCut::with_chunk_slots(&renderer.gpu, node_count, chunk_slots).unwrap();
+        let mut gpu_cut = GpuCut::with_chunk_slots(&renderer.gpu, chunk_slots);
+        let mut pool = VertexPool::new();
         // Coarse, then full detail, then coarser again: slots grow across chunk boundaries
         // and later updates write runs that straddle them.
         for t in [16.0, 0.0, 3.0] {
             let frame = runtime
                 .adjust(&Viewpoint::Camera(camera), &criteria, Goal::Threshold(t))
                 .unwrap();
-            let update = CutUpdate::collect(runtime.cut_mut(), &frame.changes);
+            let update = pool.collect(runtime.cut_mut(), &frame.changes);
             gpu_cut
                 .apply(&renderer.gpu, &renderer.pipeline, &update)
                 .unwrap();
@@ -294,4 +293,64 @@ fn chunked_slot_buffers_draw_the_same_image() {
     }
     assert!(covered_pixels(&images[0]) > 5_000);
     assert_eq!(differing_pixels(&images[0], &images[1], 0), 0);
+}
+
+/// GPU memory follows the cut: along a camera path that refines and coarsens, a vertex pool
+/// updated frame by frame holds exactly one vertex per node the active triangles use, reuses
+/// the vertices it frees, and draws what a fresh upload of the final cut draws.
+#[test]
+fn vertex_pool_holds_the_cut_and_draws_like_a_fresh_upload() {
+    let renderer = Renderer::new();
+    let (_, bytes) = build(vds_import::load_file(shared("cow.obj"), &Default::default()).unwrap());
+    let mut runtime = runtime(&bytes);
+    let node_count = runtime.cut().store().node_count();
+    let camera = framing(&runtime, [1.0, 0.4, 1.3], 320, 240);
+    let other = framing(&runtime, [0.3, 0.2, 0.5], 320, 240);
+    let mut gpu_cut = GpuCut::new(&renderer.gpu);
+    let mut pool = VertexPool::new();
+    let mut most = 0;
+    for (camera, t) in [
+        (camera, 8.0),
+        (camera, 0.0),
+        (other, 1.0),
+        (camera, 4.0),
+        (other, 16.0),
+    ] {
+        let frame = runtime
+            .adjust(
+                &Viewpoint::Camera(camera),
+                &Criteria::default(),
+                Goal::Threshold(t),
+            )
+            .unwrap();
+        let update = pool.collect(runtime.cut_mut(), &frame.changes);
+        gpu_cut
+            .apply(&renderer.gpu, &renderer.pipeline, &update)
+            .unwrap();
+        let cut = runtime.cut_mut();
+        let mut corners: Vec<u32> = cut
+            .active_triangles()
+            .iter()
+            .flat_map(|t| t.corners)
+            .collect();
+        corners.sort_unstable();
+        corners.dedup();
+        assert_eq!(pool.vertices_in_use(), corners.len(), "t = {t}");
+        most = most.max(corners.len());
+    }
+    assert!(
+        (gpu_cut.vertex_capacity() as usize) < most * 2,
+        "vertex buffers grow with the cut: {} for at most {most} vertices",
+        gpu_cut.vertex_capacity()
+    );
+    assert!((most as u32) < node_count);
+    let incremental = renderer.draw(&gpu_cut, other, &Style::default());
+    let mut fresh = GpuCut::new(&renderer.gpu);
+    let update = VertexPool::new().everything(runtime.cut_mut());
+    fresh
+        .apply(&renderer.gpu, &renderer.pipeline, &update)
+        .unwrap();
+    let from_scratch = renderer.draw(&fresh, other, &Style::default());
+    assert!(covered_pixels(&from_scratch) > 5_000);
+    assert_eq!(differing_pixels(&incremental, &from_scratch, 0), 0);
 }

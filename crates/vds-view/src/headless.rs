@@ -79,6 +79,8 @@ impl FrameRow {
 #[derive(Default)]
 struct Mirror {
     slots: Vec<[u32; 4]>,
+    /// The node each GPU vertex holds.
+    vertex_nodes: Vec<u32>,
 }
 
 impl Mirror {
@@ -89,6 +91,29 @@ impl Mirror {
             let first = *first as usize;
             self.slots[first..first + contents.len()].copy_from_slice(contents);
         }
+        self.vertex_nodes
+            .resize(update.vertex_count as usize, u32::MAX);
+        for ((first, _), nodes) in update.nodes.iter().zip(&update.vertex_nodes) {
+            let first = *first as usize;
+            self.vertex_nodes[first..first + nodes.len()].copy_from_slice(nodes);
+        }
+    }
+
+    /// The slots as the cut's nodes: `[corner node, corner node, corner node, part]`.
+    fn triangles(&self) -> impl Iterator<Item = [u32; 4]> + '_ {
+        self.slots.iter().map(|&slot| {
+            if slot == vds_render::update::EMPTY_SLOT {
+                slot
+            } else {
+                let node = |v: u32| {
+                    self.vertex_nodes
+                        .get(v as usize)
+                        .copied()
+                        .unwrap_or(u32::MAX)
+                };
+                [node(slot[0]), node(slot[1]), node(slot[2]), slot[3]]
+            }
+        })
     }
 }
 
@@ -123,7 +148,7 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
             .mesh
             .take()
             .context("brute force needs the original mesh")?;
-        let mut gpu_cut = GpuCut::new(&gpu, mesh.positions.len() as u32)?;
+        let mut gpu_cut = GpuCut::new(&gpu);
         let update = CutUpdate::whole_mesh(&mesh.positions, &mesh.triangles, &mesh.triangle_parts);
         let upload = gpu_cut.apply(&gpu, &pipeline, &update)?;
         for (i, camera) in headless.path.cameras.iter().enumerate() {
@@ -149,8 +174,7 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
         return Ok(rows);
     }
 
-    let node_count = model.runtime.cut().store().node_count();
-    let mut gpu_cut = GpuCut::new(&gpu, node_count)?;
+    let mut gpu_cut = GpuCut::new(&gpu);
     let mut mirror = headless.verify.then(Mirror::default);
     let mut simplifier = Some(Simplifier::new(model.runtime, headless.verify));
     let asynchronous = headless
@@ -190,7 +214,7 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
             last_figures = batch.figures;
             if let (Some(mirror), Some(expected)) = (&mut mirror, batch.fingerprint) {
                 mirror.apply(&batch.update);
-                let got = fingerprint(mirror.slots.iter().copied());
+                let got = fingerprint(mirror.triangles());
                 anyhow::ensure!(
                     got == expected,
                     "frame {i}: the renderer's triangles differ from the cut after the adjust"

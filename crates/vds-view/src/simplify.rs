@@ -15,7 +15,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
-use vds_render::CutUpdate;
+use vds_render::{CutUpdate, VertexPool};
 use vds_runtime::{Camera, Criteria, Goal, Runtime, Viewpoint};
 
 /// What the cut is asked for.
@@ -73,6 +73,8 @@ pub fn fingerprint(slots: impl Iterator<Item = [u32; 4]>) -> u64 {
 /// The runtime and how to turn its adjusts into batches.
 pub struct Simplifier {
     runtime: Runtime,
+    /// Which nodes the GPU mirror holds as vertices.
+    pool: VertexPool,
     verify: bool,
 }
 
@@ -80,7 +82,11 @@ impl Simplifier {
     /// A simplifier over `runtime`; `verify` checks the cut after every adjust and
     /// fingerprints it (slow: for tests).
     pub fn new(runtime: Runtime, verify: bool) -> Simplifier {
-        Simplifier { runtime, verify }
+        Simplifier {
+            runtime,
+            pool: VertexPool::new(),
+            verify,
+        }
     }
 
     /// The runtime.
@@ -96,7 +102,7 @@ impl Simplifier {
             &settings.criteria,
             settings.goal,
         )?;
-        let update = CutUpdate::collect(self.runtime.cut_mut(), &frame.changes);
+        let update = self.pool.collect(self.runtime.cut_mut(), &frame.changes);
         let adjust_ms = start.elapsed().as_secs_f64() * 1e3;
         let fingerprint = if self.verify {
             self.runtime

@@ -133,11 +133,7 @@ impl App {
         config.present_mode = wgpu::PresentMode::AutoNoVsync;
         surface.configure(&gpu.device, &config);
         let pipeline = CutPipeline::new(&gpu, config.format);
-        let node_count = match &self.engine {
-            Some(Engine::Sync(s)) => s.runtime().cut().store().node_count(),
-            _ => unreachable!("the engine starts synchronous"),
-        };
-        let gpu_cut = GpuCut::new(&gpu, node_count)?;
+        let gpu_cut = GpuCut::new(&gpu);
         let pages = match &self.engine {
             Some(Engine::Sync(s)) => s.runtime().cut().store().pages_resident().1,
             _ => 0,
