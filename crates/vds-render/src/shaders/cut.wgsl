@@ -1,6 +1,7 @@
 // The cut, drawn by vertex pulling: vertex `i` is corner `i % 3` of slot `i / 3`. Slots hold
-// node ids (and a part id); nodes hold proxy positions. A free slot becomes a zero-area
-// triangle. Each vertex reads only its own corner's node (on the software rasteriser
+// vertex indices (and a part id); the vertex records (`nodes`, `node_attrs`, `node_spheres`)
+// hold the proxy positions of the nodes the cut uses (`VertexPool` in update.rs). A free slot
+// becomes a zero-area triangle. Each vertex reads only its own corner's record (on the software rasteriser
 // the vertex fetches dominate, and slots are in no spatial order): the face normal comes from
 // screen-space derivatives of the position, and per-triangle colours from the provoking
 // (first) vertex. Mirrors `FrameUniforms` and `GpuNode` in the Rust code.
