@@ -273,7 +273,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
         scene.positions.len(),
         scene.triangles.len(),
         scene.part_names.len(),
-        scene.stats.clone(),
+        scene.stats,
     );
     let (nodes, depth, degree_histogram) =
         (tree.node_count(), tree.max_depth(), tree.degree_histogram());
