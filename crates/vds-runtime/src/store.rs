@@ -48,10 +48,6 @@ pub struct Node {
     pub cone_axis: [f32; 3],
     /// Half-angle of that cone in radians; negative when it bounds no normal.
     pub cone_half_angle: f32,
-    /// Cosine of the half-angle (precomputed for the trigonometry-free cone tests).
-    pub cone_cos: f32,
-    /// Sine of the half-angle.
-    pub cone_sin: f32,
     /// The cone is two-sided: every normal `n` has `n` or `−n` inside it (thin shells:
     /// both faces of a plate), so it bounds where silhouettes can be but not backfacing.
     pub cone_two_sided: bool,
@@ -83,8 +79,6 @@ impl Node {
             sphere_radius: r.sphere[3].get(),
             cone_axis: f(&r.cone[..3]),
             cone_half_angle: r.cone[3].get(),
-            cone_cos: r.cone[3].get().cos(),
-            cone_sin: r.cone[3].get().sin(),
             cone_two_sided: r.flags & vds_format::FLAG_TWO_SIDED_CONE != 0,
             parent: r.parent.get(),
             first_child: r.first_child.get(),
@@ -303,7 +297,6 @@ impl NodeStore {
             &self.shape[id as usize],
         );
         let topology = &self.topology[i];
-        let empty_cone = topology.cone_half_angle < 0.0;
         Node {
             proxy: hot.proxy,
             error_radius: hot.error_radius,
@@ -311,12 +304,6 @@ impl NodeStore {
             sphere_radius: shape.radius,
             cone_axis: shape.cone_axis,
             cone_half_angle: topology.cone_half_angle,
-            cone_cos: if empty_cone {
-                1.0
-            } else {
-                topology.cone_half_angle.cos()
-            },
-            cone_sin: topology.cone_half_angle.sin(),
             cone_two_sided: topology.cone_two_sided,
             parent: topology.parent,
             first_child: hot.first_child,
