@@ -38,7 +38,7 @@ impl Gpu {
         .map_err(|e| RenderError::NoAdapter(e.to_string()))?;
         let wanted = wgpu::Features::TIMESTAMP_QUERY;
         let features = adapter.features() & wanted;
-        // The cut's node and slot arrays are storage buffers as large as the model: ask for
+        // The cut's vertex and slot arrays are storage buffers as large as the cut: ask for
         // everything the adapter offers.
         let limits = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
