@@ -1,4 +1,4 @@
-//! The page encoding (versions 2 and 3): nodes and triangles as columns of small integers
+//! The page encoding of version 3: nodes and triangles as columns of small integers
 //! (LEB128 varints, zig-zag for signed deltas), each column in its own stream so zstd sees
 //! similar bytes together. Positions are grid coordinates delta-coded against the previous
 //! node; leaf ids are coded relative to the owning node's leaf range; leaves carry no bounds
@@ -127,6 +127,9 @@ pub fn encode_page(
     let mut previous_q = [0i64; 3];
     // The grid coordinates as stored (inner proxies are coarser than their exact ones).
     let mut stored_q: Vec<[i64; 3]> = Vec::with_capacity(nodes.len());
+    // Where the next inner node's children are expected: right after the previous inner
+    // node's (pages are breadth-first within), or right after the first inner node itself.
+    let mut expected_child: Option<i64> = None;
     for (k, n) in nodes.iter().enumerate() {
         let id = first_node + k as u32;
         let proxy = n.proxy.map(|c| c.get());
@@ -156,7 +159,12 @@ pub fn encode_page(
             put_varint(&mut s[3], zigzag(i64::from(n.depth.get()) - depth));
             put_varint(&mut s[4], zigzag(i64::from(n.leaf_begin.get()) - leaf));
         }
-        put_varint(&mut s[6], u64::from(n.subtri_count.get()));
+        // A leaf supports one vertex, so it owns no subtri: only inner nodes store a count.
+        if n.child_count > 0 {
+            put_varint(&mut s[6], u64::from(n.subtri_count.get()));
+        } else if n.subtri_count.get() != 0 {
+            return Err(VdtError::invalid(format!("node {id}"), "a leaf with subtris"));
+        }
         // Positions are predicted by the previous node (usually the previous sibling), or
         // for a first child by its parent's proxy, which lies in the same small cell.
         let prediction = if page.contains(&parent)
@@ -204,7 +212,10 @@ pub fn encode_page(
             }
             continue;
         }
-        put_varint(&mut s[2], u64::from(n.first_child.get() - id));
+        let first_child = i64::from(n.first_child.get());
+        let predicted = expected_child.unwrap_or(i64::from(id) + 1);
+        put_varint(&mut s[2], zigzag(first_child - predicted));
+        expected_child = Some(first_child + i64::from(n.child_count));
         put_varint(&mut s[5], u64::from(n.leaf_end.get() - n.leaf_begin.get()));
         // Bounds, widened by what quantising the proxy, centre and axis moved.
         let moved = distance(proxy, stored);
@@ -382,6 +393,7 @@ pub fn decode_page(
     stored_q.reserve(node_count as usize);
     let mut previous_q = [0i64; 3];
     let mut subtri_begin = u64::from(first_triangle);
+    let mut expected_child: Option<i64> = None;
     for k in 0..node_count {
         let id = first_node + k;
         let [s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, ..] = &mut streams[..] else {
@@ -432,8 +444,12 @@ pub fn decode_page(
                     .map_err(|_| bad("leaf"))?;
             (parent, depth, leaf_begin)
         };
-        let subtri_count = u32::try_from(s6.varint().ok_or_else(|| bad("subtris"))?)
-            .map_err(|_| bad("subtris"))?;
+        let subtri_count = if child_count > 0 {
+            u32::try_from(s6.varint().ok_or_else(|| bad("subtris"))?)
+                .map_err(|_| bad("subtris"))?
+        } else {
+            0
+        };
         // Inner nodes: the error radius comes first, it sets the proxy's unit.
         let base_error = if child_count > 0 {
             s8.varint()
@@ -478,8 +494,12 @@ pub fn decode_page(
         };
         subtri_begin += u64::from(subtri_count);
         if child_count > 0 {
-            let first_child = u64::from(id) + s2.varint().ok_or_else(|| bad("children"))?;
-            let first_child = u32::try_from(first_child).map_err(|_| bad("children"))?;
+            let predicted = expected_child.unwrap_or(i64::from(id) + 1);
+            let first_child = unzigzag(s2.varint().ok_or_else(|| bad("children"))?)
+                .checked_add(predicted)
+                .and_then(|c| u32::try_from(c).ok())
+                .ok_or_else(|| bad("children"))?;
+            expected_child = Some(i64::from(first_child) + i64::from(child_count));
             node.first_child = U32::new(first_child);
             for child in first_child..first_child.saturating_add(u32::from(child_count)) {
                 if let Some(slot) = parent_in_page.get_mut(child.wrapping_sub(first_node) as usize)

@@ -236,10 +236,11 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
                 u64::from(page.compressed_length.get()),
                 h.file_size.get(),
             )?;
-            // The encoding spends at least 8 bytes per node and 4 per triangle (see codec.rs),
-            // which bounds the records a page can decode to by its raw length.
+            // The encoding spends at least 5 bytes per node (child count, parent, three
+            // coordinates) and 4 per triangle (three corners, part; see codec.rs), which
+            // bounds the records a page can decode to by its raw length.
             let least = 48
-                + u64::from(page.node_count.get()) * 8
+                + u64::from(page.node_count.get()) * 5
                 + u64::from(page.triangle_count.get()) * 4;
             let raw = u64::from(page.raw_length.get());
             if page.node_count.get() == 0
@@ -387,9 +388,6 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             if n.leaf_begin.get() >= n.leaf_end.get() || u64::from(n.leaf_end.get()) > vertex_count
             {
                 return Err(bad("leaf range out of range"));
-            }
-            if n.flags & FLAG_TWO_SIDED_CONE != 0 && h.version.get() < 3 {
-                return Err(bad("two-sided cone in a version 2 file"));
             }
             if u64::from(n.depth.get()) > u64::from(h.max_depth.get()) {
                 return Err(bad("depth exceeds the header's"));
