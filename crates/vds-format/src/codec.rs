@@ -163,7 +163,10 @@ pub fn encode_page(
         if n.child_count > 0 {
             put_varint(&mut s[6], u64::from(n.subtri_count.get()));
         } else if n.subtri_count.get() != 0 {
-            return Err(VdtError::invalid(format!("node {id}"), "a leaf with subtris"));
+            return Err(VdtError::invalid(
+                format!("node {id}"),
+                "a leaf with subtris",
+            ));
         }
         // Positions are predicted by the previous node (usually the previous sibling), or
         // for a first child by its parent's proxy, which lies in the same small cell.
@@ -445,8 +448,7 @@ pub fn decode_page(
             (parent, depth, leaf_begin)
         };
         let subtri_count = if child_count > 0 {
-            u32::try_from(s6.varint().ok_or_else(|| bad("subtris"))?)
-                .map_err(|_| bad("subtris"))?
+            u32::try_from(s6.varint().ok_or_else(|| bad("subtris"))?).map_err(|_| bad("subtris"))?
         } else {
             0
         };
@@ -596,6 +598,23 @@ mod tests {
             assert_eq!(unzigzag(s.varint().unwrap()), v);
             assert!(s.done());
         }
+    }
+
+    #[test]
+    fn a_leaf_with_subtris_is_refused() {
+        use zerocopy::FromZeros;
+        let grid = Grid {
+            origin: [0.0; 3],
+            step: 1.0,
+        };
+        let mut leaf = NodeRecord::new_zeroed();
+        leaf.parent = U32::new(NO_NODE);
+        leaf.first_child = U32::new(NO_NODE);
+        leaf.leaf_end = U32::new(1);
+        assert!(encode_page(&grid, 0, &[leaf], &[]).is_ok());
+        leaf.subtri_count = U32::new(1);
+        let triangle = TriangleRecord::new_zeroed();
+        assert!(encode_page(&grid, 0, &[leaf], &[triangle]).is_err());
     }
 
     #[test]
