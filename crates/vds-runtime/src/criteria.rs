@@ -326,8 +326,9 @@ impl Judge {
     /// `a·(c − e) > d·sin(α + β) = sin α·√(d² − R²) + cos α·R`, and `γ − α − β > π/2`
     /// (front-facing) is `a·(c − e) < −d·sin(α + β)`.
     ///
-    /// A two-sided cone (negative [`crate::store::Shape::cone_cos`]) is the same test about the axis
-    /// taken either way: clear of the silhouette band when `|a·(c − e)| > d·sin(α + β)`.
+    /// A two-sided cone (negative [`crate::store::Shape::cone_cos`]) is the same test about
+    /// the axis taken either way: clear of the silhouette band when
+    /// `|a·(c − e)| > d·sin(α + β)`.
     fn facing(&self, view: &View, n: Tested<'_>) -> Facing {
         let test = n.shape.cone_cos;
         if test > 1.0 {

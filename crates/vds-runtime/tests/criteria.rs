@@ -75,6 +75,42 @@ fn vertex_facing(bytes: &[u8], eye: Vec3) -> (Vec<[f32; 3]>, Vec<(bool, bool)>) 
     (positions, facing)
 }
 
+/// Checks every visible vertex with a front face against the cut: it is never folded away as
+/// backfacing, it moves at most `t` pixels on screen, and at most `t · factor` when it is on
+/// the silhouette (it has a front and a back face). Returns how many silhouette vertices
+/// were checked.
+fn assert_silhouettes_tight(
+    cut: &vds_runtime::Cut,
+    view: &vds_runtime::View,
+    positions: &[[f32; 3]],
+    facing: &[(bool, bool)],
+    t: f32,
+    factor: f32,
+) -> usize {
+    let mut silhouette_vertices = 0;
+    for (rank, &p) in positions.iter().enumerate() {
+        let v = Vec3::from(p);
+        let (front, back) = facing[rank];
+        if !view.contains(v) || !front {
+            continue;
+        }
+        let proxy = Vec3::from(cut.node(cut.current_proxy_node(rank as u32)).proxy);
+        let (a, b) = (view.project(v).unwrap(), view.project(proxy).unwrap());
+        let moved = (a[0] - b[0]).hypot(a[1] - b[1]);
+        let limit = if back {
+            silhouette_vertices += 1;
+            t * factor
+        } else {
+            t
+        };
+        assert!(
+            moved <= f64::from(limit) * (1.0 + 1e-4) + 1e-4,
+            "vertex {rank} moved {moved} px > {limit} px"
+        );
+    }
+    silhouette_vertices
+}
+
 #[test]
 fn on_a_sphere_backfaces_fold_and_the_silhouette_keeps_the_tight_threshold() {
     let mut scene = sphere(128, 64);
@@ -95,32 +131,12 @@ fn on_a_sphere_backfaces_fold_and_the_silhouette_keeps_the_tight_threshold() {
             .adjust(&Viewpoint::Camera(camera), &criteria, Goal::Threshold(t))
             .unwrap();
         runtime.cut_mut().check().unwrap();
-        let cut = runtime.cut();
-        let mut silhouette_vertices = 0;
-        for (rank, &p) in positions.iter().enumerate() {
-            let v = Vec3::from(p);
-            let (front, back) = facing[rank];
-            if !view.contains(v) || !front {
-                continue;
-            }
-            let proxy = Vec3::from(cut.node(cut.current_proxy_node(rank as u32)).proxy);
-            let a = view.project(v).unwrap();
-            let b = view.project(proxy).unwrap();
-            let moved = (a[0] - b[0]).hypot(a[1] - b[1]);
-            // A vertex with a front face is never folded away as backfacing, and one on the
-            // silhouette (front and back faces) gets the tight threshold.
-            let limit = if back {
-                silhouette_vertices += 1;
-                t * factor
-            } else {
-                t
-            };
-            assert!(
-                moved <= f64::from(limit) * (1.0 + 1e-4) + 1e-4,
-                "backface {backface}: vertex {rank} moved {moved} px > {limit} px"
-            );
-        }
-        assert!(silhouette_vertices > 100, "the silhouette was not seen");
+        let silhouette_vertices =
+            assert_silhouettes_tight(runtime.cut(), &view, &positions, &facing, t, factor);
+        assert!(
+            silhouette_vertices > 100,
+            "backface {backface}: the silhouette was not seen"
+        );
         // Count active triangles lying entirely on the far side (original corners backfacing).
         let runtime_cut = runtime.cut_mut();
         back_triangles[k] = runtime_cut
@@ -277,27 +293,7 @@ fn on_a_thin_plate_only_the_rim_is_a_silhouette() {
     };
     let runtime = count(&criteria, t);
     let cut = runtime.cut();
-    let mut rim_vertices = 0;
-    for (rank, &p) in positions.iter().enumerate() {
-        let v = Vec3::from(p);
-        let (front, back) = facing[rank];
-        if !view.contains(v) || !front {
-            continue;
-        }
-        let proxy = Vec3::from(cut.node(cut.current_proxy_node(rank as u32)).proxy);
-        let (a, b) = (view.project(v).unwrap(), view.project(proxy).unwrap());
-        let moved = (a[0] - b[0]).hypot(a[1] - b[1]);
-        let limit = if back {
-            rim_vertices += 1;
-            t * factor
-        } else {
-            t
-        };
-        assert!(
-            moved <= f64::from(limit) * (1.0 + 1e-4) + 1e-4,
-            "vertex {rank} moved {moved} px > {limit} px"
-        );
-    }
+    let rim_vertices = assert_silhouettes_tight(cut, &view, &positions, &facing, t, factor);
     assert!(rim_vertices > 100, "the rim was not seen: {rim_vertices}");
     let with_silhouettes = cut.active_triangle_count();
     let no_silhouettes = Criteria {
