@@ -223,12 +223,15 @@ struct SlotChunk {
 /// Vertices a new mirror holds before its first growth.
 const INITIAL_VERTICES: u32 = 1 << 12;
 
-/// The three vertex buffers (positions and error radii, depth and normal, spheres) for
-/// `capacity` vertices.
+/// The three vertex buffers, in binding order: label and bytes per vertex (positions and
+/// error radii, depth and normal, spheres).
+const VERTEX_BUFFERS: [(&str, u64); 3] = [("nodes", 16), ("node attrs", 8), ("node spheres", 16)];
+
+/// The three vertex buffers ([`VERTEX_BUFFERS`]) for `capacity` vertices.
 fn vertex_buffers(gpu: &Gpu, capacity: u32) -> [wgpu::Buffer; 3] {
     let usage =
         wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC;
-    [("nodes", 16u64), ("node attrs", 8), ("node spheres", 16)].map(|(label, bytes)| {
+    VERTEX_BUFFERS.map(|(label, bytes)| {
         gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size: u64::from(capacity.max(1)) * bytes,
@@ -321,7 +324,7 @@ impl GpuCut {
                 label: Some("grow vertices"),
             });
         let old = [&self.nodes, &self.node_attrs, &self.node_spheres];
-        for ((from, to), bytes) in old.into_iter().zip(&grown).zip([16u64, 8, 16]) {
+        for ((from, to), (_, bytes)) in old.into_iter().zip(&grown).zip(VERTEX_BUFFERS) {
             encoder.copy_buffer_to_buffer(from, 0, to, 0, u64::from(self.vertex_capacity) * bytes);
         }
         gpu.queue.submit([encoder.finish()]);
