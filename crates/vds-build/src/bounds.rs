@@ -115,8 +115,7 @@ impl NormalCone {
     /// A two-sided cone around `normals`: each normal is flipped into the hemisphere of the
     /// first one, and the one-sided cone of the result is fitted.
     pub fn fit_two_sided(normals: impl Iterator<Item = [f64; 3]> + Clone) -> NormalCone {
-        let mut all = normals.clone();
-        let Some(reference) = all.next() else {
+        let Some(reference) = normals.clone().next() else {
             return NormalCone::EMPTY;
         };
         NormalCone::fit(normals.map(move |n| {
