@@ -80,18 +80,24 @@ pub fn tree_content(
     metadata: vds_format::Metadata,
     grid: Grid,
 ) -> TreeContent {
-    let triangles = tree
+    let mut triangles: Vec<TriangleRecord> = tree
         .subtris
         .iter()
         .map(|&t| {
             let corners =
-                scene.triangles[t as usize].map(|v| U32::new(tree.vertex_rank[v as usize]));
+                leading_smallest(scene.triangles[t as usize].map(|v| tree.vertex_rank[v as usize]));
             TriangleRecord {
-                corners,
+                corners: corners.map(U32::new),
                 part: U32::new(scene.triangle_parts[t as usize]),
             }
         })
         .collect();
+    // Within a node, subtris in order of their corners: the codec stores each first corner
+    // as a step from the previous one.
+    for n in &tree.nodes {
+        triangles[n.subtri_begin as usize..n.subtri_end as usize]
+            .sort_unstable_by_key(|t| t.corners.map(|c| c.get()));
+    }
     TreeContent {
         nodes: tree.nodes.iter().map(record).collect(),
         triangles,
@@ -99,6 +105,17 @@ pub fn tree_content(
         max_depth: tree.max_depth() as u32,
         grid,
         metadata,
+    }
+}
+
+/// The same triangle, rotated (winding kept) so that its smallest corner comes first.
+fn leading_smallest(c: [u32; 3]) -> [u32; 3] {
+    if c[1] < c[0] && c[1] <= c[2] {
+        [c[1], c[2], c[0]]
+    } else if c[2] < c[0] && c[2] < c[1] {
+        [c[2], c[0], c[1]]
+    } else {
+        c
     }
 }
 

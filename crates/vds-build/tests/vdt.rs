@@ -42,6 +42,12 @@ fn small_pages() -> WriteOptions {
     }
 }
 
+/// A triangle rotated, winding kept, so that its smallest corner comes first.
+fn smallest_first(t: [u32; 3]) -> [u32; 3] {
+    let k = (0..3).min_by_key(|&k| t[k]).unwrap();
+    [t[k], t[(k + 1) % 3], t[(k + 2) % 3]]
+}
+
 #[test]
 fn round_trip_keeps_every_invariant_and_triangle() {
     for name in ["cow.obj", "as1_assembly.obj", "bone.ply"] {
@@ -64,18 +70,24 @@ fn round_trip_keeps_every_invariant_and_triangle() {
         verify_tree_with(&read_tree, &read_scene, &FILE_CHECKS)
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(read_tree.nodes.len(), tree.nodes.len());
-        // Same triangles (as original vertex ids, with parts), in any order.
+        // Same triangles (as original vertex ids, with parts, winding kept), in any order
+        // and starting at any corner.
         let mut original: Vec<([u32; 3], u32)> = scene
             .triangles
             .iter()
             .zip(&scene.triangle_parts)
-            .map(|(t, &p)| (*t, p))
+            .map(|(t, &p)| (smallest_first(*t), p))
             .collect();
         let mut read: Vec<([u32; 3], u32)> = read_scene
             .triangles
             .iter()
             .zip(&read_scene.triangle_parts)
-            .map(|(t, &p)| (t.map(|rank| tree.leaf_vertex[rank as usize]), p))
+            .map(|(t, &p)| {
+                (
+                    smallest_first(t.map(|rank| tree.leaf_vertex[rank as usize])),
+                    p,
+                )
+            })
             .collect();
         original.sort_unstable();
         read.sort_unstable();
@@ -148,7 +160,7 @@ fn rejects_bad_magic() {
 
 #[test]
 fn rejects_unknown_version_with_both_numbers() {
-    for version in [1u32, 2, vds_format::VDT_VERSION + 1] {
+    for version in [1u32, 2, 3, vds_format::VDT_VERSION + 1] {
         let mut bytes = encoded("cow.obj", &small_pages());
         bytes[8..12].copy_from_slice(&version.to_le_bytes());
         fix_checksums(&mut bytes);

@@ -1,8 +1,13 @@
-//! The page encoding of version 3: nodes and triangles as columns of small integers
+//! The page encoding of version 4: nodes and triangles as columns of small integers
 //! (LEB128 varints, zig-zag for signed deltas), each column in its own stream so zstd sees
 //! similar bytes together. Positions are grid coordinates delta-coded against the previous
 //! node; leaf ids are coded relative to the owning node's leaf range; leaves carry no bounds
 //! (a leaf never unfolds, so no runtime test reads them).
+//!
+//! Where one column mixes bytes of different statistics, it is split so that zstd's entropy
+//! coder sees each kind alone: a leaf coordinate's nearly uniform low byte apart from its
+//! small high part, inner proxies (a few units each) apart from leaves, cone angles apart
+//! from axes.
 //!
 //! Encoding widens bounds for what it quantises (proxy, sphere centre, cone axis), so decoded
 //! bounds stay conservative. Decoding checks every length and value; it never reads past a
@@ -14,8 +19,28 @@ use crate::VdtError;
 use crate::grid::Grid;
 use crate::layout::{FLAG_TWO_SIDED_CONE, NO_NODE, NodeRecord, TriangleRecord};
 
-/// The streams of a page, in order.
-const STREAMS: usize = 12;
+/// The streams of a page, in order (see `docs/format.md`).
+pub(crate) const STREAMS: usize = 15;
+
+// Stream numbers.
+const CHILD_COUNT: usize = 0;
+const PARENT: usize = 1;
+const FIRST_CHILD: usize = 2;
+const DEPTH: usize = 3;
+const LEAF_BEGIN: usize = 4;
+const LEAF_COUNT: usize = 5;
+const SUBTRI_COUNT: usize = 6;
+const LEAF_LOW: usize = 7;
+const LEAF_HIGH: usize = 8;
+const INNER_POSITION: usize = 9;
+const BOUNDS: usize = 10;
+const CONE_AXIS: usize = 11;
+const CONE_ANGLE: usize = 12;
+const CORNERS: usize = 13;
+const PART: usize = 14;
+
+/// The axis prediction of a node whose parent lies in another page: the octahedral centre.
+const NO_AXIS: [u8; 2] = [128, 128];
 
 /// Bit of a child-count byte (stream 0) marking an inner node's cone as two-sided.
 const TWO_SIDED_BIT: u8 = 0x80;
@@ -34,6 +59,19 @@ fn zigzag(v: i64) -> u64 {
 
 fn unzigzag(v: u64) -> i64 {
     ((v >> 1) as i64) ^ -((v & 1) as i64)
+}
+
+/// The byte difference `value − predicted`, taken modulo 256 and zig-zag coded, so that
+/// small steps either way become small bytes.
+fn byte_step(value: u8, predicted: u8) -> u8 {
+    let d = value.wrapping_sub(predicted) as i8;
+    ((d << 1) ^ (d >> 7)) as u8
+}
+
+/// The inverse of [`byte_step`].
+fn unbyte_step(step: u8, predicted: u8) -> u8 {
+    let d = ((step >> 1) as i8) ^ -((step & 1) as i8);
+    predicted.wrapping_add(d as u8)
 }
 
 /// Octahedral encoding of a unit vector in two bytes (about 1° of error, which the encoder
@@ -127,6 +165,9 @@ pub fn encode_page(
     let mut previous_q = [0i64; 3];
     // The grid coordinates as stored (inner proxies are coarser than their exact ones).
     let mut stored_q: Vec<[i64; 3]> = Vec::with_capacity(nodes.len());
+    // The cone axes as stored (octahedral bytes; leaves hold a placeholder), the prediction
+    // of their children's.
+    let mut stored_axis: Vec<[u8; 2]> = Vec::with_capacity(nodes.len());
     // Where the next inner node's children are expected: right after the previous inner
     // node's (pages are breadth-first within), or right after the first inner node itself.
     let mut expected_child: Option<i64> = None;
@@ -136,17 +177,17 @@ pub fn encode_page(
         let exact_q = grid.quantize(proxy);
         // The child count, and for an inner node whose cone is two-sided the flag in bit 7.
         let two_sided = n.child_count > 0 && n.flags & FLAG_TWO_SIDED_CONE != 0;
-        s[0].push(n.child_count | if two_sided { TWO_SIDED_BIT } else { 0 });
+        s[CHILD_COUNT].push(n.child_count | if two_sided { TWO_SIDED_BIT } else { 0 });
         // A parent in this page is implied by its child range, and a sibling of the previous
         // node shares its parent; either way the depth and first leaf follow. Only the first
         // node of a sibling group whose parent lies in another page spells them out.
         let parent = n.parent.get();
         let previous = k.checked_sub(1).map(|p| &nodes[p]);
         if page.contains(&parent) || previous.is_some_and(|p| p.parent.get() == parent) {
-            put_varint(&mut s[1], 0);
+            put_varint(&mut s[PARENT], 0);
         } else {
             put_varint(
-                &mut s[1],
+                &mut s[PARENT],
                 if parent == NO_NODE {
                     0
                 } else {
@@ -156,12 +197,15 @@ pub fn encode_page(
             let (depth, leaf) = previous.map_or((0, 0), |p| {
                 (i64::from(p.depth.get()), i64::from(p.leaf_end.get()))
             });
-            put_varint(&mut s[3], zigzag(i64::from(n.depth.get()) - depth));
-            put_varint(&mut s[4], zigzag(i64::from(n.leaf_begin.get()) - leaf));
+            put_varint(&mut s[DEPTH], zigzag(i64::from(n.depth.get()) - depth));
+            put_varint(
+                &mut s[LEAF_BEGIN],
+                zigzag(i64::from(n.leaf_begin.get()) - leaf),
+            );
         }
         // A leaf supports one vertex, so it owns no subtri: only inner nodes store a count.
         if n.child_count > 0 {
-            put_varint(&mut s[6], u64::from(n.subtri_count.get()));
+            put_varint(&mut s[SUBTRI_COUNT], u64::from(n.subtri_count.get()));
         } else if n.subtri_count.get() != 0 {
             return Err(VdtError::invalid(
                 format!("node {id}"),
@@ -200,13 +244,20 @@ pub fn encode_page(
             while prediction[a] + steps * (unit as i64) < 0 {
                 steps += 1;
             }
-            put_varint(&mut s[7], zigzag(steps));
+            let step = zigzag(steps);
+            if n.child_count == 0 {
+                s[LEAF_LOW].push(step as u8);
+                put_varint(&mut s[LEAF_HIGH], step >> 8);
+            } else {
+                put_varint(&mut s[INNER_POSITION], step);
+            }
             q[a] = (prediction[a] + steps * unit as i64) as u32;
         }
         previous_q = q.map(i64::from);
         stored_q.push(previous_q);
         let stored = grid.dequantize(q);
         if n.child_count == 0 {
+            stored_axis.push(NO_AXIS);
             if stored != proxy {
                 return Err(VdtError::invalid(
                     format!("node {id}"),
@@ -217,16 +268,19 @@ pub fn encode_page(
         }
         let first_child = i64::from(n.first_child.get());
         let predicted = expected_child.unwrap_or(i64::from(id) + 1);
-        put_varint(&mut s[2], zigzag(first_child - predicted));
+        put_varint(&mut s[FIRST_CHILD], zigzag(first_child - predicted));
         expected_child = Some(first_child + i64::from(n.child_count));
-        put_varint(&mut s[5], u64::from(n.leaf_end.get() - n.leaf_begin.get()));
+        put_varint(
+            &mut s[LEAF_COUNT],
+            u64::from(n.leaf_end.get() - n.leaf_begin.get()),
+        );
         // Bounds, widened by what quantising the proxy, centre and axis moved.
         let moved = distance(proxy, stored);
         let error_units = widened_error(base_error, unit);
         debug_assert!(
             error_units as f64 * f64::from(grid.step) >= f64::from(n.error_radius.get()) + moved
         );
-        put_varint(&mut s[8], base_error);
+        put_varint(&mut s[BOUNDS], base_error);
         let unit = centre_unit(error_units);
         let centre = [n.sphere[0].get(), n.sphere[1].get(), n.sphere[2].get()];
         let mut centre_q = [0u32; 3];
@@ -237,13 +291,13 @@ pub fn encode_page(
             let lowest = -(i64::from(q[a]) / unit as i64);
             let highest = (i64::from(crate::grid::GRID_STEPS) - i64::from(q[a])) / unit as i64;
             let steps = steps.clamp(lowest, highest);
-            put_varint(&mut s[8], zigzag(steps));
+            put_varint(&mut s[BOUNDS], zigzag(steps));
             centre_q[a] = (i64::from(q[a]) + steps * unit as i64) as u32;
         }
         let centre_moved = distance(centre, grid.dequantize(centre_q));
         // The radius in the same coarse units, rounded up.
         let radius_units = u64::from(grid.units_up(f64::from(n.sphere[3].get()) + centre_moved));
-        put_varint(&mut s[8], radius_units.div_ceil(unit));
+        put_varint(&mut s[BOUNDS], radius_units.div_ceil(unit));
         let axis = [n.cone[0].get(), n.cone[1].get(), n.cone[2].get()];
         let half_angle = f64::from(n.cone[3].get());
         let (encoded, units) = if half_angle < 0.0 {
@@ -254,7 +308,16 @@ pub fn encode_page(
             let units = (widened / std::f64::consts::PI * ANGLE_UNITS).ceil() + 1.0;
             (e, units.min(ANGLE_UNITS) as u8)
         };
-        s[9].extend_from_slice(&[encoded[0], encoded[1], units]);
+        // Axes as steps from the parent's (normals vary smoothly down the tree).
+        let predicted = if page.contains(&parent) {
+            stored_axis[(parent - first_node) as usize]
+        } else {
+            NO_AXIS
+        };
+        stored_axis.push(encoded);
+        s[CONE_AXIS].push(byte_step(encoded[0], predicted[0]));
+        s[CONE_AXIS].push(byte_step(encoded[1], predicted[1]));
+        s[CONE_ANGLE].push(units);
     }
     // Triangles: corners relative to the owning node's first leaf, parts as deltas.
     let mut t = 0usize;
@@ -263,10 +326,10 @@ pub fn encode_page(
         let begin = i64::from(n.leaf_begin.get());
         for tri in &triangles[t..t + n.subtri_count.get() as usize] {
             for c in tri.corners {
-                put_varint(&mut s[10], zigzag(i64::from(c.get()) - begin));
+                put_varint(&mut s[CORNERS], zigzag(i64::from(c.get()) - begin));
             }
             put_varint(
-                &mut s[11],
+                &mut s[PART],
                 zigzag(i64::from(tri.part.get()) - previous_part),
             );
             previous_part = i64::from(tri.part.get());
@@ -341,6 +404,8 @@ pub struct Scratch {
     /// Each node's grid coordinates as stored: a first child's position is predicted by its
     /// parent's.
     stored_q: Vec<[u32; 3]>,
+    /// Each node's cone axis bytes as stored: a child's are predicted by its parent's.
+    stored_axis: Vec<[u8; 2]>,
 }
 
 /// Decodes a page encoded by [`encode_page`] into `nodes` and `triangles` (cleared first, so
@@ -389,17 +454,36 @@ pub fn decode_page(
     let Scratch {
         parent_in_page,
         stored_q,
+        stored_axis,
     } = scratch;
     parent_in_page.clear();
     parent_in_page.resize(node_count as usize, NO_NODE);
     stored_q.clear();
     stored_q.reserve(node_count as usize);
+    stored_axis.clear();
+    stored_axis.reserve(node_count as usize);
     let mut previous_q = [0i64; 3];
     let mut subtri_begin = u64::from(first_triangle);
     let mut expected_child: Option<i64> = None;
     for k in 0..node_count {
         let id = first_node + k;
-        let [s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, ..] = &mut streams[..] else {
+        let [
+            s0,
+            s1,
+            s2,
+            s3,
+            s4,
+            s5,
+            s6,
+            leaf_low,
+            leaf_high,
+            inner_position,
+            bounds,
+            cone_axis,
+            cone_angle,
+            ..,
+        ] = &mut streams[..]
+        else {
             unreachable!()
         };
         let count_byte = s0.byte().ok_or_else(|| bad("child count"))?;
@@ -454,7 +538,8 @@ pub fn decode_page(
         };
         // Inner nodes: the error radius comes first, it sets the proxy's unit.
         let base_error = if child_count > 0 {
-            s8.varint()
+            bounds
+                .varint()
                 .filter(|&u| u <= u64::from(u32::MAX))
                 .ok_or_else(|| bad("bound"))?
         } else {
@@ -467,7 +552,18 @@ pub fn decode_page(
         };
         let mut q = [0u32; 3];
         for a in 0..3 {
-            let v = unzigzag(s7.varint().ok_or_else(|| bad("position"))?)
+            let step = if child_count == 0 {
+                let low = leaf_low.byte().ok_or_else(|| bad("position"))?;
+                leaf_high
+                    .varint()
+                    .filter(|&high| high <= u64::MAX >> 8)
+                    .ok_or_else(|| bad("position"))?
+                    << 8
+                    | u64::from(low)
+            } else {
+                inner_position.varint().ok_or_else(|| bad("position"))?
+            };
+            let v = unzigzag(step)
                 .checked_mul(unit)
                 .and_then(|d| d.checked_add(prediction[a]))
                 .ok_or_else(|| bad("position"))?;
@@ -517,7 +613,7 @@ pub fn decode_page(
             let unit = centre_unit(error_units) as i64;
             let mut centre_q = [0u32; 3];
             for a in 0..3 {
-                let steps = unzigzag(s8.varint().ok_or_else(|| bad("sphere"))?);
+                let steps = unzigzag(bounds.varint().ok_or_else(|| bad("sphere"))?);
                 let v = steps
                     .checked_mul(unit)
                     .and_then(|d| d.checked_add(i64::from(q[a])))
@@ -528,7 +624,7 @@ pub fn decode_page(
                     .ok_or_else(|| bad("sphere"))?;
             }
             let centre = grid.dequantize(centre_q);
-            let radius_units = s8
+            let radius_units = bounds
                 .varint()
                 .and_then(|r| r.checked_mul(unit as u64))
                 .filter(|&u| u <= u64::from(u32::MAX))
@@ -540,11 +636,18 @@ pub fn decode_page(
                 radius_units as f32 * grid.step,
             ]
             .map(f);
+            let predicted = parent
+                .checked_sub(first_node)
+                .and_then(|p| stored_axis.get(p as usize))
+                .copied()
+                .unwrap_or(NO_AXIS);
+            let e = [0, 1].map(|k| cone_axis.byte().map(|b| unbyte_step(b, predicted[k])));
             let e = [
-                s9.byte().ok_or_else(|| bad("cone"))?,
-                s9.byte().ok_or_else(|| bad("cone"))?,
+                e[0].ok_or_else(|| bad("cone"))?,
+                e[1].ok_or_else(|| bad("cone"))?,
             ];
-            let angle_units = s9.byte().ok_or_else(|| bad("cone"))?;
+            stored_axis.push(e);
+            let angle_units = cone_angle.byte().ok_or_else(|| bad("cone"))?;
             let axis = unoctahedral(e);
             let half = if angle_units == EMPTY_CONE {
                 -1.0
@@ -553,13 +656,16 @@ pub fn decode_page(
             };
             node.cone = [axis[0], axis[1], axis[2], half].map(f);
         }
+        if child_count == 0 {
+            stored_axis.push(NO_AXIS);
+        }
         nodes.push(node);
     }
     if subtri_begin != u64::from(first_triangle) + u64::from(triangle_count) {
         return Err("subtri counts do not add up to the page's triangles".into());
     }
     triangles.reserve(triangle_count as usize);
-    let [.., s10, s11] = &mut streams[..] else {
+    let [.., corners_stream, parts] = &mut streams[..] else {
         unreachable!()
     };
     let mut previous_part = 0i64;
@@ -568,10 +674,10 @@ pub fn decode_page(
         for _ in 0..n.subtri_count.get() {
             let mut corners = [U32::new(0); 3];
             for c in &mut corners {
-                let v = begin + unzigzag(s10.varint().ok_or_else(|| bad("corner"))?);
+                let v = begin + unzigzag(corners_stream.varint().ok_or_else(|| bad("corner"))?);
                 *c = U32::new(u32::try_from(v).map_err(|_| bad("corner"))?);
             }
-            let part = previous_part + unzigzag(s11.varint().ok_or_else(|| bad("part"))?);
+            let part = previous_part + unzigzag(parts.varint().ok_or_else(|| bad("part"))?);
             previous_part = part;
             triangles.push(TriangleRecord {
                 corners,
@@ -588,6 +694,23 @@ pub fn decode_page(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn byte_steps_round_trip_and_keep_small_steps_small() {
+        for value in 0..=255u8 {
+            for predicted in 0..=255u8 {
+                let step = byte_step(value, predicted);
+                assert_eq!(unbyte_step(step, predicted), value);
+                let distance = value
+                    .wrapping_sub(predicted)
+                    .min(predicted.wrapping_sub(value));
+                assert!(
+                    u16::from(step) <= 2 * u16::from(distance),
+                    "{value} {predicted}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn varints_and_zigzag_round_trip() {

@@ -14,11 +14,11 @@ use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 pub const VDT_MAGIC: [u8; 8] = *b"VDT\x00\r\n\x1a\n";
 
 /// The format version this crate writes.
-pub const VDT_VERSION: u32 = 3;
+pub const VDT_VERSION: u32 = 4;
 
-/// The oldest version this crate reads. Version 2 (no two-sided cones, a subtri count for
-/// every node, first children coded against the node's own id) was never released.
-pub const OLDEST_READABLE_VERSION: u32 = 3;
+/// The oldest version this crate reads. Versions 1 to 3 were never released (see
+/// `docs/format.md`, Compatibility).
+pub const OLDEST_READABLE_VERSION: u32 = 4;
 
 /// [`NodeRecord::flags`] bit: the node's cone of normals is two-sided (every normal `n`
 /// has `n` or `−n` within the half-angle of the axis).

@@ -239,7 +239,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             // The encoding spends at least 5 bytes per node (child count, parent, three
             // coordinates) and 4 per triangle (three corners, part; see codec.rs), which
             // bounds the records a page can decode to by its raw length.
-            let least = 48
+            let least = 4 * crate::codec::STREAMS as u64
                 + u64::from(page.node_count.get()) * 5
                 + u64::from(page.triangle_count.get()) * 4;
             let raw = u64::from(page.raw_length.get());

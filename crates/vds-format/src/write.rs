@@ -22,8 +22,11 @@ use zerocopy::little_endian::{U32, U64};
 use crate::layout::*;
 use crate::{Grid, Metadata, VdtError};
 
-/// Default raw bytes per page: large enough to compress well, small enough to page in fast.
-pub const DEFAULT_PAGE_BYTES: u32 = 64 * 1024;
+/// Default bytes of decoded records per page: large enough to compress well, small enough to
+/// page in fast. 128 KiB, the size of Nanite's streaming pages, compresses to about 14 KiB on
+/// the bunny and 5 KiB on CAD scenes; 64 KiB pages cost the bunny 3.5 % more bytes (zstd's
+/// per-frame tables weigh more on small frames).
+pub const DEFAULT_PAGE_BYTES: u32 = 128 * 1024;
 /// Default zstd level: on generated CAD scenes level 6 gave smaller files than 9 (17.5 vs
 /// 17.7 B/triangle) in half the time; 15 saves 15 % more at 10× the time.
 pub const DEFAULT_ZSTD_LEVEL: i32 = 6;

@@ -22,10 +22,19 @@ fn golden(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// The scene (snapped to the file's grid) and its `.vdt` bytes.
+/// The scene (snapped to the file's grid) and its `.vdt` bytes. The file stores each triangle
+/// starting at its corner of smallest leaf rank (winding kept); rasterisers interpolate in
+/// corner order, so the returned scene's triangles start there too, for pixel-exact
+/// comparisons.
 fn build(mut scene: Scene) -> (Scene, Vec<u8>) {
     let grid = snap_to_grid(&mut scene);
     let tree = build_tree(&scene);
+    for t in &mut scene.triangles {
+        let first = (0..3)
+            .min_by_key(|&k| tree.vertex_rank[t[k] as usize])
+            .unwrap();
+        t.rotate_left(first);
+    }
     let metadata = vds_format::Metadata {
         part_names: scene.part_names.clone(),
         ..Default::default()

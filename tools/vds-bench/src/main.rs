@@ -88,6 +88,9 @@ struct OneRun {
     seconds: f64,
     import_seconds: f64,
     build_seconds: f64,
+    /// Seconds per build phase: clustering, adjacency, attributes, subtris.
+    #[serde(default)]
+    phase_seconds: [f64; 4],
     peak_rss_bytes: u64,
 }
 
@@ -308,15 +311,23 @@ fn one(file: &Path) -> Result<()> {
     let scene = vds_import::load_file(file, &Default::default())?;
     let import_seconds = start.elapsed().as_secs_f64();
     let build = Instant::now();
-    let tree = vds_build::build_tree(&scene);
+    let (tree, timings) = vds_build::build_tree_timed(&scene);
     let build_seconds = build.elapsed().as_secs_f64();
     let seconds = start.elapsed().as_secs_f64();
     std::hint::black_box(&tree);
+    let phase_seconds = [
+        timings.cluster,
+        timings.adjacency,
+        timings.attributes,
+        timings.subtris,
+    ]
+    .map(|d| d.as_secs_f64());
     let run = OneRun {
         triangles: scene.stats.input_triangles,
         seconds,
         import_seconds,
         build_seconds,
+        phase_seconds,
         peak_rss_bytes: peak_rss_bytes(),
     };
     println!("{}", serde_json::to_string(&run)?);
