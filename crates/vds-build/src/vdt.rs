@@ -92,11 +92,12 @@ pub fn tree_content(
             }
         })
         .collect();
-    // Within a node, subtris in order of their corners: the codec stores each first corner
-    // as a step from the previous one.
+    // Within a node, subtris in order of their corners (then parts, so coincident triangles
+    // of different parts have one order too): the node-relative corners then repeat in
+    // patterns zstd finds, 8 % fewer corner bytes on the bunny (docs/format.md).
     for n in &tree.nodes {
         triangles[n.subtri_begin as usize..n.subtri_end as usize]
-            .sort_unstable_by_key(|t| t.corners.map(|c| c.get()));
+            .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
     }
     TreeContent {
         nodes: tree.nodes.iter().map(record).collect(),
