@@ -110,14 +110,10 @@ pub fn tree_content(
 }
 
 /// The same triangle, rotated (winding kept) so that its smallest corner comes first.
-fn leading_smallest(c: [u32; 3]) -> [u32; 3] {
-    if c[1] < c[0] && c[1] <= c[2] {
-        [c[1], c[2], c[0]]
-    } else if c[2] < c[0] && c[2] < c[1] {
-        [c[2], c[0], c[1]]
-    } else {
-        c
-    }
+fn leading_smallest(mut c: [u32; 3]) -> [u32; 3] {
+    let first = (0..3).min_by_key(|&k| c[k]).expect("three corners");
+    c.rotate_left(first);
+    c
 }
 
 /// Decodes every page of a file into a tree and the scene it encodes. In that scene, vertex

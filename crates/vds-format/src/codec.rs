@@ -468,13 +468,13 @@ pub fn decode_page(
     for k in 0..node_count {
         let id = first_node + k;
         let [
-            s0,
-            s1,
-            s2,
-            s3,
-            s4,
-            s5,
-            s6,
+            child_counts,
+            parents,
+            first_children,
+            depths,
+            leaf_begins,
+            leaf_counts,
+            subtri_counts,
             leaf_low,
             leaf_high,
             inner_position,
@@ -486,13 +486,13 @@ pub fn decode_page(
         else {
             unreachable!()
         };
-        let count_byte = s0.byte().ok_or_else(|| bad("child count"))?;
+        let count_byte = child_counts.byte().ok_or_else(|| bad("child count"))?;
         let two_sided = count_byte & TWO_SIDED_BIT != 0;
         let child_count = count_byte & !TWO_SIDED_BIT;
         if two_sided && child_count == 0 {
             return Err(bad("two-sided cone on a leaf"));
         }
-        let parent_delta = s1.varint().ok_or_else(|| bad("parent"))?;
+        let parent_delta = parents.varint().ok_or_else(|| bad("parent"))?;
         let mut prediction = previous_q;
         let previous = nodes.last();
         let in_page = parent_in_page[k as usize];
@@ -524,15 +524,17 @@ pub fn decode_page(
             let (depth, leaf) = previous.map_or((0, 0), |p| {
                 (i64::from(p.depth.get()), i64::from(p.leaf_end.get()))
             });
-            let depth = u16::try_from(depth + unzigzag(s3.varint().ok_or_else(|| bad("depth"))?))
-                .map_err(|_| bad("depth"))?;
+            let depth =
+                u16::try_from(depth + unzigzag(depths.varint().ok_or_else(|| bad("depth"))?))
+                    .map_err(|_| bad("depth"))?;
             let leaf_begin =
-                u32::try_from(leaf + unzigzag(s4.varint().ok_or_else(|| bad("leaf"))?))
+                u32::try_from(leaf + unzigzag(leaf_begins.varint().ok_or_else(|| bad("leaf"))?))
                     .map_err(|_| bad("leaf"))?;
             (parent, depth, leaf_begin)
         };
         let subtri_count = if child_count > 0 {
-            u32::try_from(s6.varint().ok_or_else(|| bad("subtris"))?).map_err(|_| bad("subtris"))?
+            u32::try_from(subtri_counts.varint().ok_or_else(|| bad("subtris"))?)
+                .map_err(|_| bad("subtris"))?
         } else {
             0
         };
@@ -593,7 +595,7 @@ pub fn decode_page(
         subtri_begin += u64::from(subtri_count);
         if child_count > 0 {
             let predicted = expected_child.unwrap_or(i64::from(id) + 1);
-            let first_child = unzigzag(s2.varint().ok_or_else(|| bad("children"))?)
+            let first_child = unzigzag(first_children.varint().ok_or_else(|| bad("children"))?)
                 .checked_add(predicted)
                 .and_then(|c| u32::try_from(c).ok())
                 .ok_or_else(|| bad("children"))?;
@@ -605,7 +607,7 @@ pub fn decode_page(
                     *slot = id;
                 }
             }
-            let count = s5.varint().ok_or_else(|| bad("leaf count"))?;
+            let count = leaf_counts.varint().ok_or_else(|| bad("leaf count"))?;
             let leaf_end = u64::from(leaf_begin) + count;
             node.leaf_end = U32::new(u32::try_from(leaf_end).map_err(|_| bad("leaf count"))?);
             let error_units = widened_error(base_error, unit as u64);
@@ -641,11 +643,13 @@ pub fn decode_page(
                 .and_then(|p| stored_axis.get(p as usize))
                 .copied()
                 .unwrap_or(NO_AXIS);
-            let e = [0, 1].map(|k| cone_axis.byte().map(|b| unbyte_step(b, predicted[k])));
-            let e = [
-                e[0].ok_or_else(|| bad("cone"))?,
-                e[1].ok_or_else(|| bad("cone"))?,
-            ];
+            let mut axis_byte = |k: usize| {
+                cone_axis
+                    .byte()
+                    .map(|b| unbyte_step(b, predicted[k]))
+                    .ok_or_else(|| bad("cone"))
+            };
+            let e = [axis_byte(0)?, axis_byte(1)?];
             stored_axis.push(e);
             let angle_units = cone_angle.byte().ok_or_else(|| bad("cone"))?;
             let axis = unoctahedral(e);
