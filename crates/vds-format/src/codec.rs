@@ -383,7 +383,8 @@ impl Stream<'_> {
     }
 }
 
-/// Where a page's records go, and what the page holds.
+/// Where a page's records go, what the page holds, and the file's limits every record must
+/// keep.
 pub struct PageShape {
     /// Id of the first node.
     pub first_node: u32,
@@ -393,6 +394,14 @@ pub struct PageShape {
     pub first_triangle: u32,
     /// Number of triangles.
     pub triangle_count: u32,
+    /// Nodes in the whole file (child ids stay below).
+    pub file_nodes: u64,
+    /// Vertices (leaves) in the whole file (leaf ranges and corners stay below).
+    pub file_vertices: u64,
+    /// The deepest depth the header declares.
+    pub max_depth: u32,
+    /// Part names in the metadata (part ids stay below, or are 0 when there is none).
+    pub parts: u64,
 }
 
 /// Working arrays of [`decode_page`], kept by the caller so that decoding page after page
@@ -409,8 +418,23 @@ pub struct Scratch {
 }
 
 /// Decodes a page encoded by [`encode_page`] into `nodes` and `triangles` (cleared first, so
-/// a caller decoding many pages can reuse them). Structural checks of the decoded records are
-/// the caller's; this checks the encoding itself (lengths, ranges, no trailing bytes).
+/// a caller decoding many pages can reuse them).
+///
+/// It checks the encoding (lengths, ranges, no trailing bytes) and, as it goes, every record
+/// against the file's limits in `shape`, so that what it returns passes
+/// `VdtFile::validate_page` (a separate pass over the records cost a tenth of decoding):
+/// - the root alone has no parent, and every parent id is below its child's: a parent in the
+///   page was announced by an earlier node's child range, a parent delta is positive, and a
+///   sibling's parent is checked to exist;
+/// - child counts are at most 8, children come after their parent and exist;
+/// - leaf ranges are non-empty and end within the file's vertices; depths stay within the
+///   header's; subtri ranges lie in the page (they are consecutive from its first triangle
+///   and add up to its triangle count);
+/// - every float is finite and every radius non-negative: positions are at most
+///   [`crate::grid::GRID_STEPS`] steps from the grid origin and radii fewer than 2³³ steps,
+///   which the reader's grid check makes finite (`VdtFile` refuses a grid where they are
+///   not); axes are unit vectors and half-angles at most π;
+/// - corners are below the file's vertex count and parts below its part count.
 pub fn decode_page(
     grid: &Grid,
     raw: &[u8],
@@ -424,6 +448,10 @@ pub fn decode_page(
         node_count,
         first_triangle,
         triangle_count,
+        file_nodes,
+        file_vertices,
+        max_depth,
+        parts: part_count,
     } = *shape;
     nodes.clear();
     triangles.clear();
@@ -492,6 +520,9 @@ pub fn decode_page(
         if two_sided && child_count == 0 {
             return Err(bad("two-sided cone on a leaf"));
         }
+        if child_count > 8 {
+            return Err(bad("child count"));
+        }
         let parent_delta = parents.varint().ok_or_else(|| bad("parent"))?;
         let mut prediction = previous_q;
         let previous = nodes.last();
@@ -510,7 +541,9 @@ pub fn decode_page(
             (in_page, depth, leaf_begin)
         } else if parent_delta == 0 && id != 0 {
             // A sibling of the previous node, whose parent is in another page.
-            let p = previous.ok_or_else(|| bad("parent"))?;
+            let p = previous
+                .filter(|p| p.parent.get() != NO_NODE)
+                .ok_or_else(|| bad("parent"))?;
             (p.parent.get(), p.depth.get(), p.leaf_end.get())
         } else {
             let parent = if parent_delta == 0 {
@@ -532,6 +565,9 @@ pub fn decode_page(
                     .map_err(|_| bad("leaf"))?;
             (parent, depth, leaf_begin)
         };
+        if u32::from(depth) > max_depth {
+            return Err(bad("depth beyond the header's"));
+        }
         let subtri_count = if child_count > 0 {
             u32::try_from(subtri_counts.varint().ok_or_else(|| bad("subtris"))?)
                 .map_err(|_| bad("subtris"))?
@@ -584,7 +620,12 @@ pub fn decode_page(
             flags: if two_sided { FLAG_TWO_SIDED_CONE } else { 0 },
             depth: U16::new(depth),
             leaf_begin: U32::new(leaf_begin),
-            leaf_end: U32::new(leaf_begin.checked_add(1).ok_or_else(|| bad("leaf"))?),
+            leaf_end: U32::new(
+                leaf_begin
+                    .checked_add(1)
+                    .filter(|&end| u64::from(end) <= file_vertices)
+                    .ok_or_else(|| bad("leaf"))?,
+            ),
             subtri_begin: U32::new(u32::try_from(subtri_begin).map_err(|_| bad("subtris"))?),
             subtri_count: U32::new(subtri_count),
             proxy: proxy.map(f),
@@ -598,6 +639,7 @@ pub fn decode_page(
             let first_child = unzigzag(first_children.varint().ok_or_else(|| bad("children"))?)
                 .checked_add(predicted)
                 .and_then(|c| u32::try_from(c).ok())
+                .filter(|&c| c > id && u64::from(c) + u64::from(child_count) <= file_nodes)
                 .ok_or_else(|| bad("children"))?;
             expected_child = Some(i64::from(first_child) + i64::from(child_count));
             node.first_child = U32::new(first_child);
@@ -609,7 +651,10 @@ pub fn decode_page(
             }
             let count = leaf_counts.varint().ok_or_else(|| bad("leaf count"))?;
             let leaf_end = u64::from(leaf_begin) + count;
-            node.leaf_end = U32::new(u32::try_from(leaf_end).map_err(|_| bad("leaf count"))?);
+            if count == 0 || leaf_end > file_vertices {
+                return Err(bad("leaf count"));
+            }
+            node.leaf_end = U32::new(leaf_end as u32);
             let error_units = widened_error(base_error, unit as u64);
             node.error_radius = f(error_units as f32 * grid.step);
             let unit = centre_unit(error_units) as i64;
@@ -679,13 +724,19 @@ pub fn decode_page(
             let mut corners = [U32::new(0); 3];
             for c in &mut corners {
                 let v = begin + unzigzag(corners_stream.varint().ok_or_else(|| bad("corner"))?);
-                *c = U32::new(u32::try_from(v).map_err(|_| bad("corner"))?);
+                if !(0..file_vertices as i64).contains(&v) {
+                    return Err(bad("corner"));
+                }
+                *c = U32::new(v as u32);
             }
             let part = previous_part + unzigzag(parts.varint().ok_or_else(|| bad("part"))?);
+            if !(0..part_count.max(1) as i64).contains(&part) {
+                return Err(bad("part"));
+            }
             previous_part = part;
             triangles.push(TriangleRecord {
                 corners,
-                part: U32::new(u32::try_from(part).map_err(|_| bad("part"))?),
+                part: U32::new(part as u32),
             });
         }
     }

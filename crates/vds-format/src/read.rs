@@ -271,6 +271,27 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
                 "vertex count or depth inconsistent with the node count",
             ));
         }
+        self.check_grid()
+    }
+
+    /// The page decoder computes positions as `origin + step · q` with `q ≤ GRID_STEPS`, and
+    /// radii as `units · step` with fewer than 2³³ units (see `codec.rs`): with a positive
+    /// step and these extremes finite, every decoded float is finite.
+    fn check_grid(&self) -> Result<(), VdtError> {
+        let grid = self.grid();
+        let far = crate::GRID_STEPS as f32;
+        let finite = grid.step > 0.0
+            && (grid.step * 2f32.powi(33)).is_finite()
+            && grid
+                .origin
+                .iter()
+                .all(|&o| o.is_finite() && (o + grid.step * far).is_finite());
+        if !finite {
+            return Err(VdtError::invalid(
+                "header",
+                "grid origin or step is not finite and positive",
+            ));
+        }
         Ok(())
     }
 
@@ -333,11 +354,16 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         let start = entry.offset.get() as usize;
         let frame = &self.bytes.as_ref()[start..start + entry.compressed_length.get() as usize];
         check_sum(&what, frame, entry.checksum.get())?;
+        let h = &self.header;
         let shape = crate::codec::PageShape {
             first_node: entry.first_node.get(),
             node_count: entry.node_count.get(),
             first_triangle: entry.first_triangle.get(),
             triangle_count: entry.triangle_count.get(),
+            file_nodes: h.node_count.get(),
+            file_vertices: h.vertex_count.get(),
+            max_depth: h.max_depth.get(),
+            parts: self.metadata.part_names.len() as u64,
         };
         page.first_node = shape.first_node;
         page.first_triangle = shape.first_triangle;
@@ -361,11 +387,20 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
                 &mut page.triangles,
             )
             .map_err(|message| VdtError::invalid(&what, message))
-        })?;
-        self.check_page(&what, page)
+        })
     }
 
-    fn check_page(&self, what: &str, page: &Page) -> Result<(), VdtError> {
+    /// Checks a decoded page's records against this file: tree links, leaf, subtri and child
+    /// ranges, depths, finite non-negative bounds, corners and parts. Every page
+    /// [`VdtFile::read_page_into`] returns already passes (the decoder checks the same as it
+    /// goes, see `codec.rs`); this stand-alone pass is for pages from elsewhere, and for the
+    /// tests that hold the decoder to it.
+    pub fn validate_page(&self, page: &Page) -> Result<(), VdtError> {
+        let what = match self.page_of_node(page.first_node) {
+            Ok(index) => format!("page {index}"),
+            Err(_) => "page".to_string(),
+        };
+        let what = what.as_str();
         let h = &self.header;
         let node_count = h.node_count.get();
         let vertex_count = h.vertex_count.get();
