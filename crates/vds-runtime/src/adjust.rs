@@ -16,8 +16,11 @@
 //! - *Can it fold?* Only if all its children are on the boundary; then its own full test
 //!   decides.
 //!
-//! Work per frame is the active nodes (one 32-byte record and one bound each) plus the
-//! boundary nodes near the threshold plus what changes.
+//! A group's test is not repeated while the camera has moved less than the margin it passed
+//! with ([`crate::reuse`]): along a smooth path most groups skip their bound.
+//!
+//! Work per frame is the active nodes (one 56-byte record each, and a bound for those whose
+//! last test no longer holds) plus the boundary nodes near the threshold plus what changes.
 //!
 //! After the traversal every boundary node has passed the test for this frame — its group
 //! passed, or it was tested and stayed, or it folded because it passed — which is the
@@ -41,6 +44,7 @@ use vds_format::VdtError;
 
 use crate::criteria::{Decision, Judge};
 use crate::cut::{Cut, NIL, NodeState};
+use crate::reuse::{MotionLog, Reuse};
 
 /// Work done by one adjust.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -51,6 +55,9 @@ pub struct AdjustStats {
     pub groups: u32,
     /// Groups whose bound failed, so their children were tested one by one.
     pub groups_failed: u32,
+    /// Groups not tested because their last test still holds for this camera
+    /// ([`crate::reuse`]).
+    pub groups_reused: u32,
     /// Nodes unfolded.
     pub unfolds: u32,
     /// Nodes folded.
@@ -89,6 +96,7 @@ pub struct Adjuster {
     stack: Vec<u32>,
     unfold_queue: BinaryHeap<(Priority, Reverse<u32>)>,
     fold_queue: BinaryHeap<Reverse<(Priority, u32)>>,
+    motion: MotionLog,
     stats: AdjustStats,
 }
 
@@ -128,6 +136,10 @@ impl Adjuster {
             }
         }
         let tight = judge.tightest(t);
+        let now = self.motion.advance(judge, t);
+        if now.is_some_and(|now| now.fresh) {
+            cut.clear_reuse();
+        }
         // Backwards through the dense active list: an unfold appends nodes whose children
         // it has just tested, so they need no visit now; a fold moves the last entry (already
         // visited) into the folded node's place, so nothing unvisited is skipped.
@@ -139,22 +151,50 @@ impl Adjuster {
             };
             let hot = entry.hot;
             if entry.active_children < hot.child_count {
-                self.stats.visited += 1;
-                self.stats.groups += 1;
-                if !judge.group_within(&hot, tight) {
-                    self.stats.groups_failed += 1;
-                    for c in hot.first_child..hot.first_child + hot.child_count {
-                        if cut.state(c) == NodeState::Boundary
-                            && self.decision(cut, judge, t, c) == Decision::Unfold
-                        {
-                            self.refine(cut, judge, t, c)?;
+                if now.as_ref().is_some_and(|now| entry.reuse.holds(now)) {
+                    self.stats.groups_reused += 1;
+                } else {
+                    self.stats.visited += 1;
+                    self.stats.groups += 1;
+                    // The group's margin, or the least of its children's when each had to be
+                    // tested and none unfolded.
+                    let mut margin = judge.group_margin(&hot, tight);
+                    if margin.is_none() {
+                        self.stats.groups_failed += 1;
+                        let mut least = f32::INFINITY;
+                        for c in hot.first_child..hot.first_child + hot.child_count {
+                            if cut.state(c) != NodeState::Boundary {
+                                continue;
+                            }
+                            self.stats.visited += 1;
+                            let (decision, child_margin) =
+                                judge.decide_with_margin(cut.store().tested(c), t);
+                            if decision == Decision::Unfold {
+                                least = 0.0;
+                                self.refine(cut, judge, t, c)?;
+                            } else {
+                                least = least.min(child_margin);
+                            }
                         }
+                        margin = Some(least);
+                    }
+                    // Still at index `i`: refinement only appended entries (and an unfold
+                    // cleared this entry's record, which stays cleared with a zero margin).
+                    if let (Some(now), Some(margin)) = (&now, margin)
+                        && margin > 0.0
+                    {
+                        cut.set_reuse(i, Reuse::new(now, judge.group_reach(&hot), margin));
                     }
                 }
             }
+            // Still at index `i` (refinement above only appended entries, and an unfolded
+            // child shows in the count): the entry itself says whether `p` may fold, without
+            // a look-up by node id, which would miss the cache on every entry.
+            let Some(&entry) = cut.active_entries().get(i) else {
+                continue;
+            };
             let p = entry.id;
-            if cut.active_children(p) == 0 && cut.state(p) == NodeState::Active {
-                // Still at index `i`: refinement above only appended entries.
+            if entry.active_children == 0 {
                 self.stats.visited += 1;
                 if judge.decide(cut.active_tested(i), t) == Decision::Fold {
                     self.coarsen(cut, judge, t, p, prevent_flips);

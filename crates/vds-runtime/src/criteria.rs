@@ -162,6 +162,11 @@ impl Judge {
         self.view.as_ref()
     }
 
+    /// The criteria this judge applies.
+    pub fn criteria(&self) -> &Criteria {
+        &self.criteria
+    }
+
     /// The tightest threshold any node can get from `t`: silhouettes scale it down, gaze
     /// only up.
     #[inline]
@@ -179,58 +184,128 @@ impl Judge {
     /// both, so it is no larger than this one.
     #[inline]
     pub fn group_within(&self, hot: &Hot, tight: f32) -> bool {
+        self.group_test::<false>(hot, tight).is_some()
+    }
+
+    /// [`Judge::group_within`], and when the group passes, how far the node's proxy may move
+    /// in camera coordinates before it could fail ([`crate::reuse`]; zero without a camera).
+    #[inline]
+    pub(crate) fn group_margin(&self, hot: &Hot, tight: f32) -> Option<f32> {
+        self.group_test::<true>(hot, tight)
+    }
+
+    #[inline]
+    fn group_test<const MARGIN: bool>(&self, hot: &Hot, tight: f32) -> Option<f32> {
         let Some(view) = &self.view else {
-            return hot.group_error <= tight;
+            return (hot.group_error <= tight).then_some(0.0);
         };
         let r = hot.group_error;
         if r == 0.0 {
-            return true;
+            return Some(f32::INFINITY);
         }
         let c = view.to_camera(Vec3::from(hot.proxy));
         let d = c.z - hot.group_radius;
         if d <= 0.0 {
-            return false;
+            return None;
         }
-        let rho = (c.x * c.x + c.y * c.y).sqrt() + hot.group_radius;
+        let axis_distance = (c.x * c.x + c.y * c.y).sqrt();
+        let rho = axis_distance + hot.group_radius;
         let d2 = d * d;
-        self.focal_sq * r * r * (d2 + rho * rho) <= tight * tight * d2 * d2
+        if self.focal_sq * r * r * (d2 + rho * rho) > tight * tight * d2 * d2 {
+            return None;
+        }
+        Some(if MARGIN {
+            crate::reuse::pass_margin(
+                view.focal_px,
+                r,
+                c.z,
+                axis_distance,
+                hot.group_radius,
+                tight,
+            )
+        } else {
+            0.0
+        })
+    }
+
+    /// How far from the eye the points a test of `hot`'s group depends on can be: its proxy's
+    /// distance plus the group radius, with room for rounding.
+    pub(crate) fn group_reach(&self, hot: &Hot) -> f32 {
+        self.view.map_or(0.0, |view| {
+            (Vec3::from(hot.proxy) - view.eye).length() * 1.0001 + hot.group_radius
+        })
     }
 
     /// Whether node `n` should unfold under threshold `t` (pixels, or scene units when
     /// view-independent).
     #[inline]
     pub fn decide(&self, n: Tested<'_>, t: f32) -> Decision {
+        self.decide_inner::<false>(n, t).0
+    }
+
+    /// [`Judge::decide`], and when the node folds by the screen-space test at the tightest
+    /// threshold (so whatever its facing), how far its proxy may move in camera coordinates
+    /// before that could change ([`crate::reuse`]); zero otherwise.
+    #[inline]
+    pub(crate) fn decide_with_margin(&self, n: Tested<'_>, t: f32) -> (Decision, f32) {
+        self.decide_inner::<true>(n, t)
+    }
+
+    #[inline]
+    fn decide_inner<const MARGIN: bool>(&self, n: Tested<'_>, t: f32) -> (Decision, f32) {
         let Some(view) = &self.view else {
-            return if n.hot.error_radius > t {
+            let decision = if n.hot.error_radius > t {
                 Decision::Unfold
             } else {
                 Decision::Fold
             };
+            return (decision, 0.0);
         };
         let ignore_outside = self.criteria.frustum == FrustumMode::Ignore;
         if ignore_outside && self.outside(view, n) {
-            return Decision::Keep;
+            return (Decision::Keep, 0.0);
         }
         let r = n.hot.error_radius;
         if r == 0.0 {
-            return Decision::Fold;
+            return (Decision::Fold, f32::INFINITY);
         }
         let c = view.to_camera(Vec3::from(n.hot.proxy));
         let d = c.z - r;
         // Cheapest first: most nodes of a settled cut are far below even the tightest limit.
-        let (lhs, d4) = if d > 0.0 {
+        let (lhs, d4, axis_distance) = if d > 0.0 {
             let rho = (c.x * c.x + c.y * c.y).sqrt();
             (
                 self.focal_sq * r * r * (d * d + (rho + r) * (rho + r)),
                 (d * d) * (d * d),
+                rho,
             )
         } else {
-            (f32::INFINITY, 0.0)
+            (f32::INFINITY, 0.0, 0.0)
         };
         let tightest = self.tightest(t);
         if lhs <= tightest * tightest * d4 {
-            return Decision::Fold;
+            let margin = if MARGIN {
+                crate::reuse::pass_margin(view.focal_px, r, c.z, axis_distance, r, tightest)
+            } else {
+                0.0
+            };
+            return (Decision::Fold, margin);
         }
+        (self.decide_rest(view, n, t, d, lhs, d4), 0.0)
+    }
+
+    /// The criteria after the tightest screen-space test failed.
+    #[inline]
+    fn decide_rest(
+        &self,
+        view: &View,
+        n: Tested<'_>,
+        t: f32,
+        d: f32,
+        lhs: f32,
+        d4: f32,
+    ) -> Decision {
+        let ignore_outside = self.criteria.frustum == FrustumMode::Ignore;
         if !ignore_outside && self.outside(view, n) {
             return Decision::Fold;
         }

@@ -29,6 +29,7 @@
 
 use vds_format::VdtError;
 
+use crate::reuse::Reuse;
 use crate::store::{Hot, Node, NodeStore, Shape, Tested};
 
 /// "None" for slot, list and node links.
@@ -117,7 +118,12 @@ pub struct ActiveEntry {
     pub id: u32,
     /// How many of its children are active (it may fold when none is).
     pub active_children: u32,
+    /// Its boundary children's last threshold test, while the camera has moved too little to
+    /// change it ([`crate::reuse`]); cleared whenever a child folds or unfolds.
+    pub(crate) reuse: Reuse,
 }
+
+const _: () = assert!(size_of::<ActiveEntry>() == 56);
 
 /// The cut: node labels, the boundary path and the active triangles.
 pub struct Cut {
@@ -237,6 +243,22 @@ impl Cut {
     #[inline]
     pub fn active_entries(&self) -> &[ActiveEntry] {
         &self.active_list
+    }
+
+    /// Records that the boundary children of the active node at `index` of
+    /// [`Cut::active_entries`] passed the threshold test as `reuse` says.
+    #[inline]
+    pub(crate) fn set_reuse(&mut self, index: usize, reuse: Reuse) {
+        if let Some(entry) = self.active_list.get_mut(index) {
+            entry.reuse = reuse;
+        }
+    }
+
+    /// Forgets every recorded test (a new generation of [`crate::reuse`]).
+    pub(crate) fn clear_reuse(&mut self) {
+        for entry in &mut self.active_list {
+            entry.reuse = Reuse::NONE;
+        }
     }
 
     /// What the criteria read of the active node at `index` of [`Cut::active_entries`],
@@ -632,7 +654,9 @@ impl Cut {
             let count = &mut self.active_children[parent as usize];
             *count = (i32::from(*count) + change) as u8;
             let index = self.active_index[parent as usize];
-            self.active_list[index as usize].active_children = u32::from(*count);
+            let entry = &mut self.active_list[index as usize];
+            entry.active_children = u32::from(*count);
+            entry.reuse = Reuse::NONE;
         }
     }
 
@@ -644,6 +668,7 @@ impl Cut {
                 hot: *self.store.hot(id),
                 id,
                 active_children: u32::from(self.active_children[id as usize]),
+                reuse: Reuse::NONE,
             });
             self.active_shapes.push(*self.store.tested(id).shape);
         } else if was == NodeState::Active && state != NodeState::Active {

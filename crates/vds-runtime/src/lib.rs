@@ -17,6 +17,7 @@
 //! - [`cut`]: node labels, the boundary, active triangles in slots, fold and unfold.
 //! - [`criteria`]: the screen-space, silhouette, backface, frustum and gaze tests.
 //! - [`adjust`]: the per-frame threshold traversal and the triangle-budget exchange.
+//! - [`reuse`]: margins that let a threshold test stand while the camera moves little.
 //! - [`camera_path`]: camera paths (orbit, fly-through) and their JSON form.
 //! - [`measure`]: exact screen-space deviation of the original vertices, for checks.
 //! - [`export`]: the cut as an OBJ or PLY mesh (`vds-cut`).
@@ -29,6 +30,7 @@ pub mod criteria;
 pub mod cut;
 pub mod export;
 pub mod measure;
+pub mod reuse;
 pub mod store;
 pub mod view;
 

@@ -398,3 +398,58 @@ fn threshold_holds_on_every_frame_of_a_smooth_path() {
         runtime.cut_mut().check().unwrap();
     }
 }
+
+/// Groups whose last test still holds are skipped (`crate::reuse`): along smooth paths most
+/// are, and the threshold must hold on every frame all the same, also right after the
+/// threshold tightens (which must start over, not reuse tests made at the looser threshold).
+/// Silhouettes and backfaces off: the threshold then bounds every visible vertex with no
+/// factor to spare, which a wrong margin would show.
+#[test]
+fn reused_tests_keep_the_threshold_on_smooth_paths() {
+    for name in ["bunny.obj", "as1_assembly.obj"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+        let positions = runtime.leaf_positions().unwrap();
+        let frames = 160;
+        let paths = [
+            vds_runtime::CameraPath::orbit(center, radius * 2.0, frames, 480, 320),
+            vds_runtime::CameraPath::fly_through(center, radius * 1.5, frames, 480, 320),
+        ];
+        let (mut tested, mut reused) = (0u64, 0u64);
+        for path in &paths {
+            for (frame, camera) in path.cameras.iter().enumerate() {
+                let t = if frame < frames as usize / 2 {
+                    1.0
+                } else {
+                    0.5
+                };
+                let adjusted = runtime
+                    .adjust(
+                        &Viewpoint::Camera(*camera),
+                        &Criteria {
+                            silhouette_factor: None,
+                            ..no_backface()
+                        },
+                        Goal::Threshold(t),
+                    )
+                    .unwrap();
+                tested += u64::from(adjusted.stats.groups);
+                reused += u64::from(adjusted.stats.groups_reused);
+                let deviation =
+                    measure::screen_deviation(runtime.cut(), &camera.view(), &positions, None);
+                assert!(
+                    deviation.max_px <= f64::from(t) + slack(t),
+                    "{name} frame {frame}: {} px > {t} px",
+                    deviation.max_px
+                );
+            }
+        }
+        runtime.cut_mut().check().unwrap();
+        assert!(
+            reused > tested,
+            "{name}: {reused} groups reused, {tested} tested: the paths should reuse most"
+        );
+    }
+}
