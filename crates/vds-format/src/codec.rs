@@ -557,12 +557,17 @@ pub fn decode_page(
             let (depth, leaf) = previous.map_or((0, 0), |p| {
                 (i64::from(p.depth.get()), i64::from(p.leaf_end.get()))
             });
-            let depth =
-                u16::try_from(depth + unzigzag(depths.varint().ok_or_else(|| bad("depth"))?))
-                    .map_err(|_| bad("depth"))?;
-            let leaf_begin =
-                u32::try_from(leaf + unzigzag(leaf_begins.varint().ok_or_else(|| bad("leaf"))?))
-                    .map_err(|_| bad("leaf"))?;
+            // Checked: a hostile varint may hold any 64-bit step.
+            let depth = depths
+                .varint()
+                .and_then(|z| depth.checked_add(unzigzag(z)))
+                .and_then(|d| u16::try_from(d).ok())
+                .ok_or_else(|| bad("depth"))?;
+            let leaf_begin = leaf_begins
+                .varint()
+                .and_then(|z| leaf.checked_add(unzigzag(z)))
+                .and_then(|l| u32::try_from(l).ok())
+                .ok_or_else(|| bad("leaf"))?;
             (parent, depth, leaf_begin)
         };
         if u32::from(depth) > max_depth {
@@ -649,11 +654,12 @@ pub fn decode_page(
                     *slot = id;
                 }
             }
-            let count = leaf_counts.varint().ok_or_else(|| bad("leaf count"))?;
-            let leaf_end = u64::from(leaf_begin) + count;
-            if count == 0 || leaf_end > file_vertices {
-                return Err(bad("leaf count"));
-            }
+            let leaf_end = leaf_counts
+                .varint()
+                .filter(|&count| count > 0)
+                .and_then(|count| u64::from(leaf_begin).checked_add(count))
+                .filter(|&end| end <= file_vertices)
+                .ok_or_else(|| bad("leaf count"))?;
             node.leaf_end = U32::new(leaf_end as u32);
             let error_units = widened_error(base_error, unit as u64);
             node.error_radius = f(error_units as f32 * grid.step);
@@ -723,14 +729,21 @@ pub fn decode_page(
         for _ in 0..n.subtri_count.get() {
             let mut corners = [U32::new(0); 3];
             for c in &mut corners {
-                let v = begin + unzigzag(corners_stream.varint().ok_or_else(|| bad("corner"))?);
-                if !(0..file_vertices as i64).contains(&v) {
+                // `begin` is below 2³², so a sum past `i64::MAX` wraps to a negative value,
+                // which the unsigned comparison refuses like any other.
+                let v = begin.wrapping_add(unzigzag(
+                    corners_stream.varint().ok_or_else(|| bad("corner"))?,
+                ));
+                if v as u64 >= file_vertices {
                     return Err(bad("corner"));
                 }
                 *c = U32::new(v as u32);
             }
-            let part = previous_part + unzigzag(parts.varint().ok_or_else(|| bad("part"))?);
-            if !(0..part_count.max(1) as i64).contains(&part) {
+            // As for corners: the previous part is a valid index, far below 2⁶³, so a sum
+            // that wraps is negative and refused.
+            let part =
+                previous_part.wrapping_add(unzigzag(parts.varint().ok_or_else(|| bad("part"))?));
+            if part as u64 >= part_count.max(1) {
                 return Err(bad("part"));
             }
             previous_part = part;
