@@ -808,6 +808,138 @@ mod tests {
         assert!(encode_page(&grid, 0, &[leaf], &[triangle]).is_err());
     }
 
+    fn node(parent: u32, depth: u16, leaves: std::ops::Range<u32>, x: f32) -> NodeRecord {
+        use zerocopy::FromZeros;
+        let mut n = NodeRecord::new_zeroed();
+        n.parent = U32::new(parent);
+        n.first_child = U32::new(NO_NODE);
+        n.depth = U16::new(depth);
+        n.leaf_begin = U32::new(leaves.start);
+        n.leaf_end = U32::new(leaves.end);
+        n.proxy = [x, 0.0, 0.0].map(F32::new);
+        n
+    }
+
+    fn inner(mut n: NodeRecord, children: std::ops::Range<u32>, subtris: u32) -> NodeRecord {
+        n.first_child = U32::new(children.start);
+        n.child_count = (children.end - children.start) as u8;
+        n.subtri_count = U32::new(subtris);
+        n.error_radius = F32::new(2.0);
+        n.sphere = [1.0, 0.0, 0.0, 2.0].map(F32::new);
+        n.cone = [0.0, 0.0, 1.0, 0.1].map(F32::new);
+        n
+    }
+
+    /// Two pages of one small tree: the root's page (root; leaf 1; inner node 2 over leaf
+    /// ranks 1..3 with one subtri; its leaves 3 and 4), and a page of two nodes whose
+    /// parents lie outside it, so each spells out its depth and first leaf.
+    fn pages() -> (Grid, [(Vec<u8>, PageShape); 2]) {
+        let grid = Grid {
+            origin: [0.0; 3],
+            step: 1.0,
+        };
+        let shape = |first_node, node_count, triangle_count| PageShape {
+            first_node,
+            node_count,
+            first_triangle: 0,
+            triangle_count,
+            file_nodes: 5,
+            file_vertices: 3,
+            max_depth: 2,
+            parts: 2,
+        };
+        let triangle = |corners: [u32; 3], part| TriangleRecord {
+            corners: corners.map(U32::new),
+            part: U32::new(part),
+        };
+        let mut c = inner(node(0, 1, 1..3, 1.0), 3..5, 1);
+        c.subtri_begin = U32::new(1);
+        let root_page = [
+            inner(node(NO_NODE, 0, 0..3, 1.0), 1..3, 1),
+            node(0, 1, 0..1, 0.0),
+            c,
+            node(2, 2, 1..2, 1.0),
+            node(2, 2, 2..3, 2.0),
+        ];
+        let triangles = [triangle([0, 1, 2], 1), triangle([1, 2, 0], 1)];
+        let first = encode_page(&grid, 0, &root_page, &triangles).unwrap();
+        let other = [node(1, 2, 1..2, 1.0), node(2, 2, 2..3, 2.0)];
+        let second = encode_page(&grid, 3, &other, &[]).unwrap();
+        (grid, [(first, shape(0, 5, 2)), (second, shape(3, 2, 0))])
+    }
+
+    /// `raw` with value `n` of stream `k` replaced by `value`.
+    fn with_value(raw: &[u8], k: usize, n: usize, value: u64) -> Vec<u8> {
+        let length = |j: usize| u32::from_le_bytes(raw[4 * j..4 * j + 4].try_into().unwrap());
+        let mut streams: Vec<Vec<u8>> = Vec::new();
+        let mut at = 4 * STREAMS;
+        for j in 0..STREAMS {
+            let end = at + length(j) as usize;
+            streams.push(raw[at..end].to_vec());
+            at = end;
+        }
+        let mut reader = Stream {
+            bytes: &streams[k],
+            at: 0,
+        };
+        for _ in 0..n {
+            reader.varint().unwrap();
+        }
+        let start = reader.at;
+        reader.varint().unwrap();
+        let mut replaced = streams[k][..start].to_vec();
+        put_varint(&mut replaced, value);
+        replaced.extend_from_slice(&streams[k][reader.at..]);
+        streams[k] = replaced;
+        let mut out = Vec::new();
+        for stream in &streams {
+            out.extend_from_slice(&(stream.len() as u32).to_le_bytes());
+        }
+        for stream in &streams {
+            out.extend_from_slice(stream);
+        }
+        out
+    }
+
+    /// Steps that would overflow 64-bit arithmetic where they are added to a non-zero base
+    /// (a previous node's depth or leaf end, an inner node's first leaf, the previous part)
+    /// are errors, in debug builds as in release ones.
+    #[test]
+    fn huge_steps_in_hostile_streams_are_errors_not_overflows() {
+        let (grid, [(first, first_shape), (second, second_shape)]) = pages();
+        let decode = |raw: &[u8], shape: &PageShape| {
+            let (mut nodes, mut triangles) = (Vec::new(), Vec::new());
+            decode_page(
+                &grid,
+                raw,
+                shape,
+                &mut Scratch::default(),
+                &mut nodes,
+                &mut triangles,
+            )
+        };
+        decode(&first, &first_shape).expect("the root page as written decodes");
+        decode(&second, &second_shape).expect("the other page as written decodes");
+        // (page, stream, value index): the second node's depth and first leaf; the inner
+        // node's leaf count and first corner; the second triangle's part.
+        let cases = [
+            (1, DEPTH, 1),
+            (1, LEAF_BEGIN, 1),
+            (0, LEAF_COUNT, 1),
+            (0, CORNERS, 3),
+            (0, PART, 1),
+        ];
+        for (page, stream, n) in cases {
+            let (raw, shape) = [(&first, &first_shape), (&second, &second_shape)][page];
+            for value in [u64::MAX, u64::MAX - 1, 1 << 63, (1 << 63) - 1] {
+                assert!(
+                    decode(&with_value(raw, stream, n, value), shape).is_err(),
+                    "stream {stream}, value {value}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn octahedral_axes_are_close() {
         for axis in [
