@@ -384,7 +384,9 @@ impl Stream<'_> {
 }
 
 /// Where a page's records go, what the page holds, and the file's limits every record must
-/// keep.
+/// keep. As the reader's directory check guarantees, node ids `first_node + node_count` and
+/// triangle indices `first_triangle + triangle_count` fit in 32 bits and the file holds the
+/// page's nodes.
 pub struct PageShape {
     /// Id of the first node.
     pub first_node: u32,

@@ -13,6 +13,8 @@
 
 mod codec;
 mod error;
+#[cfg(feature = "fuzzing")]
+pub mod fuzzing;
 mod grid;
 pub mod layout;
 mod metadata;

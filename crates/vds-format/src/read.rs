@@ -400,78 +400,14 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             Ok(index) => format!("page {index}"),
             Err(_) => "page".to_string(),
         };
-        let what = what.as_str();
         let h = &self.header;
-        let node_count = h.node_count.get();
-        let vertex_count = h.vertex_count.get();
-        let triangle_end = u64::from(page.first_triangle) + page.triangles.len() as u64;
-        for (k, n) in page.nodes.iter().enumerate() {
-            let id = u64::from(page.first_node) + k as u64;
-            let bad = |message: &str| VdtError::invalid(format!("{what} node {id}"), message);
-            let parent = n.parent.get();
-            if (id == 0) != (parent == NO_NODE) || (parent != NO_NODE && u64::from(parent) >= id) {
-                return Err(bad("parent out of range"));
-            }
-            let children = u64::from(n.child_count);
-            if children > 8
-                || (children > 0
-                    && (u64::from(n.first_child.get()) <= id
-                        || u64::from(n.first_child.get()) + children > node_count))
-            {
-                return Err(bad("children out of range"));
-            }
-            if n.leaf_begin.get() >= n.leaf_end.get() || u64::from(n.leaf_end.get()) > vertex_count
-            {
-                return Err(bad("leaf range out of range"));
-            }
-            if u64::from(n.depth.get()) > u64::from(h.max_depth.get()) {
-                return Err(bad("depth exceeds the header's"));
-            }
-            let begin = u64::from(n.subtri_begin.get());
-            if begin < u64::from(page.first_triangle)
-                || begin + u64::from(n.subtri_count.get()) > triangle_end
-            {
-                return Err(bad("subtris outside the page"));
-            }
-            // One pass over the record's floats without early exits: this runs for every
-            // node of every page read.
-            let floats = [
-                n.proxy[0],
-                n.proxy[1],
-                n.proxy[2],
-                n.error_radius,
-                n.sphere[0],
-                n.sphere[1],
-                n.sphere[2],
-                n.sphere[3],
-                n.cone[0],
-                n.cone[1],
-                n.cone[2],
-                n.cone[3],
-            ];
-            // Finite means an exponent below all ones; the largest magnitude decides.
-            let largest = floats
-                .iter()
-                .fold(0, |m, f| m.max(f.get().to_bits() & 0x7FFF_FFFF));
-            if largest >= 0x7F80_0000 || n.error_radius.get() < 0.0 || n.sphere[3].get() < 0.0 {
-                return Err(bad("non-finite or negative bound"));
-            }
-        }
-        let parts = self.metadata.part_names.len() as u64;
-        for (k, t) in page.triangles.iter().enumerate() {
-            if t.corners.iter().any(|c| u64::from(c.get()) >= vertex_count)
-                || u64::from(t.part.get()) >= parts.max(1)
-            {
-                return Err(VdtError::invalid(
-                    format!(
-                        "{what} triangle {}",
-                        u64::from(page.first_triangle) + k as u64
-                    ),
-                    "corner or part out of range",
-                ));
-            }
-        }
-        Ok(())
+        let limits = Limits {
+            nodes: h.node_count.get(),
+            vertices: h.vertex_count.get(),
+            max_depth: u64::from(h.max_depth.get()),
+            parts: self.metadata.part_names.len() as u64,
+        };
+        check_records(&what, page, &limits)
     }
 
     /// Decodes every page in parallel, checking every checksum and record. Returns the pages
@@ -486,4 +422,89 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             .map(|i| self.read_page(i))
             .collect()
     }
+}
+
+/// The file-wide limits every record of a page must keep.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Limits {
+    /// Nodes in the file.
+    pub nodes: u64,
+    /// Vertices (leaves) in the file.
+    pub vertices: u64,
+    /// The header's deepest depth.
+    pub max_depth: u64,
+    /// Part names in the metadata.
+    pub parts: u64,
+}
+
+/// [`VdtFile::validate_page`] against explicit limits.
+pub(crate) fn check_records(what: &str, page: &Page, limits: &Limits) -> Result<(), VdtError> {
+    let triangle_end = u64::from(page.first_triangle) + page.triangles.len() as u64;
+    for (k, n) in page.nodes.iter().enumerate() {
+        let id = u64::from(page.first_node) + k as u64;
+        let bad = |message: &str| VdtError::invalid(format!("{what} node {id}"), message);
+        let parent = n.parent.get();
+        if (id == 0) != (parent == NO_NODE) || (parent != NO_NODE && u64::from(parent) >= id) {
+            return Err(bad("parent out of range"));
+        }
+        let children = u64::from(n.child_count);
+        if children > 8
+            || (children > 0
+                && (u64::from(n.first_child.get()) <= id
+                    || u64::from(n.first_child.get()) + children > limits.nodes))
+        {
+            return Err(bad("children out of range"));
+        }
+        if n.leaf_begin.get() >= n.leaf_end.get() || u64::from(n.leaf_end.get()) > limits.vertices {
+            return Err(bad("leaf range out of range"));
+        }
+        if u64::from(n.depth.get()) > limits.max_depth {
+            return Err(bad("depth exceeds the header's"));
+        }
+        let begin = u64::from(n.subtri_begin.get());
+        if begin < u64::from(page.first_triangle)
+            || begin + u64::from(n.subtri_count.get()) > triangle_end
+        {
+            return Err(bad("subtris outside the page"));
+        }
+        // One pass over the record's floats without early exits: this runs for every
+        // node of every page read.
+        let floats = [
+            n.proxy[0],
+            n.proxy[1],
+            n.proxy[2],
+            n.error_radius,
+            n.sphere[0],
+            n.sphere[1],
+            n.sphere[2],
+            n.sphere[3],
+            n.cone[0],
+            n.cone[1],
+            n.cone[2],
+            n.cone[3],
+        ];
+        // Finite means an exponent below all ones; the largest magnitude decides.
+        let largest = floats
+            .iter()
+            .fold(0, |m, f| m.max(f.get().to_bits() & 0x7FFF_FFFF));
+        if largest >= 0x7F80_0000 || n.error_radius.get() < 0.0 || n.sphere[3].get() < 0.0 {
+            return Err(bad("non-finite or negative bound"));
+        }
+    }
+    for (k, t) in page.triangles.iter().enumerate() {
+        if t.corners
+            .iter()
+            .any(|c| u64::from(c.get()) >= limits.vertices)
+            || u64::from(t.part.get()) >= limits.parts.max(1)
+        {
+            return Err(VdtError::invalid(
+                format!(
+                    "{what} triangle {}",
+                    u64::from(page.first_triangle) + k as u64
+                ),
+                "corner or part out of range",
+            ));
+        }
+    }
+    Ok(())
 }
