@@ -291,11 +291,13 @@ impl Judge {
             };
             return (Decision::Fold, margin);
         }
-        (self.decide_rest(view, n, t, d, lhs, d4), 0.0)
+        (self.decide_rest(view, n, t, d, lhs, d4, true), 0.0)
     }
 
-    /// The criteria after the tightest screen-space test failed.
+    /// The criteria after the tightest screen-space test failed. `shortcut` is off only in
+    /// the test that holds the shortcut to the full evaluation.
     #[inline]
+    #[allow(clippy::too_many_arguments)]
     fn decide_rest(
         &self,
         view: &View,
@@ -304,10 +306,22 @@ impl Judge {
         d: f32,
         lhs: f32,
         d4: f32,
+        shortcut: bool,
     ) -> Decision {
         let ignore_outside = self.criteria.frustum == FrustumMode::Ignore;
         if !ignore_outside && self.outside(view, n) {
             return Decision::Fold;
+        }
+        // The error exceeds even the loosest threshold a facing could give (`t`: no gaze,
+        // and silhouettes only tighten), and the node cannot be entirely backfacing: it
+        // unfolds whatever its facing, without the cone test's square roots.
+        if shortcut
+            && self.criteria.gaze.is_none()
+            && self.criteria.silhouette_factor.is_none_or(|s| s <= 1.0)
+            && lhs > t * t * d4
+            && !self.may_face_away(view, n)
+        {
+            return Decision::Unfold;
         }
         let facing = if self.criteria.backface || self.criteria.silhouette_factor.is_some() {
             self.facing(view, n)
@@ -387,6 +401,17 @@ impl Judge {
             && view.sphere_outside(view.to_camera(Vec3::from(n.shape.center)), n.shape.radius)
     }
 
+    /// False when backface folding is off or `n` cannot test as entirely backfacing: its cone
+    /// is empty or two-sided, or its axis does not point away from the eye (backfacing needs
+    /// `a·(c − e) > sin(α + β)·‖c − e‖ ≥ 0`, see [`Judge::facing_of`]).
+    #[inline]
+    fn may_face_away(&self, view: &View, n: Tested<'_>) -> bool {
+        let test = n.shape.cone_cos;
+        self.criteria.backface
+            && (0.0..=1.0).contains(&test)
+            && Vec3::from(n.shape.cone_axis).dot(Vec3::from(n.shape.center) - view.eye) > 0.0
+    }
+
     /// How `n`'s triangles face the eye of this judge's camera (front when view-independent).
     pub fn facing_of(&self, n: Tested<'_>) -> Facing {
         match &self.view {
@@ -454,5 +479,96 @@ impl Judge {
             .acos();
         let beta = (n.shape.radius / distance).asin();
         1.0 + gaze.falloff.max(0.0) * (angle - beta).max(0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{Hot, Shape};
+
+    /// The shortcut for nodes whose error exceeds the loosest threshold and that cannot face
+    /// away gives the decision the full evaluation gives, on random nodes, cameras and
+    /// criteria.
+    #[test]
+    fn the_unfold_shortcut_decides_as_the_full_criteria() {
+        let mut seed = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (mut shortcut_taken, mut cases) = (0, 0);
+        for _ in 0..50_000 {
+            let camera = Camera {
+                eye: [next() * 4.0 - 2.0, next() * 4.0 - 2.0, next() * 4.0 - 2.0],
+                target: [next() - 0.5, next() - 0.5, next() - 0.5],
+                up: [0.0, 1.0, 0.0],
+                fov_y_degrees: 30.0 + 60.0 * next(),
+                width: 640,
+                height: 480,
+                near: 0.01,
+            };
+            let criteria = Criteria {
+                silhouette_factor: [None, Some(0.25), Some(1.0)][(next() * 3.0) as usize % 3],
+                backface: next() < 0.7,
+                frustum: [FrustumMode::Fold, FrustumMode::Off][(next() * 2.0) as usize % 2],
+                ..Criteria::default()
+            };
+            let judge = Judge::new(&Viewpoint::Camera(camera), &criteria);
+            let view = judge.view().unwrap();
+            let axis = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize_or(Vec3::Z);
+            let proxy = [next() - 0.5, next() - 0.5, next() - 0.5];
+            let r = 0.001 + 0.05 * next();
+            let hot = Hot {
+                proxy,
+                error_radius: r,
+                group_radius: 0.0,
+                group_error: 0.0,
+                first_child: 0,
+                child_count: 0,
+            };
+            let shape = Shape {
+                center: proxy,
+                radius: r * (1.0 + next()),
+                cone_axis: axis.into(),
+                cone_cos: Shape::cone_test(next() * 3.5 - 0.3, next() < 0.3),
+            };
+            let n = Tested {
+                hot: &hot,
+                shape: &shape,
+            };
+            let t = 0.25 + 4.0 * next();
+            let c = view.to_camera(Vec3::from(proxy));
+            let d = c.z - r;
+            let (lhs, d4) = if d > 0.0 {
+                let rho = (c.x * c.x + c.y * c.y).sqrt();
+                (
+                    judge.focal_sq * r * r * (d * d + (rho + r) * (rho + r)),
+                    (d * d) * (d * d),
+                )
+            } else {
+                (f32::INFINITY, 0.0)
+            };
+            let tightest = judge.tightest(t);
+            if lhs <= tightest * tightest * d4 {
+                continue;
+            }
+            cases += 1;
+            let fast = judge.decide_rest(view, n, t, d, lhs, d4, true);
+            let full = judge.decide_rest(view, n, t, d, lhs, d4, false);
+            assert_eq!(
+                fast, full,
+                "{camera:?} {criteria:?} {hot:?} {shape:?} t {t}"
+            );
+            shortcut_taken += usize::from(
+                fast == Decision::Unfold && lhs > t * t * d4 && !judge.may_face_away(view, n),
+            );
+        }
+        assert!(
+            cases > 10_000 && shortcut_taken > 1_000,
+            "{cases} cases, {shortcut_taken} through the shortcut"
+        );
     }
 }
