@@ -492,13 +492,7 @@ mod tests {
     /// criteria.
     #[test]
     fn the_unfold_shortcut_decides_as_the_full_criteria() {
-        let mut seed = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut next = crate::unit_random(0x9E37_79B9_7F4A_7C15u64);
         let (mut shortcut_taken, mut cases) = (0, 0);
         for _ in 0..50_000 {
             let camera = Camera {

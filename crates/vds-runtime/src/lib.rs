@@ -36,6 +36,17 @@ pub mod view;
 
 use std::path::Path;
 
+/// Uniform numbers in `[0, 1)` from a xorshift generator, for the unit tests' random cases.
+#[cfg(test)]
+pub(crate) fn unit_random(mut seed: u64) -> impl FnMut() -> f32 {
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
 pub use adjust::{AdjustStats, Adjuster};
 pub use camera_path::CameraPath;
 pub use criteria::{Criteria, Decision, Facing, FrustumMode, Gaze, Goal, Judge, Viewpoint};

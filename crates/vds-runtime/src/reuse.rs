@@ -195,13 +195,7 @@ mod tests {
 
     #[test]
     fn the_test_passes_everywhere_within_the_margin() {
-        let mut seed = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f32 / (1u64 << 53) as f32
-        };
+        let mut next = crate::unit_random(0x2545_F491_4F6C_DD1Du64);
         let mut positive = 0;
         for _ in 0..20_000 {
             let focal = 200.0 + 2000.0 * next();
