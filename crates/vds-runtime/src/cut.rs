@@ -151,6 +151,9 @@ pub struct Cut {
     seen_before: Vec<u32>,
     /// Journal of slots touched since the last `take_changes`: their contents before.
     journal: Vec<(u32, u32, [u32; 3])>,
+    /// One bit per slot, set for the dirty ones while changes are collected, so they come out
+    /// in ascending order without a sort; all clear between calls.
+    dirty_bits: Vec<u64>,
     epoch: u32,
     lazy_dirty: bool,
 }
@@ -180,6 +183,7 @@ impl Cut {
             },
             seen_before: vec![0; triangles],
             journal: Vec::new(),
+            dirty_bits: Vec::new(),
             epoch: 1,
             lazy_dirty: false,
         };
@@ -449,6 +453,7 @@ impl Cut {
     pub fn take_changes(&mut self) -> Changes {
         self.refresh_lazy_corners();
         let mut changes = Changes::default();
+        self.dirty_bits.resize(self.slots.len().div_ceil(64), 0);
         // Triangles active before the frame can only have left touched slots: mark them.
         for &(_, triangle, _) in &self.journal {
             if triangle != NIL {
@@ -465,13 +470,21 @@ impl Cut {
             }
             let now = &self.slots[slot as usize];
             if now.triangle != triangle || now.corners != corners {
-                changes.dirty_slots.push(slot);
+                self.dirty_bits[slot as usize / 64] |= 1 << (slot % 64);
             }
             if now.triangle != NIL && self.seen_before[now.triangle as usize] != self.epoch {
                 changes.added += 1;
             }
         }
-        changes.dirty_slots.sort_unstable();
+        for (word_index, word) in self.dirty_bits.iter_mut().enumerate() {
+            let mut bits = std::mem::take(word);
+            while bits != 0 {
+                changes
+                    .dirty_slots
+                    .push(word_index as u32 * 64 + bits.trailing_zeros());
+                bits &= bits - 1;
+            }
+        }
         self.journal.clear();
         self.epoch = self.epoch.wrapping_add(1);
         if self.epoch == 0 {

@@ -177,6 +177,10 @@ fn incremental_adjusts_match_a_recomputation_and_the_journal_replays_them() {
             lazy.adjust(&view, &criteria, goal).unwrap();
             eager.cut_mut().check().unwrap();
             lazy.cut_mut().check().unwrap();
+            assert!(
+                frame.changes.dirty_slots.windows(2).all(|w| w[0] < w[1]),
+                "{name} step {step}: dirty slots are not ascending and distinct"
+            );
             apply(&mut mirror, &mut eager, &frame.changes.dirty_slots);
             let cut = eager.cut_mut();
             let slots: Vec<_> = (0..cut.slot_count()).map(|s| cut.slot(s)).collect();
