@@ -4,7 +4,7 @@
 //!
 //! Input: 28 bytes of page shape and file limits, then raw page streams (see
 //! `vds_format::fuzzing::decode_page_and_check`). Seed the corpus with real pages:
-//! `cargo run -p vds-format --example page_seeds -- model.vdt fuzz/corpus/page_codec`.
+//! `cargo run -p vds-format --features fuzzing --example page_seeds -- model.vdt fuzz/corpus/page_codec`.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;

@@ -4,11 +4,41 @@
 //! checksums, which random mutations rarely keep valid. This entry point hands the decoder
 //! raw page streams directly.
 
-use crate::Page;
-use crate::codec::STREAMS;
-use crate::codec::{PageShape, Scratch, decode_page};
+use crate::codec::{PageShape, STREAMS, Scratch, decode_page};
 use crate::grid::Grid;
 use crate::read::{Limits, check_records};
+use crate::{Page, VdtError, VdtFile};
+
+/// The input [`decode_page_and_check`] takes for page `index` of `file`: the page's shape
+/// and the file's limits, then its decompressed streams (fuzzing seeds, and tests that
+/// mutate real pages).
+pub fn page_input<B: AsRef<[u8]>>(file: &VdtFile<B>, index: u32) -> Result<Vec<u8>, VdtError> {
+    let entry = file
+        .directory()
+        .get(index as usize)
+        .ok_or_else(|| VdtError::invalid("page index", format!("{index} is out of range")))?;
+    let raw = zstd::bulk::decompress(file.frame(entry), entry.raw_length.get() as usize).map_err(
+        |e| VdtError::Decompress {
+            page: index,
+            message: e.to_string(),
+        },
+    )?;
+    let header = file.header();
+    let mut input = Vec::with_capacity(28 + raw.len());
+    for word in [
+        entry.first_node.get(),
+        entry.node_count.get(),
+        entry.first_triangle.get(),
+        entry.triangle_count.get(),
+        header.node_count.get() as u32,
+        header.vertex_count.get() as u32,
+        file.metadata().part_names.len() as u32,
+    ] {
+        input.extend_from_slice(&word.to_le_bytes());
+    }
+    input.extend_from_slice(&raw);
+    Ok(input)
+}
 
 /// Decodes `data` as one page and checks what the decoder accepts. The first 28 bytes are
 /// seven little-endian `u32`s: the page's first node, node count, first triangle and

@@ -342,6 +342,12 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         Ok(page)
     }
 
+    /// The zstd frame of a directory entry (its range was checked on open).
+    pub(crate) fn frame(&self, entry: &PageEntry) -> &[u8] {
+        let start = entry.offset.get() as usize;
+        &self.bytes.as_ref()[start..start + entry.compressed_length.get() as usize]
+    }
+
     /// [`VdtFile::read_page`] into an existing page, reusing its buffers: a page cache
     /// decoding page after page allocates nothing once its buffers have grown. On error the
     /// page's contents are unspecified.
@@ -351,8 +357,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             .get(index as usize)
             .ok_or_else(|| VdtError::invalid("page index", format!("{index} is out of range")))?;
         let what = format!("page {index}");
-        let start = entry.offset.get() as usize;
-        let frame = &self.bytes.as_ref()[start..start + entry.compressed_length.get() as usize];
+        let frame = self.frame(entry);
         check_sum(&what, frame, entry.checksum.get())?;
         let h = &self.header;
         let shape = crate::codec::PageShape {

@@ -373,6 +373,28 @@ fn gaze_loosens_the_threshold_away_from_the_focus_and_keeps_its_bound() {
     }
 }
 
+/// Adjusts to threshold `t` for `camera` and checks that every visible vertex is within `t`
+/// of its image.
+fn adjust_within(
+    runtime: &mut Runtime,
+    camera: &Camera,
+    criteria: &Criteria,
+    t: f32,
+    positions: &[[f32; 3]],
+    what: &str,
+) -> vds_runtime::AdjustStats {
+    let frame = runtime
+        .adjust(&Viewpoint::Camera(*camera), criteria, Goal::Threshold(t))
+        .unwrap();
+    let deviation = measure::screen_deviation(runtime.cut(), &camera.view(), positions, None);
+    assert!(
+        deviation.max_px <= f64::from(t) + slack(t),
+        "{what}: {} px > {t} px",
+        deviation.max_px
+    );
+    frame.stats
+}
+
 #[test]
 fn threshold_holds_on_every_frame_of_a_smooth_path() {
     for name in ["bunny.obj", "as1_assembly.obj"] {
@@ -383,21 +405,8 @@ fn threshold_holds_on_every_frame_of_a_smooth_path() {
         let positions = runtime.leaf_positions().unwrap();
         let path = vds_runtime::CameraPath::fly_through(center, radius * 1.5, 40, 480, 320);
         for (frame, camera) in path.cameras.iter().enumerate() {
-            let t = 1.0;
-            runtime
-                .adjust(
-                    &Viewpoint::Camera(*camera),
-                    &no_backface(),
-                    Goal::Threshold(t),
-                )
-                .unwrap();
-            let deviation =
-                measure::screen_deviation(runtime.cut(), &camera.view(), &positions, None);
-            assert!(
-                deviation.max_px <= f64::from(t) + slack(t),
-                "{name} frame {frame}: {} px",
-                deviation.max_px
-            );
+            let what = format!("{name} frame {frame}");
+            adjust_within(&mut runtime, camera, &no_backface(), 1.0, &positions, &what);
         }
         runtime.cut_mut().check().unwrap();
     }
@@ -429,25 +438,14 @@ fn reused_tests_keep_the_threshold_on_smooth_paths() {
                 } else {
                     0.5
                 };
-                let adjusted = runtime
-                    .adjust(
-                        &Viewpoint::Camera(*camera),
-                        &Criteria {
-                            silhouette_factor: None,
-                            ..no_backface()
-                        },
-                        Goal::Threshold(t),
-                    )
-                    .unwrap();
-                tested += u64::from(adjusted.stats.groups);
-                reused += u64::from(adjusted.stats.groups_reused);
-                let deviation =
-                    measure::screen_deviation(runtime.cut(), &camera.view(), &positions, None);
-                assert!(
-                    deviation.max_px <= f64::from(t) + slack(t),
-                    "{name} frame {frame}: {} px > {t} px",
-                    deviation.max_px
-                );
+                let criteria = Criteria {
+                    silhouette_factor: None,
+                    ..no_backface()
+                };
+                let what = format!("{name} frame {frame}");
+                let stats = adjust_within(&mut runtime, camera, &criteria, t, &positions, &what);
+                tested += u64::from(stats.groups);
+                reused += u64::from(stats.groups_reused);
             }
         }
         runtime.cut_mut().check().unwrap();
