@@ -66,6 +66,12 @@ pub struct AdjustStats {
     pub refused_folds: u32,
 }
 
+/// How many entries ahead of the threshold traversal its children's data is prefetched.
+const LOOKAHEAD: usize = 8;
+
+/// How many entries ahead the traversal prefetches the active list itself.
+const STREAM_AHEAD: usize = 32;
+
 /// A float with a total order, for the priority queues.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Priority(f32);
@@ -146,6 +152,19 @@ impl Adjuster {
         let mut i = cut.active_entries().len();
         while i > 0 {
             i -= 1;
+            // A group whose test is not reused nearly always fails it (the margin keeps the
+            // others), and then its children's labels and test data are read: a few misses
+            // per group, started here for a group a few entries ahead so they overlap.
+            if let Some(far) = i.checked_sub(STREAM_AHEAD) {
+                cut.prefetch_entry(far);
+            }
+            if let Some(ahead) = i.checked_sub(LOOKAHEAD)
+                && let Some(entry) = cut.active_entries().get(ahead)
+                && entry.active_children < entry.hot.child_count
+                && !now.as_ref().is_some_and(|now| entry.reuse.holds(now))
+            {
+                cut.prefetch_children(ahead);
+            }
             let Some(&entry) = cut.active_entries().get(i) else {
                 continue;
             };

@@ -249,6 +249,27 @@ impl Cut {
         &self.active_list
     }
 
+    /// Hints that the boundary children of the active node at `index` of
+    /// [`Cut::active_entries`] will be tested soon: their labels and test data.
+    #[inline]
+    pub(crate) fn prefetch_children(&self, index: usize) {
+        if let Some(entry) = self.active_list.get(index) {
+            let (first, count) = (entry.hot.first_child, entry.hot.child_count);
+            crate::prefetch::prefetch_range(
+                &self.state,
+                first as usize..first as usize + count as usize,
+            );
+            self.store.prefetch_tested(first, count);
+        }
+    }
+
+    /// Hints that the active entry at `index` and its shape will be read soon.
+    #[inline]
+    pub(crate) fn prefetch_entry(&self, index: usize) {
+        crate::prefetch::prefetch_range(&self.active_list, index..index + 1);
+        crate::prefetch::prefetch_range(&self.active_shapes, index..index + 1);
+    }
+
     /// Records that the boundary children of the active node at `index` of
     /// [`Cut::active_entries`] passed the threshold test as `reuse` says.
     #[inline]

@@ -30,6 +30,7 @@ pub mod criteria;
 pub mod cut;
 pub mod export;
 pub mod measure;
+mod prefetch;
 pub mod reuse;
 pub mod store;
 pub mod view;

@@ -335,6 +335,14 @@ impl NodeStore {
         t.subtri_begin..t.subtri_begin + t.subtri_count
     }
 
+    /// Hints that the test data of nodes `first..first + count` will be read soon.
+    #[inline]
+    pub(crate) fn prefetch_tested(&self, first: u32, count: u32) {
+        let range = first as usize..first as usize + count as usize;
+        crate::prefetch::prefetch_range(&self.hot, range.clone());
+        crate::prefetch::prefetch_range(&self.shape, range);
+    }
+
     /// The per-frame test data of node `id` (loaded, as for [`NodeStore::node`]).
     #[inline]
     pub fn hot(&self, id: u32) -> &Hot {

@@ -52,6 +52,7 @@ fn play(
     let criteria = Criteria::default();
     let (mut ms, mut visited, mut added, mut removed, mut changed, mut active) =
         (vec![], vec![], vec![], vec![], vec![], vec![]);
+    let (mut groups, mut failed, mut reused) = (vec![], vec![], vec![]);
     let mut first_ms = 0.0;
     for (i, camera) in path.cameras.iter().enumerate() {
         let start = Instant::now();
@@ -64,6 +65,9 @@ fn play(
         }
         ms.push(elapsed);
         visited.push(f64::from(frame.stats.visited));
+        groups.push(f64::from(frame.stats.groups));
+        failed.push(f64::from(frame.stats.groups_failed));
+        reused.push(f64::from(frame.stats.groups_reused));
         added.push(f64::from(frame.changes.added) / n * 100.0);
         removed.push(f64::from(frame.changes.removed) / n * 100.0);
         changed.push(f64::from(frame.changes.changed) / n * 100.0);
@@ -76,13 +80,16 @@ fn play(
     };
     println!(
         "  {t:<8} {:<9} {:<8} adjust median {:6.3} ms  p99 {:6.3} ms  (first {:7.1} ms) | \
-         visited {:>7.0} | active {:>8.0} | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
+         visited {:>7.0} (groups {:.0}, failed {:.0}, reused {:.0}) | active {:>8.0} | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
         format!("{tracking:?}"),
         if resident { "resident" } else { "cold" },
         median(&ms),
         percentile(&ms, 0.99),
         first_ms,
         median(&visited),
+        median(&groups),
+        median(&failed),
+        median(&reused),
         median(&active),
         median(&added),
         median(&removed),
@@ -100,8 +107,9 @@ fn play(
     Ok(())
 }
 
-/// Runtime figures for one mesh along `path`, at t = 1 and 5 px, both corner strategies.
-pub fn paths(name: &str, file: &Path, frames: u32, fly: bool) -> Result<()> {
+/// Runtime figures for one mesh along `path`, at t = 1 and 5 px: both corner strategies with
+/// resident pages and incidence lists with cold pages, or only the first (`resident_only`).
+pub fn paths(name: &str, file: &Path, frames: u32, fly: bool, resident_only: bool) -> Result<()> {
     let (bytes, scene) = vdt_bytes(file)?;
     let probe = Runtime::new(
         Box::new(VdtFile::from_bytes(bytes.clone())?),
@@ -134,7 +142,13 @@ pub fn paths(name: &str, file: &Path, frames: u32, fly: bool) -> Result<()> {
     );
     for t in [1.0, 5.0] {
         for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
+            if tracking == CornerTracking::Lazy && resident_only {
+                continue;
+            }
             play(&bytes, &path, Goal::Threshold(t), tracking, true)?;
+        }
+        if resident_only {
+            continue;
         }
         play(
             &bytes,

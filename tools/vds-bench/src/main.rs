@@ -67,6 +67,9 @@ enum Commands {
         /// Skip the bunny paths.
         #[arg(long)]
         no_bunny: bool,
+        /// Only the default configuration (incidence lists, pages resident): quicker A/B runs.
+        #[arg(long)]
+        resident_only: bool,
     },
 }
 
@@ -133,14 +136,21 @@ fn main() -> Result<()> {
             sizes,
             no_fidelity,
             no_bunny,
+            resident_only,
         }) => {
             let bunny = args.shared.join("bunny.obj");
             if !no_bunny {
-                cut::paths("bunny", &bunny, frames, false)?;
+                cut::paths("bunny", &bunny, frames, false, resident_only)?;
             }
             for size in &sizes {
                 let file = generated_scene(parse_count(size)?, &args.dir)?;
-                cut::paths(&format!("generated CAD scene {size}"), &file, frames, true)?;
+                cut::paths(
+                    &format!("generated CAD scene {size}"),
+                    &file,
+                    frames,
+                    true,
+                    resident_only,
+                )?;
             }
             if !no_fidelity {
                 cut::fidelity(&bunny)?;
