@@ -152,12 +152,13 @@ impl Adjuster {
         let mut i = cut.active_entries().len();
         while i > 0 {
             i -= 1;
-            // A group whose test is not reused nearly always fails it (the margin keeps the
-            // others), and then its children's labels and test data are read: a few misses
-            // per group, started here for a group a few entries ahead so they overlap.
+            // The list is read backwards, which the hardware prefetchers follow poorly.
             if let Some(far) = i.checked_sub(STREAM_AHEAD) {
                 cut.prefetch_entry(far);
             }
+            // A group whose test is not reused nearly always fails it (the margin keeps the
+            // others), and then its children's labels and test data are read: a few misses
+            // per group, started here for a group a few entries ahead so they overlap.
             if let Some(ahead) = i.checked_sub(LOOKAHEAD)
                 && let Some(entry) = cut.active_entries().get(ahead)
                 && entry.active_children < entry.hot.child_count
