@@ -6,9 +6,11 @@
 //!   build` throughput and peak memory. Each run is a fresh child process (this binary with
 //!   the hidden `one` subcommand), so peak RSS (`VmHWM`) belongs to that run alone.
 //! - `vds-bench cut`: the runtime along camera paths and its fidelity (see `cut.rs`).
+//! - `vds-bench latency`: the machine's memory latency, to compare machines (`latency.rs`).
 
 mod cut;
 mod distance;
+mod latency;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -49,6 +51,9 @@ enum Commands {
     /// (internal) Build one file, write its .vdt, time opening and decoding it.
     #[command(hide = true)]
     Vdt { file: PathBuf },
+    /// Time dependent random memory reads at several working-set sizes (compare machines
+    /// before comparing their figures).
+    Latency,
     /// Decode every page of a `.vdt` file on one core, reusing one page buffer (as a page
     /// cache would); prints the median of `--runs` passes.
     Decode { file: PathBuf },
@@ -131,6 +136,10 @@ fn main() -> Result<()> {
         Some(Commands::One { file }) => return one(&file),
         Some(Commands::Vdt { file }) => return vdt(&file),
         Some(Commands::Decode { file }) => return decode(&file, args.runs),
+        Some(Commands::Latency) => {
+            latency::run();
+            return Ok(());
+        }
         Some(Commands::Cut {
             frames,
             sizes,
