@@ -12,16 +12,13 @@ pub(crate) fn prefetch_range<T>(slice: &[T], range: std::ops::Range<usize>) {
     let Some(items) = slice.get(range.start..range.end.min(slice.len())) else {
         return;
     };
-    let bytes = std::mem::size_of_val(items);
     let start = items.as_ptr().cast::<u8>();
-    // One hint per 64-byte line the elements touch (the last hint covers the last byte).
-    let mut offset = 0;
+    let bytes = std::mem::size_of_val(items) as isize;
+    // One hint per 64-byte line the elements touch, starting at the line of the first byte.
+    let mut offset = -((start as usize % LINE) as isize);
     while offset < bytes {
-        prefetch_line(start.wrapping_add(offset));
-        offset += LINE;
-    }
-    if bytes > 0 {
-        prefetch_line(start.wrapping_add(bytes - 1));
+        prefetch_line(start.wrapping_offset(offset));
+        offset += LINE as isize;
     }
 }
 

@@ -140,11 +140,13 @@ pub fn paths(name: &str, file: &Path, frames: u32, fly: bool, resident_only: boo
         frames,
         if fly { "flying through" } else { "orbiting" },
     );
+    let resident_trackings: &[CornerTracking] = if resident_only {
+        &[CornerTracking::Incidence]
+    } else {
+        &[CornerTracking::Incidence, CornerTracking::Lazy]
+    };
     for t in [1.0, 5.0] {
-        for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
-            if tracking == CornerTracking::Lazy && resident_only {
-                continue;
-            }
+        for &tracking in resident_trackings {
             play(&bytes, &path, Goal::Threshold(t), tracking, true)?;
         }
         if resident_only {
