@@ -678,6 +678,23 @@ mod fast {
         scalar(bytes, ty, big_endian) as i64
     }
 
+    /// The four bytes at the start of `bytes`, little-endian, for the specialised readers of
+    /// the layouts nearly every binary PLY file uses (little-endian `float` coordinates,
+    /// `uchar` counts and `int`/`uint` indices): the generic [`scalar`] dispatches on the
+    /// type for every value, which made parsing most of an import's instructions.
+    fn four(bytes: &[u8]) -> [u8; 4] {
+        bytes[..4].try_into().expect("4 bytes")
+    }
+
+    /// Decodes one position from each fixed-size row with `read`.
+    fn positions(
+        raw: &[u8],
+        stride: usize,
+        read: impl Fn(&[u8]) -> [f32; 3] + Sync + Send,
+    ) -> Vec<[f32; 3]> {
+        raw.par_chunks_exact(stride).map(&read).collect()
+    }
+
     pub(super) fn read_vertices(
         element: &Element,
         values: &mut impl Values,
@@ -704,10 +721,17 @@ mod fast {
         if stride == 0 || bytes > raw.len() {
             return Ok(false);
         }
-        let positions: Vec<[f32; 3]> = raw[..bytes]
-            .par_chunks_exact(stride)
-            .map(|row| [x, y, z].map(|(offset, ty)| scalar(&row[offset..], ty, big_endian) as f32))
-            .collect();
+        let raw = &raw[..bytes];
+        let positions = if [x.1, y.1, z.1] == [Scalar::F32; 3] && !big_endian {
+            let offsets = [x.0, y.0, z.0];
+            positions(raw, stride, |row| {
+                offsets.map(|at| f32::from_le_bytes(four(&row[at..])))
+            })
+        } else {
+            positions(raw, stride, |row| {
+                [x, y, z].map(|(at, ty)| scalar(&row[at..], ty, big_endian) as f32)
+            })
+        };
         if let Some(bad) = positions
             .iter()
             .position(|p| !p.iter().all(|c| c.is_finite()))
@@ -728,6 +752,68 @@ mod fast {
         }
         values.skip_bytes(bytes);
         Ok(true)
+    }
+
+    /// Why a chunk of faces could not be decoded on the fast path.
+    enum Stop {
+        NotTriangle,
+        BadIndex,
+        BadPart,
+    }
+
+    /// Where the fields of a fixed-size face row are.
+    struct FaceLayout {
+        stride: usize,
+        list_at: usize,
+        count_size: usize,
+        item_size: usize,
+        /// Offset of the part property, if the faces have one.
+        part_at: Option<usize>,
+        vertex_count: u64,
+        base: u32,
+    }
+
+    impl FaceLayout {
+        /// Decodes the rows of `raw` in parallel into `triangles` and raw part values, with
+        /// `count`, `index` and `part` reading the list's count, its items and the part
+        /// (specialised per layout by the caller, so the row loop carries no type dispatch).
+        fn decode(
+            &self,
+            raw: &[u8],
+            triangles: &mut [[u32; 3]],
+            part_values: &mut [u32],
+            count: impl Fn(&[u8]) -> i64 + Sync,
+            index: impl Fn(&[u8]) -> i64 + Sync,
+            part: impl Fn(&[u8]) -> i64 + Sync,
+        ) -> Result<(), Stop> {
+            raw.par_chunks(self.stride * ROWS_PER_TASK)
+                .zip(triangles.par_chunks_mut(ROWS_PER_TASK))
+                .zip(part_values.par_chunks_mut(ROWS_PER_TASK))
+                .try_for_each(|((rows, triangles), part_values)| {
+                    let rows = rows.chunks_exact(self.stride);
+                    for ((row, t), part_value) in
+                        rows.zip(triangles.iter_mut()).zip(part_values.iter_mut())
+                    {
+                        if count(&row[self.list_at..]) != 3 {
+                            return Err(Stop::NotTriangle);
+                        }
+                        for (c, corner) in t.iter_mut().enumerate() {
+                            let at = self.list_at + self.count_size + c * self.item_size;
+                            let index = index(&row[at..]);
+                            if index < 0 || index as u64 >= self.vertex_count {
+                                return Err(Stop::BadIndex);
+                            }
+                            *corner = self.base + index as u32;
+                        }
+                        if let Some(at) = self.part_at {
+                            // Raw values for now; mapped to part ids below.
+                            *part_value =
+                                u32::try_from(part(&row[at..])).map_err(|_| Stop::BadPart)?;
+                        }
+                    }
+                    Ok(())
+                })
+        }
     }
 
     pub(super) fn read_faces(
@@ -773,45 +859,57 @@ mod fast {
             return Ok(false);
         }
         let base = base as u32;
-        /// Why a chunk could not be decoded here.
-        enum Stop {
-            NotTriangle,
-            BadIndex,
-            BadPart,
-        }
         // Decode straight into the soup's arrays; on a fallback they are cut back.
         let first = soup.triangles.len();
         let count = element.count as usize;
         soup.triangles.resize(first + count, [0; 3]);
         soup.triangle_parts.resize(first + count, 0);
-        let outcome: Result<(), Stop> = raw[..bytes]
-            .par_chunks(stride * ROWS_PER_TASK)
-            .zip(soup.triangles[first..].par_chunks_mut(ROWS_PER_TASK))
-            .zip(soup.triangle_parts[first..].par_chunks_mut(ROWS_PER_TASK))
-            .try_for_each(|((rows, triangles), part_values)| {
-                let rows = rows.chunks_exact(stride);
-                for ((row, t), part_value) in
-                    rows.zip(triangles.iter_mut()).zip(part_values.iter_mut())
-                {
-                    if integer(&row[list_at..], count_ty, big_endian) != 3 {
-                        return Err(Stop::NotTriangle);
-                    }
-                    for (c, corner) in t.iter_mut().enumerate() {
-                        let at = list_at + count_ty.size() + c * item_ty.size();
-                        let index = integer(&row[at..], item_ty, big_endian);
-                        if index < 0 || index as u64 >= vertex_count {
-                            return Err(Stop::BadIndex);
-                        }
-                        *corner = base + index as u32;
-                    }
-                    if let Some((at, ty)) = part_at {
-                        // Raw values for now; mapped to part ids below.
-                        *part_value = u32::try_from(integer(&row[at..], ty, big_endian))
-                            .map_err(|_| Stop::BadPart)?;
-                    }
-                }
-                Ok(())
-            });
+        let layout = FaceLayout {
+            stride,
+            list_at,
+            item_size: item_ty.size(),
+            count_size: count_ty.size(),
+            part_at: part_at.map(|(at, _)| at),
+            vertex_count,
+            base,
+        };
+        let (triangles, part_values) = (
+            &mut soup.triangles[first..],
+            &mut soup.triangle_parts[first..],
+        );
+        let raw = &raw[..bytes];
+        // The layouts nearly every file uses get readers without per-value type dispatch;
+        // every other layout takes the generic ones.
+        let generic_part = |b: &[u8]| match part_at {
+            Some((_, ty)) => integer(b, ty, big_endian),
+            None => 0,
+        };
+        let u32_le = |b: &[u8]| i64::from(u32::from_le_bytes(four(b)));
+        let i32_le = |b: &[u8]| i64::from(i32::from_le_bytes(four(b)));
+        let u8_count = |b: &[u8]| i64::from(b[0]);
+        let parts_u32_le = matches!(part_at, Some((_, Scalar::U32))) && !big_endian;
+        let outcome = match (count_ty, item_ty, big_endian, parts_u32_le) {
+            (Scalar::U8, Scalar::U32, false, true) => {
+                layout.decode(raw, triangles, part_values, u8_count, u32_le, u32_le)
+            }
+            (Scalar::U8, Scalar::I32, false, true) => {
+                layout.decode(raw, triangles, part_values, u8_count, i32_le, u32_le)
+            }
+            (Scalar::U8, Scalar::U32, false, false) => {
+                layout.decode(raw, triangles, part_values, u8_count, u32_le, generic_part)
+            }
+            (Scalar::U8, Scalar::I32, false, false) => {
+                layout.decode(raw, triangles, part_values, u8_count, i32_le, generic_part)
+            }
+            _ => layout.decode(
+                raw,
+                triangles,
+                part_values,
+                |b| integer(b, count_ty, big_endian),
+                |b| integer(b, item_ty, big_endian),
+                generic_part,
+            ),
+        };
         if outcome.is_err() {
             // Not all triangles, or bad data: the general reader decodes the element again
             // and reports the first problem in file order.
