@@ -22,6 +22,7 @@
 
 use rayon::prelude::*;
 
+use crate::bounds::{greater, lesser};
 use crate::tree::Node;
 
 /// No parent (the root).
@@ -64,8 +65,8 @@ impl Bounds {
 
     fn add(&mut self, p: [f32; 3]) {
         for k in 0..3 {
-            self.min[k] = self.min[k].min(p[k]);
-            self.max[k] = self.max[k].max(p[k]);
+            self.min[k] = lesser(self.min[k], p[k]);
+            self.max[k] = greater(self.max[k], p[k]);
         }
     }
 
