@@ -122,24 +122,28 @@ fn diagonal(positions: &[[f32; 3]]) -> f64 {
 
 /// For each vertex, the lowest index with bit-identical position.
 fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
-    // `[x bits, y bits, z bits, index]` sorts like (position, index) in 16 bytes. `+ 0.0`
-    // turns -0.0 into 0.0 so both weld; every other value keeps its bits.
-    let mut keyed: Vec<[u32; 4]> = positions
+    // x, y and z bits and the index, from the most significant word down, sort like
+    // (position, index) in one 128-bit integer, whose comparison is two machine words where
+    // a `[u32; 4]` compares element by element. `+ 0.0` turns -0.0 into 0.0 so both weld;
+    // every other value keeps its bits.
+    let mut keyed: Vec<u128> = positions
         .par_iter()
         .enumerate()
         .map(|(i, p)| {
-            let bits = p.map(|c| (c + 0.0).to_bits());
-            [bits[0], bits[1], bits[2], i as u32]
+            let [x, y, z] = p.map(|c| u128::from((c + 0.0).to_bits()));
+            x << 96 | y << 64 | z << 32 | i as u128
         })
         .collect();
     keyed.par_sort_unstable();
+    let position = |key: u128| key >> 32;
+    let index = |key: u128| key as u32;
     let mut representative = vec![0u32; positions.len()];
     let mut group_start = 0;
     for i in 0..keyed.len() {
-        if keyed[i][..3] != keyed[group_start][..3] {
+        if position(keyed[i]) != position(keyed[group_start]) {
             group_start = i;
         }
-        representative[keyed[i][3] as usize] = keyed[group_start][3];
+        representative[index(keyed[i]) as usize] = index(keyed[group_start]);
     }
     representative
 }
