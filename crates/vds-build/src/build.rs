@@ -196,7 +196,7 @@ fn compute_attributes(
         let inner_index = &inner_index;
         families
             .into_par_iter()
-            .map_init(Vec::new, |scratch, (node, children)| {
+            .map_init(LeafScratch::default, |scratch, (node, children)| {
                 let mut sum: Option<Accumulator> = None;
                 for (k, child) in children.iter_mut().enumerate() {
                     let accumulator = if child.is_leaf() {
@@ -225,15 +225,18 @@ fn compute_attributes(
             vertex,
             scene,
             adjacency.of(vertex),
-            &mut Vec::new(),
+            &mut LeafScratch::default(),
         );
     }
 }
 
-/// One incident triangle of a leaf, gathered once and used by every leaf attribute.
-struct Incident {
-    corners: [[f64; 3]; 3],
-    normal: Option<[f64; 3]>,
+/// A leaf's incident triangles, gathered once and used by every leaf attribute: each one's
+/// corners, and the unit normals of those with a non-zero area (apart, so the cone fits run
+/// over a plain slice).
+#[derive(Default)]
+struct LeafScratch {
+    corners: Vec<[[f64; 3]; 3]>,
+    normals: Vec<[f64; 3]>,
 }
 
 fn leaf_attributes(
@@ -241,14 +244,15 @@ fn leaf_attributes(
     vertex: u32,
     scene: &Scene,
     incident: &[u32],
-    scratch: &mut Vec<Incident>,
+    scratch: &mut LeafScratch,
 ) -> Accumulator {
     let position = scene.positions[vertex as usize];
     let p = widen(position);
     let mut quadric = Quadric::default();
     let mut triangle_box = Aabb::EMPTY;
     triangle_box.add_point(position);
-    scratch.clear();
+    scratch.corners.clear();
+    scratch.normals.clear();
     for &t in incident {
         let corners_f32 = scene.triangles[t as usize].map(|v| scene.positions[v as usize]);
         for q in corners_f32 {
@@ -266,18 +270,21 @@ fn leaf_attributes(
         if let Some(normal) = normal {
             quadric.add(&Quadric::from_plane(normal, a, 0.5 * twice_area));
         }
-        scratch.push(Incident { corners, normal });
+        scratch.corners.push(corners);
+        scratch.normals.extend(normal);
     }
     let center = triangle_box.center().map(|c| c as f32);
     let radius = scratch
+        .corners
         .iter()
-        .flat_map(|t| t.corners)
+        .flatten()
+        .copied()
         .map(|q| distance_squared(widen(center), q))
         .fold(distance_squared(widen(center), p), f64::max)
         .sqrt();
-    let cone = NormalCone::fit(scratch.iter().filter_map(|t| t.normal));
+    let cone = NormalCone::fit(scratch.normals.iter().copied());
     let two_sided = (cone.half_angle >= std::f64::consts::FRAC_PI_2)
-        .then(|| NormalCone::fit_two_sided(scratch.iter().filter_map(|t| t.normal)));
+        .then(|| NormalCone::fit_two_sided(scratch.normals.iter().copied()));
     node.proxy = position;
     node.error_radius = 0.0;
     node.sphere_center = center;
