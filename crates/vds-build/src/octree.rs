@@ -70,6 +70,14 @@ impl Bounds {
         }
     }
 
+    fn union(mut self, other: Bounds) -> Bounds {
+        for k in 0..3 {
+            self.min[k] = lesser(self.min[k], other.min[k]);
+            self.max[k] = greater(self.max[k], other.max[k]);
+        }
+        self
+    }
+
     fn of(items: &[Item]) -> Bounds {
         let mut b = Bounds::EMPTY;
         for item in items {
@@ -176,9 +184,19 @@ struct Children {
     count: usize,
 }
 
+/// Items per parallel task when one node's split is itself split up: the levels near the root
+/// hold a few nodes with most of the vertices, which one thread each would partition alone.
+const ITEMS_PER_TASK: usize = 1 << 16;
+
 /// Writes `from` (≥ 2 items) into `to`, grouped by child in order, and returns the children.
 fn split(from: &[Item], to: &mut [Item]) -> Children {
-    let Bounds { min, max } = Bounds::of(from);
+    let Bounds { min, max } = if from.len() > ITEMS_PER_TASK {
+        from.par_chunks(ITEMS_PER_TASK)
+            .map(Bounds::of)
+            .reduce(|| Bounds::EMPTY, Bounds::union)
+    } else {
+        Bounds::of(from)
+    };
     let side = (0..3).map(|k| max[k] - min[k]).fold(0.0f32, f32::max);
     if side > 0.0 {
         let mid = [0, 1, 2].map(|k| min[k] + 0.5 * side);
@@ -187,22 +205,72 @@ fn split(from: &[Item], to: &mut [Item]) -> Children {
                 | usize::from(p[1] >= mid[1]) << 1
                 | usize::from(p[2] >= mid[2]) << 2
         };
-        let mut counts = [0u32; 8];
-        for item in from {
-            counts[octant(item.position)] += 1;
-        }
-        if counts.iter().filter(|&&c| c > 0).count() >= 2 {
-            let mut offsets = [0u32; 8];
-            let mut total = 0;
-            for k in 0..8 {
-                offsets[k] = total;
-                total += counts[k];
+        let count = |items: &[Item]| {
+            let mut counts = [0u32; 8];
+            for item in items {
+                counts[octant(item.position)] += 1;
             }
-            // Stable scatter by octant.
-            for item in from {
+            counts
+        };
+        // Stable scatter by octant of `items` into one slice per octant.
+        let scatter = |items: &[Item], outputs: [&mut [Item]; 8]| {
+            let mut filled = [0usize; 8];
+            for item in items {
                 let o = octant(item.position);
-                to[offsets[o] as usize] = *item;
-                offsets[o] += 1;
+                outputs[o][filled[o]] = *item;
+                filled[o] += 1;
+            }
+        };
+        let large = from.len() > ITEMS_PER_TASK;
+        let chunk_counts: Vec<[u32; 8]> = if large {
+            from.par_chunks(ITEMS_PER_TASK).map(count).collect()
+        } else {
+            Vec::new()
+        };
+        let counts = if large {
+            chunk_counts.iter().fold([0u32; 8], |mut sum, chunk| {
+                for k in 0..8 {
+                    sum[k] += chunk[k];
+                }
+                sum
+            })
+        } else {
+            count(from)
+        };
+        if counts.iter().filter(|&&c| c > 0).count() >= 2 {
+            if large {
+                // Each octant's range of `to`, cut into one piece per chunk of `from` in
+                // chunk order: the chunks scatter in parallel into disjoint pieces, in the
+                // same stable order as one sequential scatter.
+                let mut pieces: Vec<[&mut [Item]; 8]> = chunk_counts
+                    .iter()
+                    .map(|_| std::array::from_fn(|_| <&mut [Item]>::default()))
+                    .collect();
+                let mut rest: &mut [Item] = to;
+                for k in 0..8 {
+                    for (chunk, piece) in chunk_counts.iter().zip(&mut pieces) {
+                        let (head, tail) =
+                            std::mem::take(&mut rest).split_at_mut(chunk[k] as usize);
+                        piece[k] = head;
+                        rest = tail;
+                    }
+                }
+                from.par_chunks(ITEMS_PER_TASK)
+                    .zip(pieces)
+                    .for_each(|(items, outputs)| scatter(items, outputs));
+            } else {
+                let mut offsets = [0u32; 8];
+                let mut total = 0;
+                for k in 0..8 {
+                    offsets[k] = total;
+                    total += counts[k];
+                }
+                // Stable scatter by octant.
+                for item in from {
+                    let o = octant(item.position);
+                    to[offsets[o] as usize] = *item;
+                    offsets[o] += 1;
+                }
             }
             let mut children = Children {
                 sizes: [0; 8],
