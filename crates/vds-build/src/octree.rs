@@ -190,8 +190,14 @@ const ITEMS_PER_TASK: usize = 1 << 16;
 
 /// Writes `from` (≥ 2 items) into `to`, grouped by child in order, and returns the children.
 fn split(from: &[Item], to: &mut [Item]) -> Children {
-    let Bounds { min, max } = if from.len() > ITEMS_PER_TASK {
-        from.par_chunks(ITEMS_PER_TASK)
+    split_in_tasks(from, to, ITEMS_PER_TASK)
+}
+
+/// [`split`], cutting `from` into parallel tasks of `items_per_task` when it is longer.
+fn split_in_tasks(from: &[Item], to: &mut [Item], items_per_task: usize) -> Children {
+    let large = from.len() > items_per_task;
+    let Bounds { min, max } = if large {
+        from.par_chunks(items_per_task)
             .map(Bounds::of)
             .reduce(|| Bounds::EMPTY, Bounds::union)
     } else {
@@ -221,9 +227,8 @@ fn split(from: &[Item], to: &mut [Item]) -> Children {
                 filled[o] += 1;
             }
         };
-        let large = from.len() > ITEMS_PER_TASK;
         let chunk_counts: Vec<[u32; 8]> = if large {
-            from.par_chunks(ITEMS_PER_TASK).map(count).collect()
+            from.par_chunks(items_per_task).map(count).collect()
         } else {
             Vec::new()
         };
@@ -255,7 +260,7 @@ fn split(from: &[Item], to: &mut [Item]) -> Children {
                         rest = tail;
                     }
                 }
-                from.par_chunks(ITEMS_PER_TASK)
+                from.par_chunks(items_per_task)
                     .zip(pieces)
                     .for_each(|(items, outputs)| scatter(items, outputs));
             } else {
@@ -326,6 +331,34 @@ mod tests {
         ];
         let c = cluster(&positions);
         assert_eq!(c.nodes.iter().filter(|n| n.child_count == 0).count(), 3);
+    }
+
+    #[test]
+    fn splits_in_parallel_tasks_match_one_sequential_split() {
+        // Clustered and repeated positions, so octants are uneven and some chunks miss some.
+        let mut seed = 7u64;
+        let mut random = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let from: Vec<Item> = (0..5000u32)
+            .map(|vertex| {
+                let p = [random(), random() * random(), 0.25 * random()];
+                let position = if vertex % 7 == 0 { [0.5; 3] } else { p };
+                Item { position, vertex }
+            })
+            .collect();
+        let mut sequential = from.clone();
+        let expected = split_in_tasks(&from, &mut sequential, usize::MAX);
+        for items_per_task in [1, 64, 999, 4096] {
+            let mut chunked = from.clone();
+            let children = split_in_tasks(&from, &mut chunked, items_per_task);
+            assert_eq!(chunked, sequential);
+            assert_eq!(children.count, expected.count);
+            assert_eq!(children.sizes, expected.sizes);
+        }
     }
 
     #[test]
