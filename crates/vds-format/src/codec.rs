@@ -13,6 +13,7 @@
 //! bounds stay conservative. Decoding checks every length and value; it never reads past a
 //! stream or trusts a count it has not bounded.
 
+use zerocopy::FromZeros;
 use zerocopy::little_endian::{F32, U16, U32};
 
 use crate::VdtError;
@@ -480,7 +481,8 @@ pub fn decode_page(
     }
     let bad = |what: &str| format!("stream ends early or holds a bad value ({what})");
     let f = |x: f32| F32::new(x);
-    nodes.reserve(node_count as usize);
+    // Written in place: `push` would check capacity and store the length for every record.
+    nodes.resize(node_count as usize, NodeRecord::new_zeroed());
     let Scratch {
         parent_in_page,
         stored_q,
@@ -527,7 +529,7 @@ pub fn decode_page(
         }
         let parent_delta = parents.varint().ok_or_else(|| bad("parent"))?;
         let mut prediction = previous_q;
-        let previous = nodes.last();
+        let previous = k.checked_sub(1).map(|i| &nodes[i as usize]);
         let in_page = parent_in_page[k as usize];
         let (parent, depth, leaf_begin) = if parent_delta == 0 && id != 0 && in_page != NO_NODE {
             let p = &nodes[(in_page - first_node) as usize];
@@ -575,39 +577,60 @@ pub fn decode_page(
         if u32::from(depth) > max_depth {
             return Err(bad("depth beyond the header's"));
         }
-        let subtri_count = if child_count > 0 {
-            u32::try_from(subtri_counts.varint().ok_or_else(|| bad("subtris"))?)
-                .map_err(|_| bad("subtris"))?
-        } else {
-            0
-        };
-        // Inner nodes: the error radius comes first, it sets the proxy's unit.
-        let base_error = if child_count > 0 {
-            bounds
-                .varint()
-                .filter(|&u| u <= u64::from(u32::MAX))
-                .ok_or_else(|| bad("bound"))?
-        } else {
-            0
-        };
-        let unit = if child_count > 0 {
-            proxy_unit(base_error) as i64
-        } else {
-            1
-        };
-        let mut q = [0u32; 3];
-        for a in 0..3 {
-            let step = if child_count == 0 {
+        let subtri_index = u32::try_from(subtri_begin).map_err(|_| bad("subtris"))?;
+        if child_count == 0 {
+            // A leaf (most nodes): its position in whole grid steps, and nothing else.
+            let mut q = [0u32; 3];
+            for a in 0..3 {
                 let low = leaf_low.byte().ok_or_else(|| bad("position"))?;
-                leaf_high
+                let high = leaf_high
                     .varint()
                     .filter(|&high| high <= u64::MAX >> 8)
-                    .ok_or_else(|| bad("position"))?
-                    << 8
-                    | u64::from(low)
-            } else {
-                inner_position.varint().ok_or_else(|| bad("position"))?
+                    .ok_or_else(|| bad("position"))?;
+                let v = unzigzag(high << 8 | u64::from(low))
+                    .checked_add(prediction[a])
+                    .ok_or_else(|| bad("position"))?;
+                previous_q[a] = v;
+                q[a] = u32::try_from(v)
+                    .ok()
+                    .filter(|&c| c <= crate::grid::GRID_STEPS)
+                    .ok_or_else(|| bad("position"))?;
+            }
+            stored_q.push(q);
+            stored_axis.push(NO_AXIS);
+            let proxy = grid.dequantize(q);
+            let leaf_end = leaf_begin
+                .checked_add(1)
+                .filter(|&end| u64::from(end) <= file_vertices)
+                .ok_or_else(|| bad("leaf"))?;
+            nodes[k as usize] = NodeRecord {
+                parent: U32::new(parent),
+                first_child: U32::new(NO_NODE),
+                child_count,
+                flags: 0,
+                depth: U16::new(depth),
+                leaf_begin: U32::new(leaf_begin),
+                leaf_end: U32::new(leaf_end),
+                subtri_begin: U32::new(subtri_index),
+                subtri_count: U32::new(0),
+                proxy: proxy.map(f),
+                error_radius: f(0.0),
+                sphere: [proxy[0], proxy[1], proxy[2], 0.0].map(f),
+                cone: [0.0, 0.0, 1.0, -1.0].map(f),
             };
+            continue;
+        }
+        let subtri_count = u32::try_from(subtri_counts.varint().ok_or_else(|| bad("subtris"))?)
+            .map_err(|_| bad("subtris"))?;
+        // The error radius comes first, it sets the proxy's unit.
+        let base_error = bounds
+            .varint()
+            .filter(|&u| u <= u64::from(u32::MAX))
+            .ok_or_else(|| bad("bound"))?;
+        let unit = proxy_unit(base_error) as i64;
+        let mut q = [0u32; 3];
+        for a in 0..3 {
+            let step = inner_position.varint().ok_or_else(|| bad("position"))?;
             let v = unzigzag(step)
                 .checked_mul(unit)
                 .and_then(|d| d.checked_add(prediction[a]))
@@ -620,108 +643,92 @@ pub fn decode_page(
         }
         stored_q.push(q);
         let proxy = grid.dequantize(q);
-        let mut node = NodeRecord {
+        subtri_begin += u64::from(subtri_count);
+        let predicted = expected_child.unwrap_or(i64::from(id) + 1);
+        let first_child = unzigzag(first_children.varint().ok_or_else(|| bad("children"))?)
+            .checked_add(predicted)
+            .and_then(|c| u32::try_from(c).ok())
+            .filter(|&c| c > id && u64::from(c) + u64::from(child_count) <= file_nodes)
+            .ok_or_else(|| bad("children"))?;
+        expected_child = Some(i64::from(first_child) + i64::from(child_count));
+        for child in first_child..first_child.saturating_add(u32::from(child_count)) {
+            if let Some(slot) = parent_in_page.get_mut(child.wrapping_sub(first_node) as usize) {
+                *slot = id;
+            }
+        }
+        let leaf_end = leaf_counts
+            .varint()
+            .filter(|&count| count > 0)
+            .and_then(|count| u64::from(leaf_begin).checked_add(count))
+            .filter(|&end| end <= file_vertices)
+            .ok_or_else(|| bad("leaf count"))?;
+        let error_units = widened_error(base_error, unit as u64);
+        let unit = centre_unit(error_units) as i64;
+        let mut centre_q = [0u32; 3];
+        for a in 0..3 {
+            let steps = unzigzag(bounds.varint().ok_or_else(|| bad("sphere"))?);
+            let v = steps
+                .checked_mul(unit)
+                .and_then(|d| d.checked_add(i64::from(q[a])))
+                .ok_or_else(|| bad("sphere"))?;
+            centre_q[a] = u32::try_from(v)
+                .ok()
+                .filter(|&c| c <= crate::grid::GRID_STEPS)
+                .ok_or_else(|| bad("sphere"))?;
+        }
+        let centre = grid.dequantize(centre_q);
+        let radius_units = bounds
+            .varint()
+            .and_then(|r| r.checked_mul(unit as u64))
+            .filter(|&u| u <= u64::from(u32::MAX))
+            .ok_or_else(|| bad("sphere"))?;
+        let predicted = parent
+            .checked_sub(first_node)
+            .and_then(|p| stored_axis.get(p as usize))
+            .copied()
+            .unwrap_or(NO_AXIS);
+        let mut axis_byte = |k: usize| {
+            cone_axis
+                .byte()
+                .map(|b| unbyte_step(b, predicted[k]))
+                .ok_or_else(|| bad("cone"))
+        };
+        let e = [axis_byte(0)?, axis_byte(1)?];
+        stored_axis.push(e);
+        let angle_units = cone_angle.byte().ok_or_else(|| bad("cone"))?;
+        let axis = unoctahedral(e);
+        let half = if angle_units == EMPTY_CONE {
+            -1.0
+        } else {
+            (f64::from(angle_units) / ANGLE_UNITS * std::f64::consts::PI) as f32
+        };
+        nodes[k as usize] = NodeRecord {
             parent: U32::new(parent),
-            first_child: U32::new(NO_NODE),
+            first_child: U32::new(first_child),
             child_count,
             flags: if two_sided { FLAG_TWO_SIDED_CONE } else { 0 },
             depth: U16::new(depth),
             leaf_begin: U32::new(leaf_begin),
-            leaf_end: U32::new(
-                leaf_begin
-                    .checked_add(1)
-                    .filter(|&end| u64::from(end) <= file_vertices)
-                    .ok_or_else(|| bad("leaf"))?,
-            ),
-            subtri_begin: U32::new(u32::try_from(subtri_begin).map_err(|_| bad("subtris"))?),
+            leaf_end: U32::new(leaf_end as u32),
+            subtri_begin: U32::new(subtri_index),
             subtri_count: U32::new(subtri_count),
             proxy: proxy.map(f),
-            error_radius: f(0.0),
-            sphere: [proxy[0], proxy[1], proxy[2], 0.0].map(f),
-            cone: [0.0, 0.0, 1.0, -1.0].map(f),
-        };
-        subtri_begin += u64::from(subtri_count);
-        if child_count > 0 {
-            let predicted = expected_child.unwrap_or(i64::from(id) + 1);
-            let first_child = unzigzag(first_children.varint().ok_or_else(|| bad("children"))?)
-                .checked_add(predicted)
-                .and_then(|c| u32::try_from(c).ok())
-                .filter(|&c| c > id && u64::from(c) + u64::from(child_count) <= file_nodes)
-                .ok_or_else(|| bad("children"))?;
-            expected_child = Some(i64::from(first_child) + i64::from(child_count));
-            node.first_child = U32::new(first_child);
-            for child in first_child..first_child.saturating_add(u32::from(child_count)) {
-                if let Some(slot) = parent_in_page.get_mut(child.wrapping_sub(first_node) as usize)
-                {
-                    *slot = id;
-                }
-            }
-            let leaf_end = leaf_counts
-                .varint()
-                .filter(|&count| count > 0)
-                .and_then(|count| u64::from(leaf_begin).checked_add(count))
-                .filter(|&end| end <= file_vertices)
-                .ok_or_else(|| bad("leaf count"))?;
-            node.leaf_end = U32::new(leaf_end as u32);
-            let error_units = widened_error(base_error, unit as u64);
-            node.error_radius = f(error_units as f32 * grid.step);
-            let unit = centre_unit(error_units) as i64;
-            let mut centre_q = [0u32; 3];
-            for a in 0..3 {
-                let steps = unzigzag(bounds.varint().ok_or_else(|| bad("sphere"))?);
-                let v = steps
-                    .checked_mul(unit)
-                    .and_then(|d| d.checked_add(i64::from(q[a])))
-                    .ok_or_else(|| bad("sphere"))?;
-                centre_q[a] = u32::try_from(v)
-                    .ok()
-                    .filter(|&c| c <= crate::grid::GRID_STEPS)
-                    .ok_or_else(|| bad("sphere"))?;
-            }
-            let centre = grid.dequantize(centre_q);
-            let radius_units = bounds
-                .varint()
-                .and_then(|r| r.checked_mul(unit as u64))
-                .filter(|&u| u <= u64::from(u32::MAX))
-                .ok_or_else(|| bad("sphere"))?;
-            node.sphere = [
+            error_radius: f(error_units as f32 * grid.step),
+            sphere: [
                 centre[0],
                 centre[1],
                 centre[2],
                 radius_units as f32 * grid.step,
             ]
-            .map(f);
-            let predicted = parent
-                .checked_sub(first_node)
-                .and_then(|p| stored_axis.get(p as usize))
-                .copied()
-                .unwrap_or(NO_AXIS);
-            let mut axis_byte = |k: usize| {
-                cone_axis
-                    .byte()
-                    .map(|b| unbyte_step(b, predicted[k]))
-                    .ok_or_else(|| bad("cone"))
-            };
-            let e = [axis_byte(0)?, axis_byte(1)?];
-            stored_axis.push(e);
-            let angle_units = cone_angle.byte().ok_or_else(|| bad("cone"))?;
-            let axis = unoctahedral(e);
-            let half = if angle_units == EMPTY_CONE {
-                -1.0
-            } else {
-                (f64::from(angle_units) / ANGLE_UNITS * std::f64::consts::PI) as f32
-            };
-            node.cone = [axis[0], axis[1], axis[2], half].map(f);
-        }
-        if child_count == 0 {
-            stored_axis.push(NO_AXIS);
-        }
-        nodes.push(node);
+            .map(f),
+            cone: [axis[0], axis[1], axis[2], half].map(f),
+        };
     }
     if subtri_begin != u64::from(first_triangle) + u64::from(triangle_count) {
         return Err("subtri counts do not add up to the page's triangles".into());
     }
-    triangles.reserve(triangle_count as usize);
+    triangles.resize(triangle_count as usize, TriangleRecord::new_zeroed());
+    let mut next_triangle = 0;
     let [.., corners_stream, parts] = &mut streams[..] else {
         unreachable!()
     };
@@ -749,10 +756,12 @@ pub fn decode_page(
                 return Err(bad("part"));
             }
             previous_part = part;
-            triangles.push(TriangleRecord {
+            // In range: the subtri counts add up to the triangle count (checked above).
+            triangles[next_triangle] = TriangleRecord {
                 corners,
                 part: U32::new(part as u32),
-            });
+            };
+            next_triangle += 1;
         }
     }
     if !streams.iter().all(Stream::done) {
