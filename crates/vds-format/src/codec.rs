@@ -373,6 +373,25 @@ impl Stream<'_> {
         None
     }
 
+    /// The next `N` bytes.
+    fn bytes<const N: usize>(&mut self) -> Option<[u8; N]> {
+        let bytes = self.bytes.get(self.at..self.at + N)?;
+        self.at += N;
+        Some(bytes.try_into().expect("N bytes"))
+    }
+
+    /// The next three varints; three one-byte values (a leaf's position steps, nearly always)
+    /// take one bounds check and one test.
+    fn three_varints(&mut self) -> Option<[u64; 3]> {
+        if let Some(&[a, b, c]) = self.bytes.get(self.at..self.at + 3) {
+            if (a | b | c) < 0x80 {
+                self.at += 3;
+                return Some([a, b, c].map(u64::from));
+            }
+        }
+        Some([self.varint()?, self.varint()?, self.varint()?])
+    }
+
     fn byte(&mut self) -> Option<u8> {
         let b = *self.bytes.get(self.at)?;
         self.at += 1;
@@ -580,13 +599,14 @@ pub fn decode_page(
         let subtri_index = u32::try_from(subtri_begin).map_err(|_| bad("subtris"))?;
         if child_count == 0 {
             // A leaf (most nodes): its position in whole grid steps, and nothing else.
+            let lows = leaf_low.bytes::<3>().ok_or_else(|| bad("position"))?;
+            let highs = leaf_high.three_varints().ok_or_else(|| bad("position"))?;
             let mut q = [0u32; 3];
             for a in 0..3 {
-                let low = leaf_low.byte().ok_or_else(|| bad("position"))?;
-                let high = leaf_high
-                    .varint()
-                    .filter(|&high| high <= u64::MAX >> 8)
-                    .ok_or_else(|| bad("position"))?;
+                let (low, high) = (lows[a], highs[a]);
+                if high > u64::MAX >> 8 {
+                    return Err(bad("position"));
+                }
                 let v = unzigzag(high << 8 | u64::from(low))
                     .checked_add(prediction[a])
                     .ok_or_else(|| bad("position"))?;
