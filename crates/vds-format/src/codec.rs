@@ -383,11 +383,11 @@ impl Stream<'_> {
     /// The next three varints; three one-byte values (a leaf's position steps, nearly always)
     /// take one bounds check and one test.
     fn three_varints(&mut self) -> Option<[u64; 3]> {
-        if let Some(&[a, b, c]) = self.bytes.get(self.at..self.at + 3) {
-            if (a | b | c) < 0x80 {
-                self.at += 3;
-                return Some([a, b, c].map(u64::from));
-            }
+        if let Some(&[a, b, c]) = self.bytes.get(self.at..self.at + 3)
+            && (a | b | c) < 0x80
+        {
+            self.at += 3;
+            return Some([a, b, c].map(u64::from));
         }
         Some([self.varint()?, self.varint()?, self.varint()?])
     }
