@@ -152,6 +152,94 @@ fn ply_binary_both_endiannesses_read_extra_properties_and_quads() {
     }
 }
 
+/// A PLY file laid out as `vds-gen` writes them (`float` x/y/z, a `uchar` count with `index`
+/// corners, optionally a `uint part`), with enough faces for several parallel chunks.
+fn float_ply(
+    big_endian: bool,
+    index: &str,
+    with_part: bool,
+) -> (Vec<u8>, Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let (vertex_count, face_count) = (5_000u32, 40_000u32);
+    let positions: Vec<[f32; 3]> = (0..vertex_count)
+        .map(|i| {
+            [
+                i as f32 * 0.5,
+                (i % 97) as f32 - 3.25,
+                (i * 7 % 13) as f32 * 1e-3,
+            ]
+        })
+        .collect();
+    let triangles: Vec<[u32; 3]> = (0..face_count)
+        .map(|f| {
+            [
+                f % vertex_count,
+                (f * 7 + 1) % vertex_count,
+                (f * 13 + 2) % vertex_count,
+            ]
+        })
+        .collect();
+    let format = if big_endian {
+        "binary_big_endian"
+    } else {
+        "binary_little_endian"
+    };
+    let part = if with_part {
+        "property uint part\n"
+    } else {
+        ""
+    };
+    let mut out = format!(
+        "ply\nformat {format} 1.0\nelement vertex {vertex_count}\nproperty float x\n\
+         property float y\nproperty float z\nelement face {face_count}\n\
+         property list uchar {index} vertex_indices\n{part}end_header\n"
+    )
+    .into_bytes();
+    let word = |x: u32| {
+        if big_endian {
+            x.to_be_bytes()
+        } else {
+            x.to_le_bytes()
+        }
+    };
+    for p in &positions {
+        for c in p {
+            out.extend(word(c.to_bits()));
+        }
+    }
+    for (f, t) in triangles.iter().enumerate() {
+        out.push(3);
+        for &v in t {
+            out.extend(word(v));
+        }
+        if with_part {
+            out.extend(word(1_000 + f as u32 / 1_000));
+        }
+    }
+    (out, positions, triangles)
+}
+
+#[test]
+fn ply_fast_layouts_read_as_the_generic_reader_does() {
+    for index in ["int", "uint"] {
+        for with_part in [false, true] {
+            // Little-endian files of this layout take the specialised readers; big-endian
+            // ones the generic reader.
+            let (little, positions, triangles) = float_ply(false, index, with_part);
+            let (big, ..) = float_ply(true, index, with_part);
+            let fast = read(&little, Format::Ply).unwrap();
+            let generic = read(&big, Format::Ply).unwrap();
+            assert_eq!(fast.positions, positions);
+            assert_eq!(fast.triangles, triangles);
+            assert_eq!(fast.positions, generic.positions);
+            assert_eq!(fast.triangles, generic.triangles);
+            assert_eq!(fast.triangle_parts, generic.triangle_parts);
+            assert_eq!(fast.part_names, generic.part_names);
+            let parts = if with_part { 40 } else { 1 };
+            assert_eq!(fast.part_names.len(), parts, "{index} {with_part}");
+        }
+    }
+}
+
 #[test]
 fn ply_ascii_reads() {
     let mut text = ply_header("ascii", 4, 1);
