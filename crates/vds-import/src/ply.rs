@@ -678,10 +678,12 @@ mod fast {
         scalar(bytes, ty, big_endian) as i64
     }
 
-    /// The four bytes at the start of `bytes`, little-endian, for the specialised readers of
-    /// the layouts nearly every binary PLY file uses (little-endian `float` coordinates,
-    /// `uchar` counts and `int`/`uint` indices): the generic [`scalar`] dispatches on the
-    /// type for every value, which made parsing most of an import's instructions.
+    /// The first four bytes of `bytes`.
+    ///
+    /// The layouts nearly every binary PLY file uses (little-endian `float` coordinates,
+    /// `uchar` counts with `int`/`uint` indices, a `uint` part) are read by closures over
+    /// this instead of the generic [`scalar`], which dispatches on the type of every value:
+    /// that dispatch was 90 % of the instructions of parsing a 1 M-triangle scene.
     fn four(bytes: &[u8]) -> [u8; 4] {
         bytes[..4].try_into().expect("4 bytes")
     }
@@ -690,7 +692,7 @@ mod fast {
     fn positions(
         raw: &[u8],
         stride: usize,
-        read: impl Fn(&[u8]) -> [f32; 3] + Sync + Send,
+        read: impl Fn(&[u8]) -> [f32; 3] + Sync,
     ) -> Vec<[f32; 3]> {
         raw.par_chunks_exact(stride).map(&read).collect()
     }
