@@ -9,7 +9,8 @@
 //! early.
 //!
 //! The tree is built one level at a time: all nodes of a level partition their own slice of
-//! one vertex-order array in parallel (a stable counting sort by octant), and their children,
+//! one vertex-order array in parallel (a stable counting sort by octant; a node with more
+//! than 64 k vertices counts and scatters in parallel chunks itself), and their children,
 //! appended in order, form the next level. Node ids are therefore breadth-first (a node's
 //! children are contiguous, parents precede children) and the final order array lists the
 //! leaves in depth-first order, so every node owns a contiguous range of it. Nothing depends
