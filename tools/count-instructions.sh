@@ -1,11 +1,13 @@
 #!/usr/bin/env bash
-# Counts the instructions a `vds-bench` binary executes for two fixed jobs, under valgrind's
-# cachegrind (no cache simulation): building the generated 1 M-triangle scene (`vds-bench one`)
-# and decoding every page of its `.vdt` file (`vds-bench decode`, one digest pass and one timed
-# pass). Instruction counts do not drift with the machine as timings do (the dev VMs move
-# single runs by 20-30 %), so they show whether a change to compute-bound code did less work;
-# confirm speed with alternating timed runs afterwards. Needs valgrind; run from the repository
-# root after `cargo build --release -p vds-bench -p vds-gen -p vds-build`.
+# Counts the instructions a `vds-bench` binary executes for three fixed jobs, under valgrind's
+# cachegrind (no cache simulation): building the generated 1 M-triangle scene (`vds-bench one`),
+# decoding every page of its `.vdt` file (`vds-bench decode`, one digest pass and one timed
+# pass), and the runtime flying through that file for 200 frames at 1 and 5 px with every page
+# decoded first (`vds-bench cut --vdt`). Instruction counts do not drift with the machine as
+# timings do (the dev VMs move single runs by 20-30 %), so they show whether a change did less
+# work; memory-bound code (the runtime) can still get slower or faster at equal counts, so
+# confirm with alternating timed runs afterwards. Needs valgrind; run from the repository root
+# after `cargo build --release -p vds-bench -p vds-gen -p vds-build`.
 #
 #   tools/count-instructions.sh target/release/vds-bench
 #
@@ -35,3 +37,5 @@ count() {
 }
 count "build of $scene (vds-bench one)" "$binary" one "$scene"
 count "decode of $file, two passes" "$binary" --runs 1 decode "$file"
+count "runtime on $file, 2 x 200 frames" "$binary" cut --vdt "$file" --frames 200 \
+    --no-fidelity --resident-only

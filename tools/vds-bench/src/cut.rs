@@ -110,7 +110,19 @@ fn play(
 /// Runtime figures for one mesh along `path`, at t = 1 and 5 px: both corner strategies with
 /// resident pages and incidence lists with cold pages, or only the first (`resident_only`).
 pub fn paths(name: &str, file: &Path, frames: u32, fly: bool, resident_only: bool) -> Result<()> {
-    let (bytes, scene) = vdt_bytes(file)?;
+    let (bytes, _) = vdt_bytes(file)?;
+    paths_of_vdt(name, &bytes, frames, fly, resident_only)
+}
+
+/// [`paths`] for the `.vdt` file `bytes`, built elsewhere.
+pub fn paths_of_vdt(
+    name: &str,
+    bytes: &[u8],
+    frames: u32,
+    fly: bool,
+    resident_only: bool,
+) -> Result<()> {
+    let bytes = bytes.to_vec();
     let probe = Runtime::new(
         Box::new(VdtFile::from_bytes(bytes.clone())?),
         CornerTracking::Incidence,
@@ -136,7 +148,7 @@ pub fn paths(name: &str, file: &Path, frames: u32, fly: bool, resident_only: boo
     };
     println!(
         "{name} ({} triangles), {} frames {} at {width}x{height}, one thread",
-        scene.triangles.len(),
+        probe.cut().store().triangle_count(),
         frames,
         if fly { "flying through" } else { "orbiting" },
     );

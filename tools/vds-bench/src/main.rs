@@ -75,6 +75,10 @@ enum Commands {
         /// Only the default configuration (incidence lists, pages resident): quicker A/B runs.
         #[arg(long)]
         resident_only: bool,
+        /// Fly through this `.vdt` file instead of the bunny and the generated scenes: nothing
+        /// is built in the process (quicker runs, and instruction counts of the runtime alone).
+        #[arg(long)]
+        vdt: Option<PathBuf>,
     },
 }
 
@@ -146,20 +150,28 @@ fn main() -> Result<()> {
             no_fidelity,
             no_bunny,
             resident_only,
+            vdt,
         }) => {
             let bunny = args.shared.join("bunny.obj");
-            if !no_bunny {
-                cut::paths("bunny", &bunny, frames, false, resident_only)?;
-            }
-            for size in &sizes {
-                let file = generated_scene(parse_count(size)?, &args.dir)?;
-                cut::paths(
-                    &format!("generated CAD scene {size}"),
-                    &file,
-                    frames,
-                    true,
-                    resident_only,
-                )?;
+            if let Some(vdt) = vdt {
+                let bytes =
+                    std::fs::read(&vdt).with_context(|| format!("reading {}", vdt.display()))?;
+                let name = vdt.display().to_string();
+                cut::paths_of_vdt(&name, &bytes, frames, true, resident_only)?;
+            } else {
+                if !no_bunny {
+                    cut::paths("bunny", &bunny, frames, false, resident_only)?;
+                }
+                for size in &sizes {
+                    let file = generated_scene(parse_count(size)?, &args.dir)?;
+                    cut::paths(
+                        &format!("generated CAD scene {size}"),
+                        &file,
+                        frames,
+                        true,
+                        resident_only,
+                    )?;
+                }
             }
             if !no_fidelity {
                 cut::fidelity(&bunny)?;
