@@ -57,13 +57,13 @@ impl Aabb {
 /// four instructions; the box updates of every incident triangle's corners made that a
 /// tenth of a build's instructions.
 #[inline]
-pub(crate) fn lesser(a: f32, b: f32) -> f32 {
+fn lesser(a: f32, b: f32) -> f32 {
     if b < a { b } else { a }
 }
 
 /// The larger of two values that are not NaN (see [`lesser`]).
 #[inline]
-pub(crate) fn greater(a: f32, b: f32) -> f32 {
+fn greater(a: f32, b: f32) -> f32 {
     if b > a { b } else { a }
 }
 
