@@ -347,6 +347,13 @@ pub fn encode_page(
     Ok(out)
 }
 
+/// A decoded grid coordinate, if it lies on the grid.
+fn grid_coordinate(v: i64) -> Option<u32> {
+    u32::try_from(v)
+        .ok()
+        .filter(|&c| c <= crate::grid::GRID_STEPS)
+}
+
 /// A bounds-checked reader of one stream.
 struct Stream<'a> {
     bytes: &'a [u8],
@@ -611,10 +618,7 @@ pub fn decode_page(
                     .checked_add(prediction[a])
                     .ok_or_else(|| bad("position"))?;
                 previous_q[a] = v;
-                q[a] = u32::try_from(v)
-                    .ok()
-                    .filter(|&c| c <= crate::grid::GRID_STEPS)
-                    .ok_or_else(|| bad("position"))?;
+                q[a] = grid_coordinate(v).ok_or_else(|| bad("position"))?;
             }
             stored_q.push(q);
             stored_axis.push(NO_AXIS);
@@ -656,10 +660,7 @@ pub fn decode_page(
                 .and_then(|d| d.checked_add(prediction[a]))
                 .ok_or_else(|| bad("position"))?;
             previous_q[a] = v;
-            q[a] = u32::try_from(v)
-                .ok()
-                .filter(|&c| c <= crate::grid::GRID_STEPS)
-                .ok_or_else(|| bad("position"))?;
+            q[a] = grid_coordinate(v).ok_or_else(|| bad("position"))?;
         }
         stored_q.push(q);
         let proxy = grid.dequantize(q);
@@ -691,10 +692,7 @@ pub fn decode_page(
                 .checked_mul(unit)
                 .and_then(|d| d.checked_add(i64::from(q[a])))
                 .ok_or_else(|| bad("sphere"))?;
-            centre_q[a] = u32::try_from(v)
-                .ok()
-                .filter(|&c| c <= crate::grid::GRID_STEPS)
-                .ok_or_else(|| bad("sphere"))?;
+            centre_q[a] = grid_coordinate(v).ok_or_else(|| bad("sphere"))?;
         }
         let centre = grid.dequantize(centre_q);
         let radius_units = bounds
