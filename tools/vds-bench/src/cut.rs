@@ -122,9 +122,8 @@ pub fn paths_of_vdt(
     fly: bool,
     resident_only: bool,
 ) -> Result<()> {
-    let bytes = bytes.to_vec();
     let probe = Runtime::new(
-        Box::new(VdtFile::from_bytes(bytes.clone())?),
+        Box::new(VdtFile::from_bytes(bytes.to_vec())?),
         CornerTracking::Incidence,
     )?;
     let root = probe.cut().node(0);
@@ -159,13 +158,13 @@ pub fn paths_of_vdt(
     };
     for t in [1.0, 5.0] {
         for &tracking in resident_trackings {
-            play(&bytes, &path, Goal::Threshold(t), tracking, true)?;
+            play(bytes, &path, Goal::Threshold(t), tracking, true)?;
         }
         if resident_only {
             continue;
         }
         play(
-            &bytes,
+            bytes,
             &path,
             Goal::Threshold(t),
             CornerTracking::Incidence,
