@@ -231,11 +231,12 @@ fn compute_attributes(
 }
 
 /// A leaf's incident triangles, gathered once and used by every leaf attribute: each one's
-/// corners, and the unit normals of those with a non-zero area (apart, so the cone fits run
-/// over a plain slice).
+/// corners (as stored, in `f32`: half the bytes of widened ones, and widening again later
+/// gives the same values), and the unit normals of those with a non-zero area (apart, so the
+/// cone fits run over a plain slice).
 #[derive(Default)]
 struct LeafScratch {
-    corners: Vec<[[f64; 3]; 3]>,
+    corners: Vec<[[f32; 3]; 3]>,
     normals: Vec<[f64; 3]>,
 }
 
@@ -254,40 +255,41 @@ fn leaf_attributes(
     scratch.corners.clear();
     scratch.normals.clear();
     for &t in incident {
-        let corners_f32 = scene.triangles[t as usize].map(|v| scene.positions[v as usize]);
-        for q in corners_f32 {
+        let corners = scene.triangles[t as usize].map(|v| scene.positions[v as usize]);
+        for q in corners {
             triangle_box.add_point(q);
         }
-        let corners = corners_f32.map(widen);
-        let [a, b, c] = corners;
+        let [a, b, c] = corners.map(widen);
         // One cross product gives both the plane for the quadric and the normal for the cone.
         let n = cross(sub(b, a), sub(c, a));
         let twice_area = dot(n, n).sqrt();
-        let normal = (twice_area > 0.0 && twice_area.is_finite()).then(|| {
+        if twice_area > 0.0 && twice_area.is_finite() {
             let inverse = 1.0 / twice_area;
-            n.map(|x| x * inverse)
-        });
-        if let Some(normal) = normal {
+            let normal = n.map(|x| x * inverse);
             quadric.add(&Quadric::from_plane(normal, a, 0.5 * twice_area));
+            scratch.normals.push(normal);
         }
         scratch.corners.push(corners);
-        scratch.normals.extend(normal);
     }
-    let center = triangle_box.center().map(|c| c as f32);
-    let radius = scratch
-        .corners
-        .iter()
-        .flatten()
-        .copied()
-        .map(|q| distance_squared(widen(center), q))
-        .fold(distance_squared(widen(center), p), f64::max)
-        .sqrt();
+    let center = widen(triangle_box.center().map(|c| c as f32));
+    // Plain loops and a comparison: a flattened iterator and `f64::max`'s NaN rule (distances
+    // between finite points are never NaN) cost more instructions than the distances.
+    let mut farthest = distance_squared(center, p);
+    for corners in &scratch.corners {
+        for &q in corners {
+            let d = distance_squared(center, widen(q));
+            if d > farthest {
+                farthest = d;
+            }
+        }
+    }
+    let radius = farthest.sqrt();
     let cone = NormalCone::fit(scratch.normals.iter().copied());
     let two_sided = (cone.half_angle >= std::f64::consts::FRAC_PI_2)
         .then(|| NormalCone::fit_two_sided(scratch.normals.iter().copied()));
     node.proxy = position;
     node.error_radius = 0.0;
-    node.sphere_center = center;
+    node.sphere_center = center.map(|c| c as f32);
     node.sphere_radius = round_up_f32(radius);
     store_cone(node, &cone, two_sided.as_ref());
     let mut vertex_box = Aabb::EMPTY;
