@@ -12,6 +12,7 @@ use vds_import::Scene;
 
 use crate::bounds::{Aabb, NormalCone, round_up_f32};
 use crate::octree::cluster;
+use crate::prefault::filled;
 use crate::quadric::{Quadric, cross, dot, sub};
 use crate::tree::{Node, VertexTree};
 
@@ -56,11 +57,11 @@ pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
 
     let start = Instant::now();
     let leaf_count = clustering.leaf_vertex.len();
-    let mut vertex_rank = vec![0u32; leaf_count];
+    let mut vertex_rank = filled(leaf_count, 0u32);
     for (rank, &v) in clustering.leaf_vertex.iter().enumerate() {
         vertex_rank[v as usize] = rank as u32;
     }
-    let mut leaf_node = vec![0u32; leaf_count];
+    let mut leaf_node = filled(leaf_count, 0u32);
     for (id, n) in clustering.nodes.iter().enumerate() {
         if n.child_count == 0 {
             leaf_node[n.leaf_begin as usize] = id as u32;
@@ -101,7 +102,7 @@ struct Adjacency {
 
 impl Adjacency {
     fn new(vertex_count: usize, triangles: &[[u32; 3]]) -> Adjacency {
-        let mut offsets = vec![0u32; vertex_count + 1];
+        let mut offsets = filled(vertex_count + 1, 0u32);
         for t in triangles {
             for &v in t {
                 offsets[v as usize + 1] += 1;
@@ -111,7 +112,7 @@ impl Adjacency {
             offsets[i + 1] += offsets[i];
         }
         let mut fill = offsets.clone();
-        let mut list = vec![0u32; offsets[vertex_count] as usize];
+        let mut list = filled(offsets[vertex_count] as usize, 0u32);
         for (id, t) in triangles.iter().enumerate() {
             for &v in t {
                 list[fill[v as usize] as usize] = id as u32;
@@ -161,7 +162,7 @@ fn compute_attributes(
     leaf_positions: &[[f32; 3]],
 ) {
     let level_count = levels.len() - 1;
-    let mut inner_index = vec![u32::MAX; nodes.len()];
+    let mut inner_index = filled(nodes.len(), u32::MAX);
     for level in 0..level_count {
         let mut count = 0;
         for id in levels[level] as usize..levels[level + 1] as usize {
@@ -403,7 +404,7 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// Fills `tree.subtris` and each node's subtri range.
 fn assign_subtris(tree: &mut VertexTree, triangles: &[[u32; 3]]) {
     let owner: Vec<u32> = triangles.par_iter().map(|&t| tree.subtri_node(t)).collect();
-    let mut counts = vec![0u32; tree.nodes.len() + 1];
+    let mut counts = filled(tree.nodes.len() + 1, 0u32);
     for &node in &owner {
         counts[node as usize + 1] += 1;
     }
@@ -414,7 +415,7 @@ fn assign_subtris(tree: &mut VertexTree, triangles: &[[u32; 3]]) {
         node.subtri_begin = counts[id];
         node.subtri_end = counts[id + 1];
     }
-    let mut subtris = vec![0u32; triangles.len()];
+    let mut subtris = filled(triangles.len(), 0u32);
     for (t, &node) in owner.iter().enumerate() {
         subtris[counts[node as usize] as usize] = t as u32;
         counts[node as usize] += 1;

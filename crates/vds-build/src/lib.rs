@@ -13,6 +13,7 @@
 pub mod bounds;
 mod build;
 pub mod octree;
+mod prefault;
 pub mod quadric;
 mod tree;
 mod vdt;

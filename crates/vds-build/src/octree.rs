@@ -120,6 +120,9 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
             .collect();
         reading_first = !reading_first;
         let next_start = nodes.len();
+        // The loop below appends on one thread; have the pages it will write mapped first.
+        let added: usize = splits.iter().map(|(_, children)| children.count).sum();
+        crate::prefault::populate(&mut nodes.spare_capacity_mut()[..added]);
         for (id, children) in splits {
             let parent = nodes[id];
             nodes[id].first_child = nodes.len() as u32;
