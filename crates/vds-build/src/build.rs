@@ -193,6 +193,11 @@ fn compute_attributes(
                 families.push((node, children));
             }
         }
+        // This level's accumulators (the widest levels take hundreds of megabytes) are
+        // written in parallel below; map their fresh pages in one go first.
+        current.clear();
+        current.reserve(families.len());
+        crate::prefault::populate(&mut current.spare_capacity_mut()[..families.len()]);
         let below_ref = &below;
         let inner_index = &inner_index;
         families
