@@ -99,47 +99,60 @@ impl NormalCone {
     }
 
     /// The tightest cone around `normals` (unit vectors) with their normalised sum as axis.
-    pub fn fit(normals: impl Iterator<Item = [f64; 3]> + Clone) -> NormalCone {
-        let mut sum = [0.0; 3];
-        let mut first = None;
-        for n in normals.clone() {
-            first.get_or_insert(n);
-            for k in 0..3 {
-                sum[k] += n[k];
-            }
-        }
-        let Some(first) = first else {
-            return NormalCone::EMPTY;
-        };
-        let length = dot(sum, sum).sqrt();
-        let axis = if length > 1e-9 {
-            sum.map(|c| c / length)
-        } else {
-            first
-        };
-        // One acos for the widest normal instead of an angle per normal; acos is accurate
-        // to ~1e-8 rad near 0, well inside the slack added below.
-        let min_cos = normals.map(|n| dot(axis, n)).fold(1.0f64, f64::min);
-        let half_angle = min_cos.clamp(-1.0, 1.0).acos();
-        NormalCone {
-            axis,
-            half_angle: (half_angle + CONE_SLACK_RADIANS).min(std::f64::consts::PI),
-        }
+    pub fn fit(normals: &[[f64; 3]]) -> NormalCone {
+        NormalCone::fit_oriented(normals, |n| n)
     }
 
     /// A two-sided cone around `normals`: each normal is flipped into the hemisphere of the
     /// first one, and the one-sided cone of the result is fitted.
-    pub fn fit_two_sided(normals: impl Iterator<Item = [f64; 3]> + Clone) -> NormalCone {
-        let Some(reference) = normals.clone().next() else {
+    pub fn fit_two_sided(normals: &[[f64; 3]]) -> NormalCone {
+        let Some(&reference) = normals.first() else {
             return NormalCone::EMPTY;
         };
-        NormalCone::fit(normals.map(move |n| {
+        NormalCone::fit_oriented(normals, |n| {
             if dot(n, reference) < 0.0 {
                 n.map(|c| -c)
             } else {
                 n
             }
-        }))
+        })
+    }
+
+    /// [`NormalCone::fit`] of `normals` each seen through `orient`. Plain loops over a slice
+    /// and a comparison for the least cosine (the cosines of unit vectors are never NaN, so
+    /// `f64::min`'s NaN rule is not needed): the build fits a cone for each of millions of
+    /// leaves, and iterator adapters here cost more than the arithmetic.
+    fn fit_oriented(normals: &[[f64; 3]], orient: impl Fn([f64; 3]) -> [f64; 3]) -> NormalCone {
+        let Some(&first) = normals.first() else {
+            return NormalCone::EMPTY;
+        };
+        let mut sum = [0.0; 3];
+        for &n in normals {
+            let n = orient(n);
+            for k in 0..3 {
+                sum[k] += n[k];
+            }
+        }
+        let length = dot(sum, sum).sqrt();
+        let axis = if length > 1e-9 {
+            sum.map(|c| c / length)
+        } else {
+            orient(first)
+        };
+        // One acos for the widest normal instead of an angle per normal; acos is accurate
+        // to ~1e-8 rad near 0, well inside the slack added below.
+        let mut min_cos = 1.0f64;
+        for &n in normals {
+            let cos = dot(axis, orient(n));
+            if cos < min_cos {
+                min_cos = cos;
+            }
+        }
+        let half_angle = min_cos.clamp(-1.0, 1.0).acos();
+        NormalCone {
+            axis,
+            half_angle: (half_angle + CONE_SLACK_RADIANS).min(std::f64::consts::PI),
+        }
     }
 
     /// The two-sided cone containing two two-sided cones: `other`'s axis, which stands for
@@ -234,8 +247,8 @@ mod tests {
 
     #[test]
     fn merged_cone_contains_both_inputs() {
-        let a = NormalCone::fit([[1.0, 0.0, 0.0]].into_iter());
-        let b = NormalCone::fit([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].into_iter());
+        let a = NormalCone::fit(&[[1.0, 0.0, 0.0]]);
+        let b = NormalCone::fit(&[[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
         let m = a.merge(&b);
         for n in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] {
             assert!(m.contains(n, 1e-9), "{m:?} misses {n:?}");
@@ -245,8 +258,8 @@ mod tests {
 
     #[test]
     fn opposite_normals_give_full_cone() {
-        let a = NormalCone::fit([[0.0, 0.0, 1.0]].into_iter());
-        let b = NormalCone::fit([[0.0, 0.0, -1.0]].into_iter());
+        let a = NormalCone::fit(&[[0.0, 0.0, 1.0]]);
+        let b = NormalCone::fit(&[[0.0, 0.0, -1.0]]);
         let m = a.merge(&b);
         assert!(m.contains([0.0, 0.0, -1.0], 0.0) && m.contains([0.0, 0.0, 1.0], 0.0));
     }
@@ -258,11 +271,11 @@ mod tests {
             [0.0, 0.0, -1.0],
             [0.0, 0.1f64.sin(), -(0.1f64.cos())],
         ];
-        let one_sided = NormalCone::fit(plate.into_iter());
-        let two_sided = NormalCone::fit_two_sided(plate.into_iter());
+        let one_sided = NormalCone::fit(&plate);
+        let two_sided = NormalCone::fit_two_sided(&plate);
         assert!(one_sided.half_angle > 3.0);
         assert!(two_sided.half_angle < 0.11, "{two_sided:?}");
-        let other = NormalCone::fit_two_sided([[0.0, 0.1, -1.0]].into_iter());
+        let other = NormalCone::fit_two_sided(&[[0.0, 0.1, -1.0]]);
         let merged = two_sided.merge_two_sided(&other);
         for n in plate.into_iter().chain([[0.0, 0.1, -1.0]]) {
             let length = dot(n, n).sqrt();

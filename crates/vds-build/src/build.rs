@@ -290,9 +290,9 @@ fn leaf_attributes(
         }
     }
     let radius = farthest.sqrt();
-    let cone = NormalCone::fit(scratch.normals.iter().copied());
+    let cone = NormalCone::fit(&scratch.normals);
     let two_sided = (cone.half_angle >= std::f64::consts::FRAC_PI_2)
-        .then(|| NormalCone::fit_two_sided(scratch.normals.iter().copied()));
+        .then(|| NormalCone::fit_two_sided(&scratch.normals));
     node.proxy = position;
     node.error_radius = 0.0;
     node.sphere_center = center.map(|c| c as f32);
