@@ -204,24 +204,31 @@ pub fn encode(
     let grid = &content.grid;
     let frames: Vec<(Vec<u8>, usize)> = spans
         .par_iter()
-        .map(|&(n0, nc, t0, tc)| {
-            let mut records = Vec::with_capacity(nc);
-            let mut triangles = Vec::with_capacity(tc);
-            for &old in &order[n0..n0 + nc] {
-                let mut n = nodes[old as usize];
-                n.parent = map(n.parent);
-                n.first_child = map(n.first_child);
-                let begin = n.subtri_begin.get() as usize;
-                let count = n.subtri_count.get() as usize;
-                n.subtri_begin = U32::new((t0 + triangles.len()) as u32);
-                triangles.extend_from_slice(&content.triangles[begin..begin + count]);
-                records.push(n);
-            }
-            let raw = crate::codec::encode_page(grid, n0 as u32, &records, &triangles)?;
-            let frame = zstd::bulk::compress(&raw, options.zstd_level)
-                .expect("zstd compression of an in-memory buffer cannot fail");
-            Ok((frame, raw.len()))
-        })
+        .map_init(
+            || {
+                zstd::bulk::Compressor::new(options.zstd_level)
+                    .expect("a zstd context at a level zstd accepts")
+            },
+            |compressor, &(n0, nc, t0, tc)| {
+                let mut records = Vec::with_capacity(nc);
+                let mut triangles = Vec::with_capacity(tc);
+                for &old in &order[n0..n0 + nc] {
+                    let mut n = nodes[old as usize];
+                    n.parent = map(n.parent);
+                    n.first_child = map(n.first_child);
+                    let begin = n.subtri_begin.get() as usize;
+                    let count = n.subtri_count.get() as usize;
+                    n.subtri_begin = U32::new((t0 + triangles.len()) as u32);
+                    triangles.extend_from_slice(&content.triangles[begin..begin + count]);
+                    records.push(n);
+                }
+                let raw = crate::codec::encode_page(grid, n0 as u32, &records, &triangles)?;
+                let frame = compressor
+                    .compress(&raw)
+                    .expect("zstd compression of an in-memory buffer cannot fail");
+                Ok((frame, raw.len()))
+            },
+        )
         .collect::<Result<_, VdtError>>()?;
     drop(new_id);
     drop(order);
