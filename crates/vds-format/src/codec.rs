@@ -237,7 +237,8 @@ pub fn encode_page(
         let mut q = [0u32; 3];
         for a in 0..3 {
             let exact = i64::from(exact_q[a]);
-            let mut steps = ((exact - prediction[a]) as f64 / unit as f64).round() as i64;
+            let mut steps =
+                crate::grid::round_half_away((exact - prediction[a]) as f64 / unit as f64);
             // Stay on the grid: step back towards the exact coordinate if rounding left it.
             while prediction[a] + steps * unit as i64 > i64::from(crate::grid::GRID_STEPS) {
                 steps -= 1;
@@ -287,7 +288,7 @@ pub fn encode_page(
         let mut centre_q = [0u32; 3];
         for a in 0..3 {
             let offset = (f64::from(centre[a]) - f64::from(stored[a])) / f64::from(grid.step);
-            let steps = (offset / unit as f64).round() as i64;
+            let steps = crate::grid::round_half_away(offset / unit as f64);
             // Keep the decoded centre on the grid; whatever clamping costs is widened below.
             let lowest = -(i64::from(q[a]) / unit as i64);
             let highest = (i64::from(crate::grid::GRID_STEPS) - i64::from(q[a])) / unit as i64;
