@@ -83,18 +83,16 @@ pub fn tree_content(
     metadata: vds_format::Metadata,
     grid: Grid,
 ) -> TreeContent {
-    let mut triangles: Vec<TriangleRecord> = tree
-        .subtris
-        .par_iter()
-        .map(|&t| {
-            let corners =
-                leading_smallest(scene.triangles[t as usize].map(|v| tree.vertex_rank[v as usize]));
-            TriangleRecord {
-                corners: corners.map(U32::new),
-                part: U32::new(scene.triangle_parts[t as usize]),
-            }
-        })
-        .collect();
+    let mut triangles: Vec<TriangleRecord> = Vec::with_capacity(tree.subtris.len());
+    crate::prefault::populate(triangles.spare_capacity_mut());
+    triangles.par_extend(tree.subtris.par_iter().map(|&t| {
+        let corners =
+            leading_smallest(scene.triangles[t as usize].map(|v| tree.vertex_rank[v as usize]));
+        TriangleRecord {
+            corners: corners.map(U32::new),
+            part: U32::new(scene.triangle_parts[t as usize]),
+        }
+    }));
     // Within a node, subtris in order of their corners (then parts, so coincident triangles
     // of different parts have one order too): the node-relative corners then repeat in
     // patterns zstd finds, 8 % fewer corner bytes on the bunny (docs/format.md). Nodes' subtri
@@ -121,8 +119,11 @@ pub fn tree_content(
                 .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
         }
     });
+    let mut nodes = Vec::with_capacity(tree.nodes.len());
+    crate::prefault::populate(nodes.spare_capacity_mut());
+    nodes.par_extend(tree.nodes.par_iter().map(record));
     TreeContent {
-        nodes: tree.nodes.par_iter().map(record).collect(),
+        nodes,
         triangles,
         vertex_count: tree.leaf_vertex.len() as u64,
         max_depth: tree.max_depth() as u32,
