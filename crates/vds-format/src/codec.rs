@@ -153,22 +153,60 @@ fn distance(a: [f32; 3], b: [f32; 3]) -> f64 {
         .sqrt()
 }
 
+/// Working arrays of [`encode_page_into`], kept by a caller that encodes page after page, so
+/// that the streams stop growing (and copying themselves) after the first pages.
+#[derive(Default)]
+pub struct EncodeScratch {
+    streams: [Vec<u8>; STREAMS],
+    /// The grid coordinates as stored (inner proxies are coarser than their exact ones).
+    stored_q: Vec<[i64; 3]>,
+    /// The cone axes as stored (octahedral bytes; leaves hold a placeholder), the prediction
+    /// of their children's.
+    stored_axis: Vec<[u8; 2]>,
+}
+
 /// Encodes one page: `nodes` with ids from `first_node`, and their subtris `triangles`.
-/// Leaf positions must lie on the grid.
+/// Leaf positions must lie on the grid. (The writer encodes with [`encode_page_into`].)
+#[cfg(test)]
 pub fn encode_page(
     grid: &Grid,
     first_node: u32,
     nodes: &[NodeRecord],
     triangles: &[TriangleRecord],
 ) -> Result<Vec<u8>, VdtError> {
-    let mut s: [Vec<u8>; STREAMS] = Default::default();
+    let mut out = Vec::new();
+    encode_page_into(
+        &mut EncodeScratch::default(),
+        grid,
+        first_node,
+        nodes,
+        triangles,
+        &mut out,
+    )?;
+    Ok(out)
+}
+
+/// [`encode_page`] into `out` (cleared first), with working arrays kept in `scratch`.
+pub fn encode_page_into(
+    scratch: &mut EncodeScratch,
+    grid: &Grid,
+    first_node: u32,
+    nodes: &[NodeRecord],
+    triangles: &[TriangleRecord],
+    out: &mut Vec<u8>,
+) -> Result<(), VdtError> {
+    let EncodeScratch {
+        streams: s,
+        stored_q,
+        stored_axis,
+    } = scratch;
+    for stream in s.iter_mut() {
+        stream.clear();
+    }
+    stored_q.clear();
+    stored_axis.clear();
     let page = first_node..first_node + nodes.len() as u32;
     let mut previous_q = [0i64; 3];
-    // The grid coordinates as stored (inner proxies are coarser than their exact ones).
-    let mut stored_q: Vec<[i64; 3]> = Vec::with_capacity(nodes.len());
-    // The cone axes as stored (octahedral bytes; leaves hold a placeholder), the prediction
-    // of their children's.
-    let mut stored_axis: Vec<[u8; 2]> = Vec::with_capacity(nodes.len());
     // Where the next inner node's children are expected: right after the previous inner
     // node's (pages are breadth-first within), or right after the first inner node itself.
     let mut expected_child: Option<i64> = None;
@@ -338,14 +376,15 @@ pub fn encode_page(
         }
         t += n.subtri_count.get() as usize;
     }
-    let mut out = Vec::with_capacity(4 * STREAMS + s.iter().map(Vec::len).sum::<usize>());
-    for stream in &s {
+    out.clear();
+    out.reserve(4 * STREAMS + s.iter().map(Vec::len).sum::<usize>());
+    for stream in s.iter() {
         out.extend_from_slice(&(stream.len() as u32).to_le_bytes());
     }
-    for stream in &s {
+    for stream in s.iter() {
         out.extend_from_slice(stream);
     }
-    Ok(out)
+    Ok(())
 }
 
 /// A decoded grid coordinate, if it lies on the grid.

@@ -205,13 +205,17 @@ pub fn encode(
     let frames: Vec<(Vec<u8>, usize)> = spans
         .par_iter()
         .map_init(
-            || {
-                zstd::bulk::Compressor::new(options.zstd_level)
-                    .expect("a zstd context at a level zstd accepts")
-            },
-            |compressor, &(n0, nc, t0, tc)| {
-                let mut records = Vec::with_capacity(nc);
-                let mut triangles = Vec::with_capacity(tc);
+            PageWork::new(options.zstd_level),
+            |work, &(n0, nc, t0, _)| {
+                let PageWork {
+                    compressor,
+                    scratch,
+                    records,
+                    triangles,
+                    raw,
+                } = work;
+                records.clear();
+                triangles.clear();
                 for &old in &order[n0..n0 + nc] {
                     let mut n = nodes[old as usize];
                     n.parent = map(n.parent);
@@ -222,9 +226,9 @@ pub fn encode(
                     triangles.extend_from_slice(&content.triangles[begin..begin + count]);
                     records.push(n);
                 }
-                let raw = crate::codec::encode_page(grid, n0 as u32, &records, &triangles)?;
+                crate::codec::encode_page_into(scratch, grid, n0 as u32, records, triangles, raw)?;
                 let frame = compressor
-                    .compress(&raw)
+                    .compress(raw)
                     .expect("zstd compression of an in-memory buffer cannot fail");
                 Ok((frame, raw.len()))
             },
@@ -303,6 +307,29 @@ pub fn encode(
         pages: plan.len() as u32,
     };
     Ok((out, report))
+}
+
+/// What one writing thread keeps from page to page: a zstd context (made once, not per
+/// page), the encoder's working arrays, and the page's gathered records and encoding.
+struct PageWork {
+    compressor: zstd::bulk::Compressor<'static>,
+    scratch: crate::codec::EncodeScratch,
+    records: Vec<NodeRecord>,
+    triangles: Vec<TriangleRecord>,
+    raw: Vec<u8>,
+}
+
+impl PageWork {
+    fn new(zstd_level: i32) -> impl Fn() -> PageWork + Sync {
+        move || PageWork {
+            compressor: zstd::bulk::Compressor::new(zstd_level)
+                .expect("a zstd context at a level zstd accepts"),
+            scratch: Default::default(),
+            records: Vec::new(),
+            triangles: Vec::new(),
+            raw: Vec::new(),
+        }
+    }
 }
 
 /// Encodes the tree and writes it to `path` atomically: the bytes go to a temporary file in
