@@ -75,7 +75,8 @@ impl Grid {
 /// saturating conversion alone gives `round`'s result.
 pub(crate) fn round_half_away(x: f64) -> i64 {
     const INTEGRAL_FROM: f64 = 4_503_599_627_370_496.0; // 2⁵²
-    if !(x.abs() < INTEGRAL_FROM) {
+    // NaN converts to 0, as `round`'s NaN does.
+    if x.abs() >= INTEGRAL_FROM || x.is_nan() {
         return x as i64;
     }
     let truncated = x as i64;
