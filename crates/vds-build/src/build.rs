@@ -205,17 +205,18 @@ fn compute_attributes(
             .map_init(LeafScratch::default, |scratch, (node, children)| {
                 let mut sum: Option<Accumulator> = None;
                 for (k, child) in children.iter_mut().enumerate() {
+                    let leaf;
                     let accumulator = if child.is_leaf() {
                         let vertex = leaf_vertex[child.leaf_begin as usize];
-                        leaf_attributes(child, vertex, scene, adjacency.of(vertex), scratch)
+                        leaf = leaf_attributes(child, vertex, scene, adjacency.of(vertex), scratch);
+                        &leaf
                     } else {
-                        let id = node.first_child as usize + k;
-                        below_ref[inner_index[id] as usize]
+                        &below_ref[inner_index[node.first_child as usize + k] as usize]
                     };
-                    sum = Some(match sum {
-                        None => accumulator,
-                        Some(sum) => sum.combine(&accumulator),
-                    });
+                    match &mut sum {
+                        None => sum = Some(*accumulator),
+                        Some(sum) => sum.absorb(accumulator),
+                    }
                 }
                 let sum = sum.expect("inner nodes have children");
                 inner_attributes(node, children, &sum, leaf_positions);
@@ -311,7 +312,9 @@ fn leaf_attributes(
 }
 
 impl Accumulator {
-    fn combine(mut self, other: &Accumulator) -> Accumulator {
+    /// Adds `other` in place (a 224-byte accumulator moved in and out per child cost
+    /// copies; the sums and their order are the same).
+    fn absorb(&mut self, other: &Accumulator) {
         let before = self.cone;
         self.quadric.add(&other.quadric);
         for k in 0..3 {
@@ -328,7 +331,6 @@ impl Accumulator {
                     .merge_two_sided(&theirs.unwrap_or(other.cone)),
             ),
         };
-        self
     }
 }
 
