@@ -413,10 +413,13 @@ fn assign_subtris(tree: &mut VertexTree, triangles: &[[u32; 3]]) {
         counts[i + 1] += counts[i];
     }
     // In parallel: a pass over every node's 76 bytes, the whole node array.
-    tree.nodes.par_iter_mut().enumerate().for_each(|(id, node)| {
-        node.subtri_begin = counts[id];
-        node.subtri_end = counts[id + 1];
-    });
+    tree.nodes
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(id, node)| {
+            node.subtri_begin = counts[id];
+            node.subtri_end = counts[id + 1];
+        });
     let mut subtris = filled(triangles.len(), 0u32);
     for (t, &node) in owner.iter().enumerate() {
         subtris[counts[node as usize] as usize] = t as u32;
