@@ -156,16 +156,9 @@ fn compute_attributes(
     leaf_positions: &[[f32; 3]],
 ) {
     let level_count = levels.len() - 1;
+    // Each inner node's place among its level's inner nodes (its accumulator's index), set
+    // while its level's families are listed, before its parent's level reads it.
     let mut inner_index = filled(nodes.len(), u32::MAX);
-    for level in 0..level_count {
-        let mut count = 0;
-        for id in levels[level] as usize..levels[level + 1] as usize {
-            if !nodes[id].is_leaf() {
-                inner_index[id] = count;
-                count += 1;
-            }
-        }
-    }
     // Two buffers reused level after level: fresh multi-megabyte allocations per level would
     // spend more time in page faults than in the geometry. (Reserving both at the widest
     // level's size up front raised peak memory by 280 MB: the growing buffers reuse memory
@@ -179,11 +172,12 @@ fn compute_attributes(
         // The next level is exactly this level's children, in parent order.
         let mut children_left: &mut [Node] = rest;
         let mut families: Vec<(&mut Node, &mut [Node])> = Vec::new();
-        for node in this_level.iter_mut() {
+        for (k, node) in this_level.iter_mut().enumerate() {
             if !node.is_leaf() {
                 let (children, tail) =
                     std::mem::take(&mut children_left).split_at_mut(usize::from(node.child_count));
                 children_left = tail;
+                inner_index[start + k] = families.len() as u32;
                 families.push((node, children));
             }
         }
@@ -193,7 +187,7 @@ fn compute_attributes(
         current.reserve(families.len());
         crate::prefault::populate(&mut current.spare_capacity_mut()[..families.len()]);
         let below_ref = &below;
-        let inner_index = &inner_index;
+        let inner_index = &inner_index[..];
         families
             .into_par_iter()
             .map_init(LeafScratch::default, |scratch, (node, children)| {
