@@ -61,6 +61,12 @@ pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
     for (rank, &v) in clustering.leaf_vertex.iter().enumerate() {
         vertex_rank[v as usize] = rank as u32;
     }
+    let mut leaf_node = filled(leaf_count, 0u32);
+    for (id, n) in clustering.nodes.iter().enumerate() {
+        if n.child_count == 0 {
+            leaf_node[n.leaf_begin as usize] = id as u32;
+        }
+    }
     let leaf_positions = clustering.leaf_positions;
     let mut nodes = clustering.nodes;
     compute_attributes(
@@ -78,7 +84,7 @@ pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
         nodes,
         leaf_vertex: clustering.leaf_vertex,
         vertex_rank,
-        leaf_node: clustering.leaf_node,
+        leaf_node,
         subtris: Vec::new(),
         level_starts: clustering.level_starts,
     };

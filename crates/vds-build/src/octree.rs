@@ -39,8 +39,6 @@ pub struct Clustering {
     pub leaf_vertex: Vec<u32>,
     /// Position of each leaf rank (the positions in depth-first leaf order).
     pub leaf_positions: Vec<[f32; 3]>,
-    /// Node id of each leaf rank.
-    pub leaf_node: Vec<u32>,
     /// Node ids where each depth starts, plus the total count at the end.
     pub level_starts: Vec<u32>,
 }
@@ -87,9 +85,6 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
     let mut nodes = Vec::with_capacity(2 * positions.len() - 1);
     nodes.push(Node::topology(0, positions.len() as u32, NO_PARENT, 0));
     let mut level_starts = vec![0u32];
-    // Filled as leaves are found, in the loop that visits every node of a level anyway (a
-    // scan of the finished node array for its leaves read 76 bytes a node on one thread).
-    let mut leaf_node = crate::prefault::filled(positions.len(), 0u32);
     let mut level = 0..1usize;
     let mut reading_first = true;
     while !level.is_empty() {
@@ -115,11 +110,8 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
                     (second, first)
                 };
                 work.push((id, from, to));
-            } else {
-                leaf_node[begin] = id as u32;
-                if !reading_first {
-                    first[0] = second[0];
-                }
+            } else if !reading_first {
+                first[0] = second[0];
             }
         }
         let splits: Vec<(usize, Children)> = work
@@ -155,7 +147,6 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
         nodes,
         leaf_vertex: items.par_iter().map(|item| item.vertex).collect(),
         leaf_positions: items.par_iter().map(|item| item.position).collect(),
-        leaf_node,
         level_starts,
     }
 }
@@ -304,10 +295,6 @@ mod tests {
         let c = cluster(&positions);
         let leaves = c.nodes.iter().filter(|n| n.child_count == 0).count();
         assert_eq!(leaves, 100);
-        for (rank, &id) in c.leaf_node.iter().enumerate() {
-            let leaf = &c.nodes[id as usize];
-            assert!(leaf.is_leaf() && leaf.leaf_begin == rank as u32);
-        }
         assert!(
             c.nodes
                 .iter()
@@ -325,10 +312,6 @@ mod tests {
         ];
         let c = cluster(&positions);
         assert_eq!(c.nodes.iter().filter(|n| n.child_count == 0).count(), 3);
-        for (rank, &id) in c.leaf_node.iter().enumerate() {
-            let leaf = &c.nodes[id as usize];
-            assert!(leaf.is_leaf() && leaf.leaf_begin == rank as u32);
-        }
     }
 
     #[test]
@@ -364,6 +347,5 @@ mod tests {
         let c = cluster(&[[0.0, 0.0, 0.0]]);
         assert_eq!(c.nodes.len(), 1);
         assert_eq!(c.leaf_vertex, vec![0]);
-        assert_eq!(c.leaf_node, vec![0]);
     }
 }
