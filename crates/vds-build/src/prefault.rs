@@ -45,14 +45,20 @@ pub(crate) fn populate<T>(spare: &mut [MaybeUninit<T>]) {
     });
 }
 
-/// `vec![value; n]` for the build's large index arrays, which single-threaded loops then fill
-/// in random order: the pages are populated in parallel first, and the values written in
-/// parallel, instead of faulting in one at a time under the loop.
-pub(crate) fn filled<T: Copy + Send + Sync>(n: usize, value: T) -> Vec<T> {
-    let mut v = Vec::with_capacity(n);
+/// `items` collected into a vector whose pages are populated first: the parallel writes then
+/// find them mapped instead of faulting them in one at a time.
+pub(crate) fn collect_populated<T: Send>(items: impl IndexedParallelIterator<Item = T>) -> Vec<T> {
+    let mut v = Vec::with_capacity(items.len());
     populate(v.spare_capacity_mut());
-    v.par_extend(rayon::iter::repeat_n(value, n));
+    v.par_extend(items);
     v
+}
+
+/// `vec![value; n]` for the build's large index arrays, which single-threaded loops then fill
+/// in random order: the pages are populated and the values written in parallel first, instead
+/// of the pages faulting in one at a time under the loop.
+pub(crate) fn filled<T: Copy + Send + Sync>(n: usize, value: T) -> Vec<T> {
+    collect_populated(rayon::iter::repeat_n(value, n))
 }
 
 #[cfg(target_os = "linux")]

@@ -7,6 +7,7 @@ use vds_format::{Grid, NO_NODE, NodeRecord, TreeContent, TriangleRecord, VdtErro
 use vds_import::Scene;
 use zerocopy::little_endian::{F32, U16, U32};
 
+use crate::prefault::collect_populated;
 use crate::tree::{Node, VertexTree};
 
 fn record(node: &Node) -> NodeRecord {
@@ -83,9 +84,7 @@ pub fn tree_content(
     metadata: vds_format::Metadata,
     grid: Grid,
 ) -> TreeContent {
-    let mut triangles: Vec<TriangleRecord> = Vec::with_capacity(tree.subtris.len());
-    crate::prefault::populate(triangles.spare_capacity_mut());
-    triangles.par_extend(tree.subtris.par_iter().map(|&t| {
+    let mut triangles = collect_populated(tree.subtris.par_iter().map(|&t| {
         let corners =
             leading_smallest(scene.triangles[t as usize].map(|v| tree.vertex_rank[v as usize]));
         TriangleRecord {
@@ -119,11 +118,8 @@ pub fn tree_content(
                 .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
         }
     });
-    let mut nodes = Vec::with_capacity(tree.nodes.len());
-    crate::prefault::populate(nodes.spare_capacity_mut());
-    nodes.par_extend(tree.nodes.par_iter().map(record));
     TreeContent {
-        nodes,
+        nodes: collect_populated(tree.nodes.par_iter().map(record)),
         triangles,
         vertex_count: tree.leaf_vertex.len() as u64,
         max_depth: tree.max_depth() as u32,
