@@ -21,5 +21,5 @@ mod verify;
 
 pub use build::{BuildTimings, build_tree, build_tree_timed};
 pub use tree::{Node, VertexTree};
-pub use vdt::{encode_scene, snap_to_grid, tree_content, tree_from_file};
+pub use vdt::{TreeNodes, encode_scene, snap_to_grid, tree_content, tree_from_file};
 pub use verify::{TreeError, VerifyOptions, verify_tree, verify_tree_with};

@@ -3,7 +3,9 @@
 //! positions and triangles by leaf rank), which is what `vds-info --verify` checks.
 
 use rayon::prelude::*;
-use vds_format::{Grid, NO_NODE, NodeRecord, TreeContent, TriangleRecord, VdtError, VdtFile};
+use vds_format::{
+    Grid, NO_NODE, NodeRecord, NodeSource, TreeContent, TriangleRecord, VdtError, VdtFile,
+};
 use vds_import::Scene;
 use zerocopy::little_endian::{F32, U16, U32};
 
@@ -75,15 +77,31 @@ pub fn snap_to_grid(scene: &mut Scene) -> Grid {
 /// Subtris per parallel run of nodes sorting their subtris in [`tree_content`].
 const TRIANGLES_PER_SORT_RUN: usize = 1 << 16;
 
-/// The format's view of a built tree: node records, and triangles grouped by node with
-/// corners as leaf ranks. `metadata` is stored as given; `grid` is the one the scene was
-/// snapped to ([`snap_to_grid`]) before the tree was built.
-pub fn tree_content(
-    tree: &VertexTree,
+/// A built tree's nodes as the writer reads them: each record is made when asked for, so
+/// the writer never needs a second copy of the whole tree in the format's records.
+#[derive(Debug, Clone, Copy)]
+pub struct TreeNodes<'a>(pub &'a [Node]);
+
+impl NodeSource for TreeNodes<'_> {
+    fn node_count(&self) -> usize {
+        self.0.len()
+    }
+
+    fn node_record(&self, id: u32) -> NodeRecord {
+        record(&self.0[id as usize])
+    }
+}
+
+/// The format's view of a built tree: its nodes (records made on demand, see [`TreeNodes`]),
+/// and triangles grouped by node with corners as leaf ranks. `metadata` is stored as given;
+/// `grid` is the one the scene was snapped to ([`snap_to_grid`]) before the tree was built.
+/// The scene is not needed once this returns.
+pub fn tree_content<'a>(
+    tree: &'a VertexTree,
     scene: &Scene,
     metadata: vds_format::Metadata,
     grid: Grid,
-) -> TreeContent {
+) -> TreeContent<TreeNodes<'a>> {
     let mut triangles = collect_populated(tree.subtris.par_iter().map(|&t| {
         let corners =
             leading_smallest(scene.triangles[t as usize].map(|v| tree.vertex_rank[v as usize]));
@@ -119,7 +137,7 @@ pub fn tree_content(
         }
     });
     TreeContent {
-        nodes: collect_populated(tree.nodes.par_iter().map(record)),
+        nodes: TreeNodes(&tree.nodes),
         triangles,
         vertex_count: tree.leaf_vertex.len() as u64,
         max_depth: tree.max_depth() as u32,

@@ -30,6 +30,6 @@ pub use layout::{
 pub use metadata::{BuildInfo, InputInfo, Metadata};
 pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};
 pub use write::{
-    DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, TreeContent, WriteOptions, WriteReport, encode,
-    write_file,
+    DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, NodeSource, TreeContent, WriteOptions, WriteReport,
+    encode, write_file,
 };
