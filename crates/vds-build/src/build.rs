@@ -47,19 +47,13 @@ pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
     if scene.positions.is_empty() {
         return (VertexTree::default(), timings);
     }
-    // The adjacency is a one-thread pass over the triangles that needs nothing from the
-    // clustering, whose own one-thread stretches leave a core idle: they run side by side.
     let start = Instant::now();
-    let (clustering, (adjacency, adjacency_time)) = rayon::join(
-        || cluster(&scene.positions),
-        || {
-            let start = Instant::now();
-            let adjacency = Adjacency::new(scene.positions.len(), &scene.triangles);
-            (adjacency, start.elapsed())
-        },
-    );
+    let clustering = cluster(&scene.positions);
     timings.cluster = start.elapsed();
-    timings.adjacency = adjacency_time;
+
+    let start = Instant::now();
+    let adjacency = Adjacency::new(scene.positions.len(), &scene.triangles);
+    timings.adjacency = start.elapsed();
 
     let start = Instant::now();
     let leaf_count = clustering.leaf_vertex.len();
