@@ -108,14 +108,19 @@ struct Group {
     count: u32,
 }
 
-/// Plans pages: the list of sibling groups of each page.
-fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<Vec<Group>> {
-    let group_bytes = |g: &Group| -> u64 {
+/// One planned page: its sibling groups, in order, and how many subtris they own.
+struct PagePlan {
+    groups: Vec<Group>,
+    triangles: usize,
+}
+
+/// Plans pages: the sibling groups of each page, and its triangle count (read here once,
+/// where each group's size is measured anyway).
+fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
+    // A group's subtris.
+    let group_triangles = |g: &Group| -> u64 {
         (g.first..g.first + g.count)
-            .map(|id| {
-                NODE_BYTES as u64
-                    + TRIANGLE_BYTES as u64 * u64::from(nodes.node_record(id).subtri_count.get())
-            })
+            .map(|id| u64::from(nodes.node_record(id).subtri_count.get()))
             .sum()
     };
     let mut pages = Vec::new();
@@ -127,6 +132,7 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<Vec<Group>> {
             page_bytes
         };
         let mut page = Vec::new();
+        let mut page_triangles = 0u64;
         let mut bytes = 0u64;
         let mut queue = VecDeque::from([start]);
         loop {
@@ -143,12 +149,15 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<Vec<Group>> {
                 }
             }
             let group = queue[0];
-            let size = group_bytes(&group);
+            let triangles = group_triangles(&group);
+            let size =
+                NODE_BYTES as u64 * u64::from(group.count) + TRIANGLE_BYTES as u64 * triangles;
             if !page.is_empty() && bytes + size > u64::from(budget) {
                 break;
             }
             queue.pop_front();
             page.push(group);
+            page_triangles += triangles;
             bytes += size;
             for id in group.first..group.first + group.count {
                 let n = nodes.node_record(id);
@@ -161,7 +170,10 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<Vec<Group>> {
             }
         }
         stack.extend(queue.into_iter().rev());
-        pages.push(page);
+        pages.push(PagePlan {
+            groups: page,
+            triangles: page_triangles as usize,
+        });
     }
     pages
 }
@@ -185,7 +197,7 @@ pub fn encode<N: NodeSource>(
     let mut new_id = vec![NO_NODE; node_count];
     let mut order = Vec::with_capacity(node_count);
     for page in &plan {
-        for group in page {
+        for group in &page.groups {
             for old in group.first..group.first + group.count {
                 new_id[old as usize] = order.len() as u32;
                 order.push(old);
@@ -210,11 +222,8 @@ pub fn encode<N: NodeSource>(
     let mut spans = Vec::with_capacity(plan.len());
     let (mut node_at, mut triangle_at) = (0usize, 0usize);
     for page in &plan {
-        let node_count: usize = page.iter().map(|g| g.count as usize).sum();
-        let triangle_count: usize = order[node_at..node_at + node_count]
-            .iter()
-            .map(|&old| nodes.node_record(old).subtri_count.get() as usize)
-            .sum();
+        let node_count: usize = page.groups.iter().map(|g| g.count as usize).sum();
+        let triangle_count = page.triangles;
         spans.push((node_at, node_count, triangle_at, triangle_count));
         node_at += node_count;
         triangle_at += triangle_count;
