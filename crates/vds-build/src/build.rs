@@ -1,9 +1,9 @@
 //! The build pipeline: scene → clustering → per-node attributes → subtris.
 //!
-//! Attributes are computed bottom-up one depth level at a time, in parallel within a level:
-//! a leaf's quadric, triangle bounds and normal cone come from its incident triangles; an
-//! inner node combines its children's. Only the accumulators of the level below are kept, so
-//! transient memory is bounded by the widest level, not by the whole tree.
+//! Attributes are computed bottom-up: a leaf's quadric, triangle bounds and normal cone come
+//! from its incident triangles; an inner node combines its children's. Subtrees below a
+//! frontier level are filled depth first, one parallel task each, so a node's accumulator
+//! lives only until its parent absorbs it; the few levels above are filled one at a time.
 
 use std::time::{Duration, Instant};
 
@@ -153,9 +153,35 @@ fn widen(p: [f32; 3]) -> [f64; 3] {
     p.map(f64::from)
 }
 
-/// Fills every node's attributes, deepest level first. A parent computes its leaf children's
-/// accumulators itself, so only inner nodes' accumulators are kept between levels, indexed
-/// compactly: leaves, the bulk of the tree, never occupy an accumulator slot.
+/// What every node's attributes are computed from.
+struct Inputs<'a> {
+    scene: &'a Scene,
+    leaf_vertex: &'a [u32],
+    adjacency: &'a Adjacency,
+    leaf_positions: &'a [[f32; 3]],
+}
+
+/// Subtrees filled as one task hold at most this share of all leaves (or
+/// [`MIN_TASK_LEAVES`]): enough tasks for rayon to balance, few enough that each is long.
+const TASK_SHARE: u32 = 64;
+
+/// The least leaf count a task may be given however small the tree.
+const MIN_TASK_LEAVES: u32 = 4096;
+
+/// Fills every node's attributes, children before parents.
+///
+/// The tree is cut at a *frontier* level: the shallowest level whose every node holds at most
+/// a 64th of the leaves. Each frontier node's subtree is filled by one task, depth first, so a
+/// node's accumulator lives only until its parent has absorbed it (one running sum per level
+/// of the recursion). The few levels above the frontier are then filled level by level from
+/// the frontier's accumulators. Filling the whole tree level by level instead kept every
+/// accumulator of a level alive at once, 224 bytes each: 385 MB of fresh memory at the widest
+/// levels of the 10 M scene, whose first touch the dev VMs charge heavily for. Sums are taken
+/// in child order either way, so the attributes do not depend on how the work is split.
+///
+/// In breadth-first order a subtree's nodes form one contiguous run per level (children of
+/// consecutive nodes are consecutive), found from the leaf ranges, so each task gets its own
+/// `&mut` slice of every level below the frontier.
 fn compute_attributes(
     scene: &Scene,
     nodes: &mut [Node],
@@ -164,74 +190,108 @@ fn compute_attributes(
     adjacency: &Adjacency,
     leaf_positions: &[[f32; 3]],
 ) {
+    let inputs = Inputs {
+        scene,
+        leaf_vertex,
+        adjacency,
+        leaf_positions,
+    };
     let level_count = levels.len() - 1;
-    // Each inner node's place among its level's inner nodes (its accumulator's index), set
-    // while its level's families are listed, before its parent's level reads it.
-    let mut inner_index = filled(nodes.len(), u32::MAX);
-    // Two buffers reused level after level: fresh multi-megabyte allocations per level would
-    // spend more time in page faults than in the geometry. (Reserving both at the widest
-    // level's size up front raised peak memory by 280 MB: the growing buffers reuse memory
-    // the clustering freed.)
-    let mut below: Vec<Accumulator> = Vec::new();
-    let mut current: Vec<Accumulator> = Vec::new();
-    for level in (0..level_count).rev() {
-        let (start, end) = (levels[level] as usize, levels[level + 1] as usize);
-        let next_end = levels.get(level + 2).map_or(end, |&e| e as usize);
-        let (this_level, rest) = nodes[start..next_end].split_at_mut(end - start);
-        // The next level is exactly this level's children, in parent order.
-        let mut children_left: &mut [Node] = rest;
-        let mut families: Vec<(&mut Node, &mut [Node])> = Vec::new();
-        for (k, node) in this_level.iter_mut().enumerate() {
-            if !node.is_leaf() {
-                let (children, tail) =
-                    std::mem::take(&mut children_left).split_at_mut(usize::from(node.child_count));
-                children_left = tail;
-                inner_index[start + k] = families.len() as u32;
-                families.push((node, children));
-            }
+    let level = |k: usize| levels[k] as usize..levels[k + 1] as usize;
+    let task_leaves = (nodes[0].leaf_count() / TASK_SHARE).max(MIN_TASK_LEAVES);
+    let frontier = (0..level_count)
+        .find(|&k| {
+            nodes[level(k)]
+                .iter()
+                .all(|n| n.leaf_count() <= task_leaves)
+        })
+        .unwrap_or(level_count - 1);
+
+    // Each task's slice of each level from the frontier down, with the id of its first node.
+    let roots: Vec<(u32, u32)> = nodes[level(frontier)]
+        .iter()
+        .map(|n| (n.leaf_begin, n.leaf_end))
+        .collect();
+    let mut tasks: Vec<Vec<(u32, &mut [Node])>> = roots.iter().map(|_| Vec::new()).collect();
+    let mut rest = &mut nodes[levels[frontier] as usize..];
+    for k in frontier..level_count {
+        let (mut this_level, tail) = std::mem::take(&mut rest).split_at_mut(level(k).len());
+        rest = tail;
+        let mut id = levels[k];
+        for (task, &(_, leaf_end)) in tasks.iter_mut().zip(&roots) {
+            // Leaf ranges increase along a level: the task's nodes are those that start
+            // before its root's range ends.
+            let count = this_level.partition_point(|n| n.leaf_begin < leaf_end);
+            let (mine, others) = std::mem::take(&mut this_level).split_at_mut(count);
+            this_level = others;
+            task.push((id, mine));
+            id += count as u32;
         }
-        // This level's accumulators (the widest levels take hundreds of megabytes) are
-        // written in parallel below; map their fresh pages in one go first.
-        current.clear();
-        current.reserve(families.len());
-        crate::prefault::populate(&mut current.spare_capacity_mut()[..families.len()]);
+    }
+    let mut below: Vec<Accumulator> = tasks
+        .into_par_iter()
+        .map_init(LeafScratch::default, |scratch, mut task| {
+            fill_subtree(&inputs, &mut task, 0, scratch)
+        })
+        .collect();
+
+    // Above the frontier, level by level: `below` holds the accumulator of every node of the
+    // level underneath, in id order.
+    for k in (0..frontier).rev() {
+        let (start, end) = (levels[k] as usize, levels[k + 1] as usize);
+        let (this_level, next_level) =
+            nodes[start..levels[k + 2] as usize].split_at_mut(end - start);
+        let next_level: &[Node] = next_level;
+        let next_start = levels[k + 1];
         let below_ref = &below;
-        let inner_index = &inner_index[..];
-        families
-            .into_par_iter()
-            .map_init(LeafScratch::default, |scratch, (node, children)| {
-                let mut sum: Option<Accumulator> = None;
-                for (k, child) in children.iter_mut().enumerate() {
-                    let leaf;
-                    let accumulator = if child.is_leaf() {
-                        let vertex = leaf_vertex[child.leaf_begin as usize];
-                        leaf = leaf_attributes(child, vertex, scene, adjacency.of(vertex), scratch);
-                        &leaf
-                    } else {
-                        &below_ref[inner_index[node.first_child as usize + k] as usize]
-                    };
-                    match &mut sum {
-                        None => sum = Some(*accumulator),
-                        Some(sum) => sum.absorb(accumulator),
-                    }
+        below = this_level
+            .par_iter_mut()
+            .map_init(LeafScratch::default, |scratch, node| {
+                if node.is_leaf() {
+                    return inputs.leaf(node, scratch);
                 }
-                let sum = sum.expect("inner nodes have children");
-                inner_attributes(node, children, &sum, leaf_positions);
+                let first = (node.first_child - next_start) as usize;
+                let family = first..first + usize::from(node.child_count);
+                let mut sum = below_ref[first];
+                for child in &below_ref[first + 1..family.end] {
+                    sum.absorb(child);
+                }
+                inner_attributes(node, &next_level[family], &sum, leaf_positions);
                 sum
             })
-            .collect_into_vec(&mut current);
-        std::mem::swap(&mut below, &mut current);
+            .collect();
     }
-    if nodes.len() == 1 {
-        let vertex = leaf_vertex[0];
-        leaf_attributes(
-            &mut nodes[0],
-            vertex,
-            scene,
-            adjacency.of(vertex),
-            &mut LeafScratch::default(),
-        );
+}
+
+impl Inputs<'_> {
+    /// Fills a leaf's attributes and returns its accumulator.
+    fn leaf(&self, node: &mut Node, scratch: &mut LeafScratch) -> Accumulator {
+        let vertex = self.leaf_vertex[node.leaf_begin as usize];
+        leaf_attributes(node, vertex, self.scene, self.adjacency.of(vertex), scratch)
     }
+}
+
+/// Fills the subtree of node `local` of `levels[0]` (each level a slice that holds the
+/// subtree's nodes there, with the id of its first node) and returns the node's accumulator.
+fn fill_subtree(
+    inputs: &Inputs,
+    levels: &mut [(u32, &mut [Node])],
+    local: usize,
+    scratch: &mut LeafScratch,
+) -> Accumulator {
+    let ((_, this_level), deeper) = levels.split_first_mut().expect("the node's level");
+    let node = &mut this_level[local];
+    if node.is_leaf() {
+        return inputs.leaf(node, scratch);
+    }
+    let first = (node.first_child - deeper[0].0) as usize;
+    let family = first..first + usize::from(node.child_count);
+    let mut sum = fill_subtree(inputs, deeper, first, scratch);
+    for child in first + 1..family.end {
+        sum.absorb(&fill_subtree(inputs, deeper, child, scratch));
+    }
+    inner_attributes(node, &deeper[0].1[family], &sum, inputs.leaf_positions);
+    sum
 }
 
 /// A leaf's incident triangles, gathered once and used by every leaf attribute: each one's
@@ -253,7 +313,9 @@ fn leaf_attributes(
 ) -> Accumulator {
     let position = scene.positions[vertex as usize];
     let p = widen(position);
-    let mut quadric = Quadric::default();
+    // Σ area·n·nᵀ of the incident planes; they all pass through this vertex, which gives
+    // the rest of the quadric (`Quadric::through_point`).
+    let mut moments = [0.0f64; 6];
     let mut triangle_box = Aabb::EMPTY;
     triangle_box.add_point(position);
     scratch.corners.clear();
@@ -270,7 +332,15 @@ fn leaf_attributes(
         if twice_area > 0.0 && twice_area.is_finite() {
             let inverse = 1.0 / twice_area;
             let normal = n.map(|x| x * inverse);
-            quadric.add(&Quadric::from_plane(normal, a, 0.5 * twice_area));
+            // area·n̂·n̂ᵀ = n·nᵀ / (2·|n|) for the unnormalised cross product `n`.
+            let w = 0.5 * inverse;
+            let wn = n.map(|x| x * w);
+            moments[0] += wn[0] * n[0];
+            moments[1] += wn[0] * n[1];
+            moments[2] += wn[0] * n[2];
+            moments[3] += wn[1] * n[1];
+            moments[4] += wn[1] * n[2];
+            moments[5] += wn[2] * n[2];
             scratch.normals.push(normal);
         }
         scratch.corners.push(corners);
@@ -299,7 +369,7 @@ fn leaf_attributes(
     let mut vertex_box = Aabb::EMPTY;
     vertex_box.add_point(position);
     Accumulator {
-        quadric,
+        quadric: Quadric::through_point(moments, p),
         position_sum: p,
         vertex_box,
         triangle_box,

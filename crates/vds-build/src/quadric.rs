@@ -51,6 +51,22 @@ impl Quadric {
         }
     }
 
+    /// The quadric of planes that all pass through `point`, from their weighted normal
+    /// moments `Σ w·n·nᵀ` (upper triangle, as `a`). With every `d = −n·point`, `b = Σ w·n·d`
+    /// is `−A·point` and `c = Σ w·d²` is `pointᵀ·A·point`, so a vertex's quadric (all its
+    /// triangles' planes pass through it) needs only the six moments per triangle.
+    pub fn through_point(moments: [f64; 6], point: [f64; 3]) -> Quadric {
+        let mut q = Quadric {
+            a: moments,
+            b: [0.0; 3],
+            c: 0.0,
+        };
+        let ap = q.apply(point);
+        q.b = ap.map(|x| -x);
+        q.c = dot(point, ap);
+        q
+    }
+
     /// Adds another quadric.
     pub fn add(&mut self, other: &Quadric) {
         for k in 0..6 {
