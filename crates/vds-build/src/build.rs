@@ -14,7 +14,7 @@ use crate::bounds::{Aabb, NormalCone, round_up_f32};
 use crate::octree::cluster;
 use crate::prefault::filled;
 use crate::quadric::{Quadric, cross, dot, sub};
-use crate::tree::{Node, VertexTree};
+use crate::tree::{Node, NodeBounds, VertexTree};
 
 /// Wall-clock time of each build phase.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -67,21 +67,23 @@ pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
             leaf_node[n.leaf_begin as usize] = id as u32;
         }
     }
-    let leaf_positions = clustering.leaf_positions;
-    let mut nodes = clustering.nodes;
-    compute_attributes(
-        scene,
-        &mut nodes,
+    let bounds = compute_attributes(
+        &clustering.nodes,
         &clustering.level_starts,
-        &clustering.leaf_vertex,
-        &adjacency,
-        &leaf_positions,
+        &Inputs {
+            scene,
+            leaf_vertex: &clustering.leaf_vertex,
+            adjacency: &adjacency,
+            leaf_positions: &clustering.leaf_positions,
+        },
     );
     timings.attributes = start.elapsed();
     drop(adjacency);
 
     let mut tree = VertexTree {
-        nodes,
+        nodes: clustering.nodes,
+        bounds,
+        leaf_positions: clustering.leaf_positions,
         leaf_vertex: clustering.leaf_vertex,
         vertex_rank,
         leaf_node,
@@ -168,7 +170,16 @@ const TASK_SHARE: u32 = 64;
 /// The least leaf count a task may be given however small the tree.
 const MIN_TASK_LEAVES: u32 = 4096;
 
-/// Fills every node's attributes, children before parents.
+/// A bounding sphere a node passes to its parent, which bounds its children's spheres. A
+/// leaf's is not kept in the tree (leaves have no bounds there), only passed up.
+#[derive(Clone, Copy)]
+struct Sphere {
+    center: [f32; 3],
+    radius: f32,
+}
+
+/// Computes every inner node's proxy and bounds (indexed as [`Node::bounds`]), children
+/// before parents.
 ///
 /// The tree is cut at a *frontier* level: the shallowest level whose every node holds at most
 /// a 64th of the leaves. Each frontier node's subtree is filled by one task, depth first, so a
@@ -180,118 +191,145 @@ const MIN_TASK_LEAVES: u32 = 4096;
 /// in child order either way, so the attributes do not depend on how the work is split.
 ///
 /// In breadth-first order a subtree's nodes form one contiguous run per level (children of
-/// consecutive nodes are consecutive), found from the leaf ranges, so each task gets its own
-/// `&mut` slice of every level below the frontier.
-fn compute_attributes(
-    scene: &Scene,
-    nodes: &mut [Node],
-    levels: &[u32],
-    leaf_vertex: &[u32],
-    adjacency: &Adjacency,
-    leaf_positions: &[[f32; 3]],
-) {
-    let inputs = Inputs {
-        scene,
-        leaf_vertex,
-        adjacency,
-        leaf_positions,
-    };
+/// consecutive nodes are consecutive), found from the leaf ranges; bounds indices follow
+/// node ids, so its inner nodes' bounds form one contiguous run per level too, and each task
+/// gets its own `&mut` slice of the bounds of every level below the frontier.
+fn compute_attributes(nodes: &[Node], levels: &[u32], inputs: &Inputs) -> Vec<NodeBounds> {
     let level_count = levels.len() - 1;
-    let level = |k: usize| levels[k] as usize..levels[k + 1] as usize;
+    let level = |k: usize| &nodes[levels[k] as usize..levels[k + 1] as usize];
+    let inner_count = |nodes: &[Node]| nodes.iter().filter(|n| !n.is_leaf()).count();
     let task_leaves = (nodes[0].leaf_count() / TASK_SHARE).max(MIN_TASK_LEAVES);
     let frontier = (0..level_count)
-        .find(|&k| {
-            nodes[level(k)]
-                .iter()
-                .all(|n| n.leaf_count() <= task_leaves)
-        })
+        .find(|&k| level(k).iter().all(|n| n.leaf_count() <= task_leaves))
         .unwrap_or(level_count - 1);
+    let roots = level(frontier);
 
-    // Each task's slice of each level from the frontier down, with the id of its first node.
-    let roots: Vec<(u32, u32)> = nodes[level(frontier)]
-        .iter()
-        .map(|n| (n.leaf_begin, n.leaf_end))
+    // Where each task's nodes start on each level from the frontier down (leaf ranges
+    // increase along a level), and how many of them are inner nodes.
+    let starts: Vec<Vec<usize>> = (frontier..level_count)
+        .map(|k| {
+            let nodes = level(k);
+            let mut starts = Vec::with_capacity(roots.len() + 1);
+            starts.push(0);
+            for root in roots {
+                let at = starts[starts.len() - 1];
+                starts.push(at + nodes[at..].partition_point(|n| n.leaf_begin < root.leaf_end));
+            }
+            starts
+        })
         .collect();
-    let mut tasks: Vec<Vec<(u32, &mut [Node])>> = roots.iter().map(|_| Vec::new()).collect();
-    let mut rest = &mut nodes[levels[frontier] as usize..];
-    for k in frontier..level_count {
-        let (mut this_level, tail) = std::mem::take(&mut rest).split_at_mut(level(k).len());
-        rest = tail;
-        let mut id = levels[k];
-        for (task, &(_, leaf_end)) in tasks.iter_mut().zip(&roots) {
-            // Leaf ranges increase along a level: the task's nodes are those that start
-            // before its root's range ends.
-            let count = this_level.partition_point(|n| n.leaf_begin < leaf_end);
-            let (mine, others) = std::mem::take(&mut this_level).split_at_mut(count);
-            this_level = others;
-            task.push((id, mine));
-            id += count as u32;
+    let inner_counts: Vec<Vec<usize>> = starts
+        .par_iter()
+        .enumerate()
+        .map(|(j, starts)| {
+            let nodes = level(frontier + j);
+            starts
+                .windows(2)
+                .map(|w| inner_count(&nodes[w[0]..w[1]]))
+                .collect()
+        })
+        .collect();
+
+    let above = inner_count(&nodes[..levels[frontier] as usize]);
+    let below_frontier: usize = inner_counts.iter().flatten().sum();
+    let mut bounds = filled(above + below_frontier, NodeBounds::EMPTY);
+    let (upper_bounds, lower_bounds) = bounds.split_at_mut(above);
+    // Each task's bounds on each level from the frontier down, with the index of the first.
+    let mut tasks: Vec<Vec<(u32, &mut [NodeBounds])>> = roots.iter().map(|_| Vec::new()).collect();
+    let mut rest = lower_bounds;
+    let mut index = above as u32;
+    for counts in &inner_counts {
+        for (task, &count) in tasks.iter_mut().zip(counts) {
+            let (mine, tail) = std::mem::take(&mut rest).split_at_mut(count);
+            rest = tail;
+            task.push((index, mine));
+            index += count as u32;
         }
     }
-    let mut below: Vec<Accumulator> = tasks
+    let frontier_start = levels[frontier] as usize;
+    let mut below: Vec<(Accumulator, Sphere)> = tasks
         .into_par_iter()
-        .map_init(LeafScratch::default, |scratch, mut task| {
-            fill_subtree(&inputs, &mut task, 0, scratch)
+        .enumerate()
+        .map_init(LeafScratch::default, |scratch, (root, mut task)| {
+            inputs.fill_subtree(nodes, &mut task, frontier_start + root, scratch)
         })
         .collect();
 
-    // Above the frontier, level by level: `below` holds the accumulator of every node of the
-    // level underneath, in id order.
+    // Above the frontier, level by level: `below` holds the accumulator and sphere of every
+    // node of the level underneath, in id order.
     for k in (0..frontier).rev() {
-        let (start, end) = (levels[k] as usize, levels[k + 1] as usize);
-        let (this_level, next_level) =
-            nodes[start..levels[k + 2] as usize].split_at_mut(end - start);
-        let next_level: &[Node] = next_level;
         let next_start = levels[k + 1];
         let below_ref = &below;
-        below = this_level
-            .par_iter_mut()
+        let results: Vec<((Accumulator, Sphere), Option<NodeBounds>)> = level(k)
+            .par_iter()
             .map_init(LeafScratch::default, |scratch, node| {
                 if node.is_leaf() {
-                    return inputs.leaf(node, scratch);
+                    return (inputs.leaf(node, scratch), None);
                 }
                 let first = (node.first_child - next_start) as usize;
-                let family = first..first + usize::from(node.child_count);
-                let mut sum = below_ref[first];
-                for child in &below_ref[first + 1..family.end] {
+                let family = &below_ref[first..first + usize::from(node.child_count)];
+                let mut sum = family[0].0;
+                for (child, _) in &family[1..] {
                     sum.absorb(child);
                 }
-                inner_attributes(node, &next_level[family], &sum, leaf_positions);
-                sum
+                let spheres = family.iter().map(|&(_, sphere)| sphere);
+                let (node_bounds, sphere) =
+                    inner_attributes(node, spheres, &sum, inputs.leaf_positions);
+                ((sum, sphere), Some(node_bounds))
             })
             .collect();
+        let first_bounds = inner_count(&nodes[..levels[k] as usize]);
+        for (slot, node_bounds) in upper_bounds[first_bounds..]
+            .iter_mut()
+            .zip(results.iter().filter_map(|(_, b)| *b))
+        {
+            *slot = node_bounds;
+        }
+        below = results.into_iter().map(|(up, _)| up).collect();
     }
+    bounds
 }
 
 impl Inputs<'_> {
-    /// Fills a leaf's attributes and returns its accumulator.
-    fn leaf(&self, node: &mut Node, scratch: &mut LeafScratch) -> Accumulator {
+    /// A leaf's accumulator and sphere.
+    fn leaf(&self, node: &Node, scratch: &mut LeafScratch) -> (Accumulator, Sphere) {
         let vertex = self.leaf_vertex[node.leaf_begin as usize];
-        leaf_attributes(node, vertex, self.scene, self.adjacency.of(vertex), scratch)
+        leaf_attributes(vertex, self.scene, self.adjacency.of(vertex), scratch)
     }
-}
 
-/// Fills the subtree of node `local` of `levels[0]` (each level a slice that holds the
-/// subtree's nodes there, with the id of its first node) and returns the node's accumulator.
-fn fill_subtree(
-    inputs: &Inputs,
-    levels: &mut [(u32, &mut [Node])],
-    local: usize,
-    scratch: &mut LeafScratch,
-) -> Accumulator {
-    let ((_, this_level), deeper) = levels.split_first_mut().expect("the node's level");
-    let node = &mut this_level[local];
-    if node.is_leaf() {
-        return inputs.leaf(node, scratch);
+    /// Fills the bounds of node `id`'s subtree and returns its accumulator and sphere.
+    /// `levels` holds the subtree's bounds on each level from `id`'s down, each slice with
+    /// the bounds index of its first entry.
+    fn fill_subtree(
+        &self,
+        nodes: &[Node],
+        levels: &mut [(u32, &mut [NodeBounds])],
+        id: usize,
+        scratch: &mut LeafScratch,
+    ) -> (Accumulator, Sphere) {
+        let node = &nodes[id];
+        if node.is_leaf() {
+            return self.leaf(node, scratch);
+        }
+        let ((first_index, this_level), deeper) =
+            levels.split_first_mut().expect("the node's level");
+        let first = node.first_child as usize;
+        let mut spheres = [Sphere {
+            center: [0.0; 3],
+            radius: 0.0,
+        }; 8];
+        let (mut sum, sphere) = self.fill_subtree(nodes, deeper, first, scratch);
+        spheres[0] = sphere;
+        for k in 1..usize::from(node.child_count) {
+            let (child, sphere) = self.fill_subtree(nodes, deeper, first + k, scratch);
+            sum.absorb(&child);
+            spheres[k] = sphere;
+        }
+        let spheres = spheres[..usize::from(node.child_count)].iter().copied();
+        let (node_bounds, sphere) = inner_attributes(node, spheres, &sum, self.leaf_positions);
+        this_level[(node.bounds - *first_index) as usize] = node_bounds;
+        (sum, sphere)
     }
-    let first = (node.first_child - deeper[0].0) as usize;
-    let family = first..first + usize::from(node.child_count);
-    let mut sum = fill_subtree(inputs, deeper, first, scratch);
-    for child in first + 1..family.end {
-        sum.absorb(&fill_subtree(inputs, deeper, child, scratch));
-    }
-    inner_attributes(node, &deeper[0].1[family], &sum, inputs.leaf_positions);
-    sum
 }
 
 /// A leaf's incident triangles, gathered once and used by every leaf attribute: each one's
@@ -304,13 +342,13 @@ struct LeafScratch {
     normals: Vec<[f64; 3]>,
 }
 
+/// A leaf's accumulator and sphere, from its incident triangles.
 fn leaf_attributes(
-    node: &mut Node,
     vertex: u32,
     scene: &Scene,
     incident: &[u32],
     scratch: &mut LeafScratch,
-) -> Accumulator {
+) -> (Accumulator, Sphere) {
     let position = scene.positions[vertex as usize];
     let p = widen(position);
     // Σ area·n·nᵀ of the incident planes; they all pass through this vertex, which gives
@@ -361,21 +399,21 @@ fn leaf_attributes(
     let cone = NormalCone::fit(&scratch.normals);
     let two_sided = (cone.half_angle >= std::f64::consts::FRAC_PI_2)
         .then(|| NormalCone::fit_two_sided(&scratch.normals));
-    node.proxy = position;
-    node.error_radius = 0.0;
-    node.sphere_center = center.map(|c| c as f32);
-    node.sphere_radius = round_up_f32(radius);
-    store_cone(node, &cone, two_sided.as_ref());
+    let sphere = Sphere {
+        center: center.map(|c| c as f32),
+        radius: round_up_f32(radius),
+    };
     let mut vertex_box = Aabb::EMPTY;
     vertex_box.add_point(position);
-    Accumulator {
+    let accumulator = Accumulator {
         quadric: Quadric::through_point(moments, p),
         position_sum: p,
         vertex_box,
         triangle_box,
         cone,
         two_sided,
-    }
+    };
+    (accumulator, sphere)
 }
 
 impl Accumulator {
@@ -401,46 +439,61 @@ impl Accumulator {
     }
 }
 
+/// An inner node's proxy and bounds from its children's accumulated sum and their spheres,
+/// and the sphere it passes up.
 fn inner_attributes(
-    node: &mut Node,
-    children: &[Node],
+    node: &Node,
+    child_spheres: impl Iterator<Item = Sphere>,
     sum: &Accumulator,
     leaf_positions: &[[f32; 3]],
-) {
+) -> (NodeBounds, Sphere) {
     let count = f64::from(node.leaf_count());
     let mean = sum.position_sum.map(|c| c / count);
     // The proxy stays inside the cluster's vertex box, so inside the node's octree cell.
-    let proxy = sum.vertex_box.clamp(sum.quadric.minimizer_near(mean));
-    node.proxy = proxy.map(|c| c as f32);
-    let proxy = widen(node.proxy);
+    let proxy = sum
+        .vertex_box
+        .clamp(sum.quadric.minimizer_near(mean))
+        .map(|c| c as f32);
     let leaves = &leaf_positions[node.leaf_begin as usize..node.leaf_end as usize];
-    node.error_radius = round_up_f32(farthest_squared(proxy, leaves).sqrt());
+    let error_radius = round_up_f32(farthest_squared(widen(proxy), leaves).sqrt());
     let center = sum.triangle_box.center().map(|c| c as f32);
-    let sphere_radius = children
-        .iter()
-        .map(|c| distance(widen(center), widen(c.sphere_center)) + f64::from(c.sphere_radius))
+    let sphere_radius = child_spheres
+        .map(|c| distance(widen(center), widen(c.center)) + f64::from(c.radius))
         .fold(0.0, f64::max);
-    node.sphere_center = center;
-    node.sphere_radius = round_up_f32(sphere_radius);
-    store_cone(node, &sum.cone, sum.two_sided.as_ref());
+    let sphere = Sphere {
+        center,
+        radius: round_up_f32(sphere_radius),
+    };
+    let (cone_axis, cone_half_angle, cone_two_sided) =
+        stored_cone(&sum.cone, sum.two_sided.as_ref());
+    let bounds = NodeBounds {
+        proxy,
+        error_radius,
+        sphere_center: sphere.center,
+        sphere_radius: sphere.radius,
+        cone_axis,
+        cone_half_angle,
+        cone_two_sided,
+    };
+    (bounds, sphere)
 }
 
-/// Stores the one-sided cone, or the two-sided one where the one-sided cone is wider than a
-/// hemisphere (no view then sees only backs, and every view sees a possible silhouette: the
-/// cone tells nothing) and the two-sided cone is narrower than a hemisphere.
-fn store_cone(node: &mut Node, cone: &NormalCone, two_sided: Option<&NormalCone>) {
+/// The cone to store, as axis, half-angle and two-sidedness: the one-sided cone, or the
+/// two-sided one where the one-sided cone is wider than a hemisphere (no view then sees only
+/// backs, and every view sees a possible silhouette: the cone tells nothing) and the
+/// two-sided cone is narrower than a hemisphere.
+fn stored_cone(cone: &NormalCone, two_sided: Option<&NormalCone>) -> ([f32; 3], f32, bool) {
     let half_pi = std::f64::consts::FRAC_PI_2;
     let two_sided = two_sided
         .filter(|c| !cone.is_empty() && cone.half_angle >= half_pi && c.half_angle < half_pi);
     let use_two_sided = two_sided.is_some();
     let chosen = two_sided.unwrap_or(cone);
-    node.cone_axis = chosen.axis.map(|c| c as f32);
-    node.cone_half_angle = if chosen.is_empty() {
+    let half_angle = if chosen.is_empty() {
         -1.0
     } else {
         round_up_f32(chosen.half_angle)
     };
-    node.cone_two_sided = use_two_sided;
+    (chosen.axis.map(|c| c as f32), half_angle, use_two_sided)
 }
 
 /// The largest squared distance from `from` to any of `points`. The error radius is exact,
@@ -485,7 +538,7 @@ fn assign_subtris(tree: &mut VertexTree, triangles: &[[u32; 3]]) {
     for i in 0..tree.nodes.len() {
         counts[i + 1] += counts[i];
     }
-    // In parallel: a pass over every node's 76 bytes, the whole node array.
+    // In parallel: a pass over every node, the whole node array.
     tree.nodes
         .par_iter_mut()
         .enumerate()

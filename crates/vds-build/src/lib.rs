@@ -20,6 +20,6 @@ mod vdt;
 mod verify;
 
 pub use build::{BuildTimings, build_tree, build_tree_timed};
-pub use tree::{Node, VertexTree};
+pub use tree::{Node, NodeBounds, VertexTree};
 pub use vdt::{TreeNodes, encode_scene, snap_to_grid, tree_content, tree_from_file};
-pub use verify::{TreeError, VerifyOptions, verify_tree, verify_tree_with};
+pub use verify::{TreeError, verify_tree};

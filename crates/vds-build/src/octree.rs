@@ -32,8 +32,8 @@ pub const NO_PARENT: u32 = u32::MAX;
 /// The clustering of a vertex set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Clustering {
-    /// Nodes in breadth-first order; node 0 is the root.
-    /// Only the topology fields (parent, children, depth, leaf range) are set.
+    /// Nodes in breadth-first order; node 0 is the root. The topology fields (parent,
+    /// children, depth, leaf range) and inner nodes' bounds indices are set.
     pub nodes: Vec<Node>,
     /// Vertex id of each leaf rank (depth-first leaf order).
     pub leaf_vertex: Vec<u32>,
@@ -87,6 +87,9 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
     let mut level_starts = vec![0u32];
     let mut level = 0..1usize;
     let mut reading_first = true;
+    // Bounds indices go to inner nodes in id order: levels are split in order, and a level's
+    // nodes in id order.
+    let mut inner_count = 0u32;
     while !level.is_empty() {
         // Hand each splittable node of this level its own slices of both buffers.
         let mut work: Vec<(usize, &mut [Item], &mut [Item])> = Vec::with_capacity(level.len());
@@ -127,6 +130,8 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
             let parent = nodes[id];
             nodes[id].first_child = nodes.len() as u32;
             nodes[id].child_count = children.count as u8;
+            nodes[id].bounds = inner_count;
+            inner_count += 1;
             let mut begin = parent.leaf_begin;
             for k in 0..children.count {
                 let size = children.sizes[k];

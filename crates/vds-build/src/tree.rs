@@ -7,7 +7,11 @@
 
 use crate::octree::NO_PARENT;
 
-/// One node of the vertex tree.
+/// One node of the vertex tree: its place in the tree. An inner node's proxy and bounds are
+/// in [`VertexTree::bounds`]; a leaf's proxy is its vertex's position and it has no bounds
+/// (a leaf never unfolds, so nothing tests them, and `.vdt` files do not store them).
+/// Keeping the bounds of inner nodes only makes a node 32 bytes instead of 76: leaves are
+/// about 70 % of the nodes, and on the dev VMs fresh memory is much of a build's time.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Node {
     /// Parent id, or [`Node::NO_PARENT`] for the root.
@@ -26,7 +30,15 @@ pub struct Node {
     pub subtri_begin: u32,
     /// End of this node's subtris in [`VertexTree::subtris`].
     pub subtri_end: u32,
-    /// The proxy vertex (for a leaf, the original position).
+    /// An inner node's index in [`VertexTree::bounds`] (inner nodes are numbered in id
+    /// order); [`Node::NO_BOUNDS`] for a leaf.
+    pub bounds: u32,
+}
+
+/// An inner node's proxy and bounds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NodeBounds {
+    /// The proxy vertex.
     pub proxy: [f32; 3],
     /// Largest distance from the proxy to any supported original vertex (object units).
     pub error_radius: f32,
@@ -45,11 +57,27 @@ pub struct Node {
     pub cone_two_sided: bool,
 }
 
+impl NodeBounds {
+    /// Bounds not yet computed.
+    pub const EMPTY: NodeBounds = NodeBounds {
+        proxy: [0.0; 3],
+        error_radius: 0.0,
+        sphere_center: [0.0; 3],
+        sphere_radius: 0.0,
+        cone_axis: [0.0, 0.0, 1.0],
+        cone_half_angle: -1.0,
+        cone_two_sided: false,
+    };
+}
+
 impl Node {
     /// The parent id of the root.
     pub const NO_PARENT: u32 = NO_PARENT;
 
-    /// A node with its place in the tree set and every attribute empty.
+    /// The bounds index of a leaf.
+    pub const NO_BOUNDS: u32 = u32::MAX;
+
+    /// A leaf (until it is given children) with its place in the tree set.
     pub(crate) fn topology(leaf_begin: u32, leaf_end: u32, parent: u32, depth: u16) -> Node {
         Node {
             parent,
@@ -60,13 +88,7 @@ impl Node {
             leaf_end,
             subtri_begin: 0,
             subtri_end: 0,
-            proxy: [0.0; 3],
-            error_radius: 0.0,
-            sphere_center: [0.0; 3],
-            sphere_radius: 0.0,
-            cone_axis: [0.0, 0.0, 1.0],
-            cone_half_angle: -1.0,
-            cone_two_sided: false,
+            bounds: Node::NO_BOUNDS,
         }
     }
 
@@ -96,6 +118,10 @@ impl Node {
 pub struct VertexTree {
     /// Nodes, breadth-first; node 0 is the root. Empty for an empty scene.
     pub nodes: Vec<Node>,
+    /// Proxy and bounds of each inner node, at its [`Node::bounds`] index.
+    pub bounds: Vec<NodeBounds>,
+    /// Position of each leaf rank: a leaf's proxy.
+    pub leaf_positions: Vec<[f32; 3]>,
     /// Vertex id (index into the scene's positions) of each leaf rank.
     pub leaf_vertex: Vec<u32>,
     /// Leaf rank of each vertex id (inverse of `leaf_vertex`).
@@ -117,6 +143,29 @@ impl VertexTree {
     /// Number of nodes.
     pub fn node_count(&self) -> usize {
         self.nodes.len()
+    }
+
+    /// The proxy and bounds of node `id`, or `None` for a leaf.
+    pub fn bounds_of(&self, id: u32) -> Option<&NodeBounds> {
+        let node = &self.nodes[id as usize];
+        (!node.is_leaf()).then(|| &self.bounds[node.bounds as usize])
+    }
+
+    /// The proxy of node `id`: for a leaf, its vertex's position.
+    pub fn proxy(&self, id: u32) -> [f32; 3] {
+        match self.bounds_of(id) {
+            Some(bounds) => bounds.proxy,
+            None => self.leaf_positions[self.nodes[id as usize].leaf_begin as usize],
+        }
+    }
+
+    /// Centre and radius of node `id`'s bounding sphere (a leaf's: its position, radius 0,
+    /// as `.vdt` files store it).
+    pub fn sphere(&self, id: u32) -> ([f32; 3], f32) {
+        match self.bounds_of(id) {
+            Some(bounds) => (bounds.sphere_center, bounds.sphere_radius),
+            None => (self.proxy(id), 0.0),
+        }
     }
 
     /// Depth of the deepest node (0 for a single node).

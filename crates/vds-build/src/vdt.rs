@@ -10,10 +10,42 @@ use vds_import::Scene;
 use zerocopy::little_endian::{F32, U16, U32};
 
 use crate::prefault::collect_populated;
-use crate::tree::{Node, VertexTree};
+use crate::tree::{Node, NodeBounds, VertexTree};
 
-fn record(node: &Node) -> NodeRecord {
+/// Node `id` of `tree` as the format's record. A leaf's record holds its position and no
+/// bounds (radius 0, an empty cone), as the file stores it.
+fn record(tree: &VertexTree, id: u32) -> NodeRecord {
     let f = |x: f32| F32::new(x);
+    let node = &tree.nodes[id as usize];
+    let (proxy, error_radius, sphere, cone, two_sided) = match tree.bounds_of(id) {
+        Some(b) => (
+            b.proxy,
+            b.error_radius,
+            [
+                b.sphere_center[0],
+                b.sphere_center[1],
+                b.sphere_center[2],
+                b.sphere_radius,
+            ],
+            [
+                b.cone_axis[0],
+                b.cone_axis[1],
+                b.cone_axis[2],
+                b.cone_half_angle,
+            ],
+            b.cone_two_sided,
+        ),
+        None => {
+            let p = tree.proxy(id);
+            (
+                p,
+                0.0,
+                [p[0], p[1], p[2], 0.0],
+                [0.0, 0.0, 1.0, -1.0],
+                false,
+            )
+        }
+    };
     NodeRecord {
         parent: U32::new(node.parent),
         first_child: U32::new(if node.is_leaf() {
@@ -22,7 +54,7 @@ fn record(node: &Node) -> NodeRecord {
             node.first_child
         }),
         child_count: node.child_count,
-        flags: if node.cone_two_sided {
+        flags: if two_sided {
             vds_format::FLAG_TWO_SIDED_CONE
         } else {
             0
@@ -32,22 +64,10 @@ fn record(node: &Node) -> NodeRecord {
         leaf_end: U32::new(node.leaf_end),
         subtri_begin: U32::new(node.subtri_begin),
         subtri_count: U32::new(node.subtri_end - node.subtri_begin),
-        proxy: node.proxy.map(f),
-        error_radius: f(node.error_radius),
-        sphere: [
-            node.sphere_center[0],
-            node.sphere_center[1],
-            node.sphere_center[2],
-            node.sphere_radius,
-        ]
-        .map(f),
-        cone: [
-            node.cone_axis[0],
-            node.cone_axis[1],
-            node.cone_axis[2],
-            node.cone_half_angle,
-        ]
-        .map(f),
+        proxy: proxy.map(f),
+        error_radius: f(error_radius),
+        sphere: sphere.map(f),
+        cone: cone.map(f),
     }
 }
 
@@ -80,15 +100,15 @@ const TRIANGLES_PER_SORT_RUN: usize = 1 << 16;
 /// A built tree's nodes as the writer reads them: each record is made when asked for, so
 /// the writer never needs a second copy of the whole tree in the format's records.
 #[derive(Debug, Clone, Copy)]
-pub struct TreeNodes<'a>(pub &'a [Node]);
+pub struct TreeNodes<'a>(pub &'a VertexTree);
 
 impl NodeSource for TreeNodes<'_> {
     fn node_count(&self) -> usize {
-        self.0.len()
+        self.0.nodes.len()
     }
 
     fn node_record(&self, id: u32) -> NodeRecord {
-        record(&self.0[id as usize])
+        record(self.0, id)
     }
 }
 
@@ -137,7 +157,7 @@ pub fn tree_content<'a>(
         }
     });
     TreeContent {
-        nodes: TreeNodes(&tree.nodes),
+        nodes: TreeNodes(tree),
         triangles,
         vertex_count: tree.leaf_vertex.len() as u64,
         max_depth: tree.max_depth() as u32,
@@ -155,8 +175,7 @@ fn leading_smallest(mut c: [u32; 3]) -> [u32; 3] {
 
 /// Decodes every page of a file into a tree and the scene it encodes. In that scene, vertex
 /// ids are leaf ranks (positions come from the leaves' proxies) and triangle ids follow the
-/// file's node order, so [`crate::verify_tree_with`] can check the file's tree against it
-/// (files carry no bounds on leaves: check with `leaf_bounds: false`).
+/// file's node order, so [`crate::verify_tree`] can check the file's tree against it.
 pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
     file: &VdtFile<B>,
 ) -> Result<(VertexTree, Scene), VdtError> {
@@ -164,32 +183,46 @@ pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
     let vertex_count = header.vertex_count.get() as usize;
     let pages = file.read_all_pages()?;
     let mut nodes = Vec::with_capacity(header.node_count.get() as usize);
+    let mut bounds = Vec::new();
+    let mut positions = vec![[f32::NAN; 3]; vertex_count];
     let mut triangles = Vec::with_capacity(header.triangle_count.get() as usize);
     let mut triangle_parts = Vec::with_capacity(header.triangle_count.get() as usize);
     for page in pages {
         for n in &page.nodes {
             let cone = n.cone.map(|c| c.get());
             let sphere = n.sphere.map(|c| c.get());
+            let proxy = n.proxy.map(|c| c.get());
+            let leaf = n.child_count == 0;
+            if leaf {
+                // Checked below: every leaf rank has exactly one leaf.
+                if let Some(p) = positions.get_mut(n.leaf_begin.get() as usize) {
+                    *p = proxy;
+                }
+            } else {
+                bounds.push(NodeBounds {
+                    proxy,
+                    error_radius: n.error_radius.get(),
+                    sphere_center: [sphere[0], sphere[1], sphere[2]],
+                    sphere_radius: sphere[3],
+                    cone_axis: [cone[0], cone[1], cone[2]],
+                    cone_half_angle: cone[3],
+                    cone_two_sided: n.flags & vds_format::FLAG_TWO_SIDED_CONE != 0,
+                });
+            }
             nodes.push(Node {
                 parent: n.parent.get(),
-                first_child: if n.child_count == 0 {
-                    0
-                } else {
-                    n.first_child.get()
-                },
+                first_child: if leaf { 0 } else { n.first_child.get() },
                 child_count: n.child_count,
                 depth: n.depth.get(),
                 leaf_begin: n.leaf_begin.get(),
                 leaf_end: n.leaf_end.get(),
                 subtri_begin: n.subtri_begin.get(),
                 subtri_end: n.subtri_begin.get() + n.subtri_count.get(),
-                proxy: n.proxy.map(|c| c.get()),
-                error_radius: n.error_radius.get(),
-                sphere_center: [sphere[0], sphere[1], sphere[2]],
-                sphere_radius: sphere[3],
-                cone_axis: [cone[0], cone[1], cone[2]],
-                cone_half_angle: cone[3],
-                cone_two_sided: n.flags & vds_format::FLAG_TWO_SIDED_CONE != 0,
+                bounds: if leaf {
+                    Node::NO_BOUNDS
+                } else {
+                    bounds.len() as u32 - 1
+                },
             });
         }
         for t in &page.triangles {
@@ -197,7 +230,6 @@ pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
             triangle_parts.push(t.part.get());
         }
     }
-    let mut positions = vec![[f32::NAN; 3]; vertex_count];
     let mut leaf_node = vec![u32::MAX; vertex_count];
     for (id, n) in nodes.iter().enumerate() {
         if n.is_leaf() {
@@ -207,7 +239,6 @@ pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
                     message: "leaf does not own exactly one new leaf rank".into(),
                 });
             }
-            positions[n.leaf_begin as usize] = n.proxy;
             leaf_node[n.leaf_begin as usize] = id as u32;
         }
     }
@@ -221,6 +252,8 @@ pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
     let tree = VertexTree {
         subtris: (0..triangles.len() as u32).collect(),
         nodes,
+        bounds,
+        leaf_positions: positions.clone(),
         leaf_vertex: identity.clone(),
         vertex_rank: identity,
         leaf_node,

@@ -46,28 +46,13 @@ const DISTANCE_SLACK: f64 = 1e-6;
 /// Angular slack for cone containment (radians).
 const ANGLE_SLACK: f64 = 1e-5;
 
-/// Which invariants [`verify_tree_with`] checks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct VerifyOptions {
-    /// Check leaves' spheres and cones too. A leaf never unfolds, so no runtime test reads
-    /// them and `.vdt` files do not store them; the builder computes them all the same.
-    pub leaf_bounds: bool,
-}
-
-/// Checks every invariant of `tree` against `scene`.
+/// Checks every invariant of `tree` against `scene`. Leaves hold no bounds (they never
+/// unfold): their proxy is checked to be their vertex, spheres and cones are checked on inner
+/// nodes.
 pub fn verify_tree(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
-    verify_tree_with(tree, scene, &VerifyOptions { leaf_bounds: true })
-}
-
-/// Checks the invariants of `tree` against `scene` that `options` select.
-pub fn verify_tree_with(
-    tree: &VertexTree,
-    scene: &Scene,
-    options: &VerifyOptions,
-) -> Result<(), TreeError> {
     verify_structure(tree, scene)?;
     verify_subtris(tree, scene)?;
-    verify_bounds(tree, scene, options)
+    verify_bounds(tree, scene)
 }
 
 fn structure(node: usize, message: impl Into<String>) -> TreeError {
@@ -86,7 +71,11 @@ fn verify_structure(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
             Err(structure(0, "empty scene, non-empty tree"))
         };
     }
-    if tree.leaf_vertex.len() != v || tree.vertex_rank.len() != v || tree.leaf_node.len() != v {
+    if tree.leaf_vertex.len() != v
+        || tree.vertex_rank.len() != v
+        || tree.leaf_node.len() != v
+        || tree.leaf_positions.len() != v
+    {
         return Err(structure(0, "leaf arrays do not match the vertex count"));
     }
     let root = tree.nodes.first().ok_or_else(|| structure(0, "no root"))?;
@@ -123,7 +112,7 @@ fn verify_structure(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
         {
             return Err(structure(leaf, format!("is not the leaf of rank {rank}")));
         }
-        if node.proxy != scene.positions[vertex as usize] {
+        if tree.leaf_positions[rank] != scene.positions[vertex as usize] {
             return Err(structure(leaf, "leaf proxy differs from its vertex"));
         }
     }
@@ -138,6 +127,10 @@ fn verify_structure(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
                 return Err(structure(id, "leaf covers more than one vertex"));
             }
             continue;
+        }
+        // Inner nodes' bounds are numbered in id order.
+        if node.bounds as usize != id - leaves {
+            return Err(structure(id, "bounds index out of order"));
         }
         if node.child_count < 2 || node.child_count > 8 {
             return Err(structure(
@@ -173,6 +166,9 @@ fn verify_structure(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
     }
     if leaves != v {
         return Err(structure(0, format!("{leaves} leaves for {v} vertices")));
+    }
+    if tree.bounds.len() != tree.nodes.len() - leaves {
+        return Err(structure(0, "bounds do not match the inner nodes"));
     }
     Ok(())
 }
@@ -235,11 +231,7 @@ fn verify_subtris(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
     Ok(())
 }
 
-fn verify_bounds(
-    tree: &VertexTree,
-    scene: &Scene,
-    options: &VerifyOptions,
-) -> Result<(), TreeError> {
+fn verify_bounds(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
     let position = |v: u32| scene.positions[v as usize].map(f64::from);
     let distance =
         |a: [f64; 3], b: [f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
@@ -256,36 +248,37 @@ fn verify_bounds(
             node: id as u32,
             message,
         };
-        let proxy = node.proxy.map(f64::from);
-        let center = node.sphere_center.map(f64::from);
+        // A leaf's proxy is its vertex (checked with the structure) and it has no bounds.
+        let Some(bounds) = tree.bounds_of(id as u32) else {
+            continue;
+        };
+        let proxy = bounds.proxy.map(f64::from);
+        let center = bounds.sphere_center.map(f64::from);
         let cone = NormalCone {
-            axis: node.cone_axis.map(f64::from),
-            half_angle: f64::from(node.cone_half_angle),
+            axis: bounds.cone_axis.map(f64::from),
+            half_angle: f64::from(bounds.cone_half_angle),
         };
         for rank in node.leaf_begin..node.leaf_end {
             let vertex = tree.leaf_vertex[rank as usize];
             let d = distance(proxy, position(vertex));
-            if !within(d, node.error_radius) {
+            if !within(d, bounds.error_radius) {
                 return Err(bound(format!(
                     "vertex {vertex} is {d} from the proxy, error radius {}",
-                    node.error_radius
+                    bounds.error_radius
                 )));
-            }
-            if node.is_leaf() && !options.leaf_bounds {
-                continue;
             }
             for &t in &incident[vertex as usize] {
                 let [a, b, c] = scene.triangles[t as usize].map(position);
                 for corner in [a, b, c] {
                     let d = distance(center, corner);
-                    if !within(d, node.sphere_radius) {
+                    if !within(d, bounds.sphere_radius) {
                         return Err(bound(format!(
                             "triangle {t} leaves the bounding sphere by {d}"
                         )));
                     }
                 }
                 let inside = |normal| {
-                    if node.cone_two_sided {
+                    if bounds.cone_two_sided {
                         cone.contains_either_way(normal, ANGLE_SLACK)
                     } else {
                         cone.contains(normal, ANGLE_SLACK)

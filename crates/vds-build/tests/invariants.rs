@@ -199,27 +199,27 @@ fn the_checker_rejects_broken_trees() {
     let scene = vds_import::load_file(shared("cow.obj"), &Default::default()).unwrap();
     let tree = build_and_verify(&scene);
     let inner = tree
-        .nodes
+        .bounds
         .iter()
-        .position(|n| !n.is_leaf() && n.error_radius > 0.0)
+        .position(|b| b.error_radius > 0.0)
         .unwrap();
 
     let mut shrunk = tree.clone();
-    shrunk.nodes[inner].error_radius *= 0.5;
+    shrunk.bounds[inner].error_radius *= 0.5;
     assert!(
         verify_tree(&shrunk, &scene).is_err(),
         "shrunk error radius accepted"
     );
 
     let mut small_sphere = tree.clone();
-    small_sphere.nodes[inner].sphere_radius *= 0.5;
+    small_sphere.bounds[inner].sphere_radius *= 0.5;
     assert!(
         verify_tree(&small_sphere, &scene).is_err(),
         "shrunk sphere accepted"
     );
 
     let mut narrow_cone = tree.clone();
-    narrow_cone.nodes[0].cone_half_angle = 0.0;
+    narrow_cone.bounds[0].cone_half_angle = 0.0;
     assert!(
         verify_tree(&narrow_cone, &scene).is_err(),
         "narrowed cone accepted"

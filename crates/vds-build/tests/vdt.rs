@@ -5,14 +5,9 @@
 use std::path::PathBuf;
 
 use proptest::prelude::*;
-use vds_build::{
-    VerifyOptions, build_tree, snap_to_grid, tree_content, tree_from_file, verify_tree_with,
-};
+use vds_build::{build_tree, snap_to_grid, tree_content, tree_from_file, verify_tree};
 use vds_format::{VdtError, VdtFile, WriteOptions, encode, write_file};
 use xxhash_rust::xxh3::xxh3_64;
-
-/// Files store no bounds on leaves (leaves never unfold).
-const FILE_CHECKS: VerifyOptions = VerifyOptions { leaf_bounds: false };
 
 fn shared(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -67,8 +62,7 @@ fn round_trip_keeps_every_invariant_and_triangle() {
         assert!(report.pages > 3, "{name}: {} pages", report.pages);
         let file = VdtFile::from_bytes(bytes).unwrap();
         let (read_tree, read_scene) = tree_from_file(&file).unwrap();
-        verify_tree_with(&read_tree, &read_scene, &FILE_CHECKS)
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        verify_tree(&read_tree, &read_scene).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(read_tree.nodes.len(), tree.nodes.len());
         // Same triangles (as original vertex ids, with parts, winding kept), in any order
         // and starting at any corner.
@@ -322,7 +316,7 @@ fn exercise(bytes: Vec<u8>) {
         }
     }
     if let Ok((tree, scene)) = tree_from_file(&file) {
-        let _ = verify_tree_with(&tree, &scene, &FILE_CHECKS);
+        let _ = verify_tree(&tree, &scene);
     }
 }
 

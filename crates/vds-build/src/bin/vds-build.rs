@@ -304,10 +304,10 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
                     content_hash,
                 });
             }
-            if let Some(root) = tree.nodes.first() {
-                let r = root.sphere_radius;
-                metadata.bounds_min = [0, 1, 2].map(|k| root.sphere_center[k] - r);
-                metadata.bounds_max = [0, 1, 2].map(|k| root.sphere_center[k] + r);
+            if !tree.nodes.is_empty() {
+                let (center, r) = tree.sphere(vds_build::VertexTree::ROOT);
+                metadata.bounds_min = [0, 1, 2].map(|k| center[k] - r);
+                metadata.bounds_max = [0, 1, 2].map(|k| center[k] + r);
             }
             let grid = grid.expect("snapped when an output is given");
             release_freed_memory();

@@ -72,8 +72,7 @@ fn run(args: &Args) -> Result<()> {
     let metadata = file.metadata();
     if args.verify {
         let (tree, scene) = vds_build::tree_from_file(&file)?;
-        let options = vds_build::VerifyOptions { leaf_bounds: false };
-        vds_build::verify_tree_with(&tree, &scene, &options).context("tree invariant broken")?;
+        vds_build::verify_tree(&tree, &scene).context("tree invariant broken")?;
     }
     let mut sizes: Vec<u32> = file
         .directory()
