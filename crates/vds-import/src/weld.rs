@@ -2,9 +2,11 @@
 //! position (exactly, or within a tolerance), dropping triangles that welding made
 //! degenerate and vertices no triangle uses.
 //!
-//! The exact weld sorts `(position bits, index)` pairs, so it runs in parallel and its result
-//! does not depend on the thread count: every group is represented by its lowest index, and
-//! surviving vertices keep their input order.
+//! The exact weld sorts `(position bits, index)` pairs within buckets of a position hash, so
+//! it runs in parallel and its result does not depend on the thread count: every group is
+//! represented by its lowest index, and surviving vertices keep their input order.
+
+use std::sync::atomic::{AtomicU32, Ordering};
 
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -51,11 +53,15 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         .filter(|&(i, &r)| i as u32 == r)
         .count() as u64;
 
-    // Remap corners to representatives and drop triangles with a repeated corner, in place:
-    // the soup's arrays become the scene's, so no second copy of the mesh is ever touched.
+    // Remap corners to representatives (in parallel) and drop triangles with a repeated
+    // corner, in place: the soup's arrays become the scene's, so no second copy of the mesh
+    // is ever touched.
+    triangles
+        .par_iter_mut()
+        .for_each(|t| *t = t.map(|v| representative[v as usize]));
     let mut kept = 0;
     for i in 0..triangles.len() {
-        let [a, b, c] = triangles[i].map(|v| representative[v as usize]);
+        let [a, b, c] = triangles[i];
         if a != b && b != c && a != c {
             triangles[kept] = [a, b, c];
             triangle_parts[kept] = triangle_parts[i];
@@ -120,32 +126,105 @@ fn diagonal(positions: &[[f32; 3]]) -> f64 {
     (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt()
 }
 
+/// Positions per parallel chunk of the exact weld's counting and scattering passes.
+const WELD_CHUNK: usize = 1 << 16;
+
 /// For each vertex, the lowest index with bit-identical position.
+///
+/// Each vertex becomes a 128-bit key: x, y and z bits and the index, from the most
+/// significant word down, so keys order like (position, index) and equal positions are
+/// adjacent once sorted (`+ 0.0` turns -0.0 into 0.0 so both weld; every other value keeps
+/// its bits). Instead of one sort of all keys, the keys are first scattered into buckets by
+/// a hash of the position (equal positions share a bucket), a few thousand keys each, and
+/// the buckets are sorted in parallel: each sort then runs in cache, where one sort of the
+/// 10 M scene's 88 MB of keys went to memory at every level (0.13 s of its 0.25 s weld).
+/// Which bucket a key lands in does not change the groups or their lowest index, so the
+/// result does not depend on the thread count.
 fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
-    // x, y and z bits and the index, from the most significant word down, sort like
-    // (position, index) in one 128-bit integer, whose comparison is two machine words where
-    // a `[u32; 4]` compares element by element. `+ 0.0` turns -0.0 into 0.0 so both weld;
-    // every other value keeps its bits.
-    let mut keyed: Vec<u128> = positions
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let [x, y, z] = p.map(|c| u128::from((c + 0.0).to_bits()));
-            x << 96 | y << 64 | z << 32 | i as u128
+    let bits = |p: &[f32; 3]| p.map(|c| (c + 0.0).to_bits());
+    let key = |i: usize, p: &[f32; 3]| {
+        let [x, y, z] = bits(p).map(u128::from);
+        x << 96 | y << 64 | z << 32 | i as u128
+    };
+    // About 4096 keys per bucket, 2 to 2¹² buckets (at least one bit: the bucket is the
+    // hash shifted right by 64 minus the bits).
+    let bucket_bits = (positions.len() / 4096).max(2).ilog2().min(12);
+    let bucket = |p: &[f32; 3]| {
+        let [x, y, z] = bits(p).map(u64::from);
+        // A multiplicative hash of the 96 position bits; its top bits pick the bucket.
+        let h = (x << 32 | y).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ z.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+        (h.wrapping_mul(0x1656_67B1_9E37_79F9) >> (64 - bucket_bits)) as usize
+    };
+    let buckets = 1usize << bucket_bits;
+    // Counting sort into buckets: each chunk's count per bucket, then each chunk scatters in
+    // parallel into its own piece of each bucket.
+    let chunk_counts: Vec<Vec<u32>> = positions
+        .par_chunks(WELD_CHUNK)
+        .map(|chunk| {
+            let mut counts = vec![0u32; buckets];
+            for p in chunk {
+                counts[bucket(p)] += 1;
+            }
+            counts
         })
         .collect();
-    keyed.par_sort_unstable();
+    let sizes: Vec<usize> = (0..buckets)
+        .map(|b| chunk_counts.iter().map(|c| c[b] as usize).sum())
+        .collect();
+    let mut keyed = vec![0u128; positions.len()];
+    // Each bucket's keys, cut into one piece per chunk in chunk order.
+    let mut pieces: Vec<Vec<&mut [u128]>> = chunk_counts
+        .iter()
+        .map(|_| Vec::with_capacity(buckets))
+        .collect();
+    let mut rest: &mut [u128] = &mut keyed;
+    for b in 0..buckets {
+        for (chunk, piece) in chunk_counts.iter().zip(&mut pieces) {
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(chunk[b] as usize);
+            piece.push(head);
+            rest = tail;
+        }
+    }
+    positions
+        .par_chunks(WELD_CHUNK)
+        .zip(pieces)
+        .enumerate()
+        .for_each(|(c, (chunk, mut pieces))| {
+            let mut filled = vec![0usize; buckets];
+            for (k, p) in chunk.iter().enumerate() {
+                let b = bucket(p);
+                pieces[b][filled[b]] = key(c * WELD_CHUNK + k, p);
+                filled[b] += 1;
+            }
+        });
+    // Sort each bucket; in each run of equal positions the first key has the lowest index.
+    let representative: Vec<AtomicU32> = (0..positions.len()).map(|_| AtomicU32::new(0)).collect();
+    let mut bucket_slices: Vec<&mut [u128]> = Vec::with_capacity(buckets);
+    let mut rest: &mut [u128] = &mut keyed;
+    for &size in &sizes {
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(size);
+        bucket_slices.push(head);
+        rest = tail;
+    }
     let position = |key: u128| key >> 32;
     let index = |key: u128| key as u32;
-    let mut representative = vec![0u32; positions.len()];
-    let mut group_start = 0;
-    for i in 0..keyed.len() {
-        if position(keyed[i]) != position(keyed[group_start]) {
-            group_start = i;
+    bucket_slices.into_par_iter().for_each(|keys| {
+        keys.sort_unstable();
+        let mut group_start = 0;
+        for i in 0..keys.len() {
+            if position(keys[i]) != position(keys[group_start]) {
+                group_start = i;
+            }
+            // Every index is written exactly once, by the bucket that holds it.
+            representative[index(keys[i]) as usize]
+                .store(index(keys[group_start]), Ordering::Relaxed);
         }
-        representative[index(keyed[i]) as usize] = index(keyed[group_start]);
-    }
+    });
     representative
+        .into_iter()
+        .map(AtomicU32::into_inner)
+        .collect()
 }
 
 /// For each vertex, the lowest index of its group of vertices chained within `tolerance`.
@@ -190,4 +269,50 @@ fn tolerance_representatives(positions: &[[f32; 3]], tolerance: f64) -> Vec<u32>
     (0..positions.len() as u32)
         .map(|v| root(&mut parent, v))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Positions with many exact repeats (and `-0.0` beside `0.0`), over several chunks and
+    /// buckets.
+    fn repeating_positions(n: usize) -> Vec<[f32; 3]> {
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        (0..n)
+            .map(|_| {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                let pick = (seed % 50_000) as f32;
+                let sign = if seed >> 63 == 0 { 1.0 } else { -1.0 };
+                [pick * 0.25, (pick * 0.5).floor(), sign * 0.0]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn exact_representatives_are_the_lowest_index_of_each_position() {
+        let positions = repeating_positions(3 * WELD_CHUNK + 123);
+        let mut first: FxHashMap<[u32; 3], u32> = FxHashMap::default();
+        let expected: Vec<u32> = positions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                *first
+                    .entry(p.map(|c| (c + 0.0).to_bits()))
+                    .or_insert(i as u32)
+            })
+            .collect();
+        assert!(first.len() < positions.len() / 2, "the test needs repeats");
+        assert_eq!(exact_representatives(&positions), expected);
+        let one_thread = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| exact_representatives(&positions));
+        assert_eq!(one_thread, expected);
+        assert_eq!(exact_representatives(&positions[..5]), expected[..5]);
+        assert!(exact_representatives(&[]).is_empty());
+    }
 }
