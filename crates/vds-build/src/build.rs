@@ -343,12 +343,12 @@ impl Inputs<'_> {
 }
 
 /// A leaf's incident triangles, gathered once and used by every leaf attribute: each one's
-/// corners (as stored, in `f32`: half the bytes of widened ones, and widening again later
-/// gives the same values), and the unit normals of those with a non-zero area (apart, so the
-/// cone fits run over a plain slice).
+/// two corners besides the leaf's vertex (as stored, in `f32`: half the bytes of widened
+/// ones, and widening again later gives the same values), and the unit normals of those with
+/// a non-zero area (apart, so the cone fits run over a plain slice).
 #[derive(Default)]
 struct LeafScratch {
-    corners: Vec<[[f32; 3]; 3]>,
+    corners: Vec<[[f32; 3]; 2]>,
     normals: Vec<[f64; 3]>,
 }
 
@@ -369,13 +369,24 @@ fn leaf_attributes(
     scratch.corners.clear();
     scratch.normals.clear();
     for &t in incident {
-        let corners = scene.triangles[t as usize].map(|v| scene.positions[v as usize]);
-        for q in corners {
-            triangle_box.add_point(q);
-        }
-        let [a, b, c] = corners.map(widen);
+        // The vertex is one corner of each of its triangles (exactly one: welding dropped
+        // triangles with a repeated corner), already in the box and at the start of the
+        // farthest-corner scan below; only the other two, taken in the triangle's cyclic
+        // order (which keeps its winding), are new.
+        let [i0, i1, i2] = scene.triangles[t as usize];
+        let (j, k) = if i0 == vertex {
+            (i1, i2)
+        } else if i1 == vertex {
+            (i2, i0)
+        } else {
+            (i0, i1)
+        };
+        let others = [scene.positions[j as usize], scene.positions[k as usize]];
+        triangle_box.add_point(others[0]);
+        triangle_box.add_point(others[1]);
+        let [b, c] = others.map(widen);
         // One cross product gives both the plane for the quadric and the normal for the cone.
-        let n = cross(sub(b, a), sub(c, a));
+        let n = cross(sub(b, p), sub(c, p));
         let twice_area = dot(n, n).sqrt();
         if twice_area > 0.0 && twice_area.is_finite() {
             let inverse = 1.0 / twice_area;
@@ -391,14 +402,14 @@ fn leaf_attributes(
             moments[5] += wn[2] * n[2];
             scratch.normals.push(normal);
         }
-        scratch.corners.push(corners);
+        scratch.corners.push(others);
     }
     let center = widen(triangle_box.center().map(|c| c as f32));
     // Plain loops and a comparison: a flattened iterator and `f64::max`'s NaN rule (distances
     // between finite points are never NaN) cost more instructions than the distances.
     let mut farthest = distance_squared(center, p);
-    for corners in &scratch.corners {
-        for &q in corners {
+    for others in &scratch.corners {
+        for &q in others {
             let d = distance_squared(center, widen(q));
             if d > farthest {
                 farthest = d;
