@@ -10,6 +10,7 @@
 
 mod cut;
 mod distance;
+mod first_touch;
 mod latency;
 
 use std::path::{Path, PathBuf};
@@ -54,6 +55,13 @@ enum Commands {
     /// Time dependent random memory reads at several working-set sizes (compare machines
     /// before comparing their figures).
     Latency,
+    /// Time the first touch of fresh memory, page by page, and a fill of the same memory
+    /// once mapped (on the dev VMs the first varies severalfold with what ran before).
+    FirstTouch {
+        /// How much memory.
+        #[arg(long, default_value_t = 1024)]
+        megabytes: usize,
+    },
     /// Decode every page of a `.vdt` file on one core, reusing one page buffer (as a page
     /// cache would); prints the median of `--runs` passes.
     Decode { file: PathBuf },
@@ -142,6 +150,10 @@ fn main() -> Result<()> {
         Some(Commands::Decode { file }) => return decode(&file, args.runs),
         Some(Commands::Latency) => {
             latency::run();
+            return Ok(());
+        }
+        Some(Commands::FirstTouch { megabytes }) => {
+            first_touch::run(megabytes);
             return Ok(());
         }
         Some(Commands::Cut {
