@@ -864,8 +864,12 @@ mod fast {
         // Decode straight into the soup's arrays; on a fallback they are cut back.
         let first = soup.triangles.len();
         let count = element.count as usize;
-        soup.triangles.resize(first + count, [0; 3]);
-        soup.triangle_parts.resize(first + count, 0);
+        // Zero-filled in parallel: the fill is these arrays' first touch (160 MB at 10 M
+        // triangles), whose page faults one thread would take alone.
+        soup.triangles
+            .par_extend(rayon::iter::repeat_n([0; 3], count));
+        soup.triangle_parts
+            .par_extend(rayon::iter::repeat_n(0, count));
         let layout = FaceLayout {
             stride,
             list_at,

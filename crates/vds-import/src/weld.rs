@@ -199,7 +199,10 @@ fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
             }
         });
     // Sort each bucket; in each run of equal positions the first key has the lowest index.
-    let representative: Vec<AtomicU32> = (0..positions.len()).map(|_| AtomicU32::new(0)).collect();
+    let representative: Vec<AtomicU32> = (0..positions.len())
+        .into_par_iter()
+        .map(|_| AtomicU32::new(0))
+        .collect();
     let mut bucket_slices: Vec<&mut [u128]> = Vec::with_capacity(buckets);
     let mut rest: &mut [u128] = &mut keyed;
     for &size in &sizes {
