@@ -369,10 +369,11 @@ fn leaf_attributes(
     scratch.corners.clear();
     scratch.normals.clear();
     for &t in incident {
-        // The vertex is one corner of each of its triangles (exactly one: welding dropped
-        // triangles with a repeated corner), already in the box and at the start of the
-        // farthest-corner scan below; only the other two, taken in the triangle's cyclic
-        // order (which keeps its winding), are new.
+        // The vertex is a corner of each of its triangles, already in the box and at the
+        // start of the farthest-corner scan below; only the other two, taken in the
+        // triangle's cyclic order (which keeps its winding), are new. (A triangle that repeats
+        // the vertex, which welding drops but a scene built by hand may hold, gives the same
+        // box and distances this way, and no normal either way: its area is zero.)
         let [i0, i1, i2] = scene.triangles[t as usize];
         let (j, k) = if i0 == vertex {
             (i1, i2)

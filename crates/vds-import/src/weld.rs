@@ -126,8 +126,16 @@ fn diagonal(positions: &[[f32; 3]]) -> f64 {
     (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt()
 }
 
-/// Positions per parallel chunk of the exact weld's counting and scattering passes.
+/// The least number of positions per parallel chunk of the exact weld's counting and
+/// scattering passes.
 const WELD_CHUNK: usize = 1 << 16;
+
+/// Positions per chunk for `n` positions: at least [`WELD_CHUNK`], and few enough chunks
+/// (about 64) that the chunks' per-bucket counts and pieces stay small however large the
+/// input.
+fn weld_chunk(n: usize) -> usize {
+    (n / 64).max(WELD_CHUNK)
+}
 
 /// For each vertex, the lowest index with bit-identical position.
 ///
@@ -157,10 +165,11 @@ fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
         (h.wrapping_mul(0x1656_67B1_9E37_79F9) >> (64 - bucket_bits)) as usize
     };
     let buckets = 1usize << bucket_bits;
+    let chunk_size = weld_chunk(positions.len());
     // Counting sort into buckets: each chunk's count per bucket, then each chunk scatters in
     // parallel into its own piece of each bucket.
     let chunk_counts: Vec<Vec<u32>> = positions
-        .par_chunks(WELD_CHUNK)
+        .par_chunks(chunk_size)
         .map(|chunk| {
             let mut counts = vec![0u32; buckets];
             for p in chunk {
@@ -187,14 +196,14 @@ fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
         }
     }
     positions
-        .par_chunks(WELD_CHUNK)
+        .par_chunks(chunk_size)
         .zip(pieces)
         .enumerate()
         .for_each(|(c, (chunk, mut pieces))| {
             let mut filled = vec![0usize; buckets];
             for (k, p) in chunk.iter().enumerate() {
                 let b = bucket(p);
-                pieces[b][filled[b]] = key(c * WELD_CHUNK + k, p);
+                pieces[b][filled[b]] = key(c * chunk_size + k, p);
                 filled[b] += 1;
             }
         });
