@@ -195,10 +195,21 @@ fn main() -> Result<()> {
         None => {}
     }
     println!(
-        "vds-bench: {} cores, medians of {} runs\n",
+        "vds-bench: {} cores, medians of {} runs",
         std::thread::available_parallelism()?,
         args.runs
     );
+    // How fast the machine hands out fresh memory just now, in a fresh process as the builds
+    // run: on the dev VMs this moves the build figures more than anything else.
+    let touch = Command::new(std::env::current_exe()?)
+        .arg("first-touch")
+        .output()?;
+    if touch.status.success() {
+        let line = String::from_utf8_lossy(&touch.stdout);
+        println!("fresh memory, {}\n", line.trim());
+    } else {
+        println!("fresh memory: not measured\n");
+    }
     bunny(&args.shared.join("bunny.obj"), args.runs)?;
     let mut files = vec![args.shared.join("bunny.obj")];
     for size in &args.sizes {
