@@ -288,12 +288,10 @@ fn compute_attributes(nodes: &[Node], levels: &[u32], inputs: &Inputs) -> Vec<No
                 ((sum, sphere), Some(node_bounds))
             })
             .collect();
-        let first_bounds = inner_count(&nodes[..levels[k] as usize]);
-        for (slot, node_bounds) in upper_bounds[first_bounds..]
-            .iter_mut()
-            .zip(results.iter().filter_map(|(_, b)| *b))
-        {
-            *slot = node_bounds;
+        for (node, (_, node_bounds)) in level(k).iter().zip(&results) {
+            if let Some(node_bounds) = node_bounds {
+                upper_bounds[node.bounds as usize] = *node_bounds;
+            }
         }
         below = results.into_iter().map(|(up, _)| up).collect();
     }

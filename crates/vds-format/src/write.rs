@@ -117,12 +117,24 @@ struct PagePlan {
 /// Plans pages: the sibling groups of each page, and its triangle count (read here once,
 /// where each group's size is measured anyway).
 fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
-    // A group's subtris.
-    let group_triangles = |g: &Group| -> u64 {
-        (g.first..g.first + g.count)
-            .map(|id| u64::from(nodes.node_record(id).subtri_count.get()))
-            .sum()
+    // A group's subtris, with its nodes' child groups put in `children`: one record of each
+    // node (records are made on demand, and planning runs on one thread).
+    let measure = |g: &Group, children: &mut Vec<Group>| -> u64 {
+        children.clear();
+        let mut triangles = 0u64;
+        for id in g.first..g.first + g.count {
+            let n = nodes.node_record(id);
+            triangles += u64::from(n.subtri_count.get());
+            if n.child_count > 0 {
+                children.push(Group {
+                    first: n.first_child.get(),
+                    count: u32::from(n.child_count),
+                });
+            }
+        }
+        triangles
     };
+    let mut children = Vec::new();
     let mut pages = Vec::new();
     let mut stack = vec![Group { first: 0, count: 1 }];
     while let Some(start) = stack.pop() {
@@ -149,7 +161,7 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
                 }
             }
             let group = queue[0];
-            let triangles = group_triangles(&group);
+            let triangles = measure(&group, &mut children);
             let size =
                 NODE_BYTES as u64 * u64::from(group.count) + TRIANGLE_BYTES as u64 * triangles;
             if !page.is_empty() && bytes + size > u64::from(budget) {
@@ -159,15 +171,7 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
             page.push(group);
             page_triangles += triangles;
             bytes += size;
-            for id in group.first..group.first + group.count {
-                let n = nodes.node_record(id);
-                if n.child_count > 0 {
-                    queue.push_back(Group {
-                        first: n.first_child.get(),
-                        count: u32::from(n.child_count),
-                    });
-                }
-            }
+            queue.extend(children.iter().copied());
         }
         stack.extend(queue.into_iter().rev());
         pages.push(PagePlan {

@@ -240,17 +240,7 @@ fn vdt(file: &Path) -> Result<()> {
     let write_seconds = start.elapsed().as_secs_f64();
     drop(content);
     drop(tree);
-    let open_ms = median(
-        (0..21)
-            .map(|_| {
-                let start = Instant::now();
-                let file = vds_format::VdtFile::open(&out).expect("the file just written opens");
-                // Opening includes the root page, which any viewer decodes first.
-                std::hint::black_box(file.read_page(0).expect("root page decodes"));
-                start.elapsed().as_secs_f64() * 1e3
-            })
-            .collect(),
-    );
+    let open_ms = median((0..21).map(|_| open_ms(&out)).collect::<Result<_>>()?);
     let cold_open_ms = cold_open_ms(&out)?;
     let file = vds_format::VdtFile::open(&out)?;
     let decoded_record_bytes = file.header().node_count.get() * vds_format::NODE_BYTES as u64
@@ -291,12 +281,17 @@ fn cold_open_ms(path: &Path) -> Result<Option<f64>> {
     for _ in 0..5 {
         let evict = std::fs::File::open(path)?;
         rustix::fs::fadvise(&evict, 0, None, rustix::fs::Advice::DontNeed)?;
-        let start = Instant::now();
-        let file = vds_format::VdtFile::open(path)?;
-        std::hint::black_box(file.read_page(0)?);
-        times.push(start.elapsed().as_secs_f64() * 1e3);
+        times.push(open_ms(path)?);
     }
     Ok(Some(median(times)))
+}
+
+/// Milliseconds to open `path` and decode its root page, which any viewer decodes first.
+fn open_ms(path: &Path) -> Result<f64> {
+    let start = Instant::now();
+    let file = vds_format::VdtFile::open(path)?;
+    std::hint::black_box(file.read_page(0)?);
+    Ok(start.elapsed().as_secs_f64() * 1e3)
 }
 
 /// Evicting a file from the page cache is Linux's `posix_fadvise` here: elsewhere no figure.
