@@ -8,10 +8,12 @@
 //! until the cells are as small as it is thin, which lets the two faces of a thin plate merge
 //! early.
 //!
-//! The tree is built one level at a time: all nodes of a level partition their own slice of
-//! one vertex-order array in parallel (a stable counting sort by octant; a node with more
-//! than 64 k vertices counts and scatters in parallel chunks itself), and their children,
-//! appended in order, form the next level. Node ids are therefore breadth-first (a node's
+//! Each node partitions its own slice of a vertex-order array into the other of two buffers
+//! (a stable counting sort by octant; a node with more than 64 k vertices counts and scatters
+//! in parallel chunks itself). Near the root the tree is split one level at a time; once every
+//! node of a level holds at most 1/64 of the vertices, each of those subtrees is split depth
+//! first as one task while its items are in cache, recording its splits per level, and the
+//! levels are then linked from the records. Node ids are breadth-first either way (a node's
 //! children are contiguous, parents precede children) and the final order array lists the
 //! leaves in depth-first order, so every node owns a contiguous range of it. Nothing depends
 //! on scheduling, so the result is identical on any thread count.
@@ -62,6 +64,14 @@ fn bounds_of(items: &[Item]) -> Aabb {
 
 /// Clusters `positions` (at least one) into a tight octree.
 pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
+    let task_items = (positions.len() / TASK_SHARE).max(MIN_TASK_ITEMS);
+    cluster_in_tasks(positions, task_items)
+}
+
+/// [`cluster`], splitting level by level near the root until every node holds at most
+/// `task_items` vertices, and each subtree below depth first. The tree is the same whatever
+/// `task_items` is.
+fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize) -> Clustering {
     assert!(!positions.is_empty(), "cluster() needs at least one vertex");
     assert!(
         positions.len() < u32::MAX as usize,
@@ -92,31 +102,24 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
     // Bounds indices go to inner nodes in id order: levels are split in order, and a level's
     // nodes in id order.
     let mut inner_count = 0u32;
-    while !level.is_empty() {
-        // Hand each splittable node of this level its own slices of both buffers.
+    let task_items = u32::try_from(task_items).unwrap_or(u32::MAX);
+
+    // Near the root, level by level: few nodes, each split by parallel chunks.
+    while level.clone().any(|id| nodes[id].leaf_count() > task_items) {
+        // Each node's own slices of both buffers; a leaf's item goes to the first buffer (see
+        // `split_depth_first`).
         let mut work: Vec<(usize, &mut [Item], &mut [Item])> = Vec::with_capacity(level.len());
-        let mut rest_first: &mut [Item] = &mut items;
-        let mut rest_second: &mut [Item] = &mut second;
-        let mut consumed = 0usize;
-        for id in level.clone() {
-            let node = nodes[id];
-            let (begin, end) = (node.leaf_begin as usize, node.leaf_end as usize);
-            let (_, tail) = std::mem::take(&mut rest_first).split_at_mut(begin - consumed);
-            let (first, tail) = tail.split_at_mut(end - begin);
-            rest_first = tail;
-            let (_, tail) = std::mem::take(&mut rest_second).split_at_mut(begin - consumed);
-            let (second, tail) = tail.split_at_mut(end - begin);
-            rest_second = tail;
-            consumed = end;
-            if end - begin > 1 {
-                let (from, to) = if reading_first {
-                    (first, second)
-                } else {
-                    (second, first)
-                };
+        let slices = node_slices(
+            &nodes[level.clone()],
+            &mut items,
+            &mut second,
+            reading_first,
+        );
+        for (id, (from, to)) in level.clone().zip(slices) {
+            if from.len() > 1 {
                 work.push((id, from, to));
             } else if !reading_first {
-                first[0] = second[0];
+                to[0] = from[0];
             }
         }
         let splits: Vec<(usize, Children)> = work
@@ -129,32 +132,236 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
         let added: usize = splits.iter().map(|(_, children)| children.count).sum();
         crate::prefault::populate(&mut nodes.spare_capacity_mut()[..added]);
         for (id, children) in splits {
-            let parent = nodes[id];
-            nodes[id].first_child = nodes.len() as u32;
-            nodes[id].child_count = children.count as u8;
-            nodes[id].bounds = inner_count;
-            inner_count += 1;
-            let mut begin = parent.leaf_begin;
-            for k in 0..children.count {
-                let size = children.sizes[k];
-                nodes.push(Node::topology(
-                    begin,
-                    begin + size,
-                    id as u32,
-                    parent.depth + 1,
-                ));
-                begin += size;
-            }
+            append_children(&mut nodes, id, children.sizes(), &mut inner_count);
         }
         level = next_start..nodes.len();
         level_starts.push(next_start as u32);
     }
+
+    // Below, each node of this level (the frontier) is one task that splits its subtree depth
+    // first while its items are in cache, recording each split's child sizes per level; the
+    // levels are then appended from those records as above. A level's nodes are in the same
+    // left-to-right order whether a tree is walked depth or breadth first, so the records of
+    // the tasks, concatenated in order, are the level's splits in id order, and a node reads
+    // and writes the same buffer ranges either way: the tree is the same as level by level.
+    let frontier = node_slices(
+        &nodes[level.clone()],
+        &mut items,
+        &mut second,
+        reading_first,
+    );
+    let records: Vec<Vec<LevelSplits>> = frontier
+        .into_par_iter()
+        .map(|(from, to)| {
+            let mut records = Vec::new();
+            split_depth_first(from, to, reading_first, 0, &mut records);
+            records
+        })
+        .collect();
+    // Every node below the frontier is known now: have them all in place (the array's pages
+    // faulted in parallel), then fill each level task by task in parallel. On each level a
+    // task owns a contiguous run of nodes (the children of its splits one level up) and
+    // appends one to the next level, at the sum of the earlier tasks' runs.
+    let below: usize = records
+        .iter()
+        .flatten()
+        .map(|splits| splits.sizes.len())
+        .sum();
+    let placeholder = Node::topology(0, 0, NO_PARENT, 0);
+    crate::prefault::populate(&mut nodes.spare_capacity_mut()[..below]);
+    nodes.par_extend(rayon::iter::repeat_n(placeholder, below));
+    let mut runs: Vec<usize> = vec![1; records.len()];
+    for depth in 0.. {
+        let level_end = level.end;
+        let next_runs: Vec<usize> = records
+            .iter()
+            .map(|task| task.get(depth).map_or(0, |splits| splits.sizes.len()))
+            .collect();
+        let added: usize = next_runs.iter().sum();
+        let (upper, lower) = nodes.split_at_mut(level_end);
+        let mut current = &mut upper[level.start..];
+        let mut next = &mut lower[..added];
+        let mut work = Vec::with_capacity(records.len());
+        let (mut id, mut child, mut inner) = (level.start, level_end, inner_count);
+        for (task, (&run, &next_run)) in records.iter().zip(runs.iter().zip(&next_runs)) {
+            let (mine, tail) = std::mem::take(&mut current).split_at_mut(run);
+            current = tail;
+            let (children, tail) = std::mem::take(&mut next).split_at_mut(next_run);
+            next = tail;
+            let splits = task.get(depth);
+            work.push((id, mine, child, children, inner, splits));
+            id += run;
+            child += next_run;
+            inner += splits.map_or(0, |splits| splits.counts.len() as u32);
+        }
+        work.into_par_iter()
+            .for_each(|(id, mine, child, children, inner, splits)| {
+                let splits = splits.into_iter().flat_map(LevelSplits::iter);
+                link_children(id, mine, child, children, inner, splits);
+            });
+        inner_count = inner;
+        level_starts.push(level_end as u32);
+        if added == 0 {
+            break;
+        }
+        level = level_end..level_end + added;
+        runs = next_runs;
+    }
+    drop(records);
     drop(second);
     Clustering {
         nodes,
         leaf_vertex: items.par_iter().map(|item| item.vertex).collect(),
         leaf_positions: items.par_iter().map(|item| item.position).collect(),
         level_starts,
+    }
+}
+
+/// Subtrees split depth first as one task hold at most this share of all vertices (or
+/// [`MIN_TASK_ITEMS`]): enough tasks for rayon to balance, each small enough for the cache.
+const TASK_SHARE: usize = 64;
+
+/// The least item count a depth-first task may be given however small the input.
+const MIN_TASK_ITEMS: usize = 4096;
+
+/// Each node's slices of the two item buffers, the one its items are read from first: the
+/// nodes are consecutive in leaf order and cover the buffers' ranges they name.
+fn node_slices<'a>(
+    nodes: &[Node],
+    first: &'a mut [Item],
+    second: &'a mut [Item],
+    reading_first: bool,
+) -> Vec<(&'a mut [Item], &'a mut [Item])> {
+    let mut rest_first = first;
+    let mut rest_second = second;
+    let mut consumed = 0usize;
+    let mut slices = Vec::with_capacity(nodes.len());
+    for node in nodes {
+        let (begin, end) = (node.leaf_begin as usize, node.leaf_end as usize);
+        let (_, tail) = std::mem::take(&mut rest_first).split_at_mut(begin - consumed);
+        let (mine_first, tail) = tail.split_at_mut(end - begin);
+        rest_first = tail;
+        let (_, tail) = std::mem::take(&mut rest_second).split_at_mut(begin - consumed);
+        let (mine_second, tail) = tail.split_at_mut(end - begin);
+        rest_second = tail;
+        consumed = end;
+        slices.push(if reading_first {
+            (mine_first, mine_second)
+        } else {
+            (mine_second, mine_first)
+        });
+    }
+    slices
+}
+
+/// Appends the children of node `id` (their sizes in leaf order) and links them to it; inner
+/// nodes get bounds indices in the order they are linked.
+fn append_children(nodes: &mut Vec<Node>, id: usize, sizes: &[u32], inner_count: &mut u32) {
+    let parent = nodes[id];
+    nodes[id].first_child = nodes.len() as u32;
+    nodes[id].child_count = sizes.len() as u8;
+    nodes[id].bounds = *inner_count;
+    *inner_count += 1;
+    let mut begin = parent.leaf_begin;
+    for &size in sizes {
+        nodes.push(Node::topology(
+            begin,
+            begin + size,
+            id as u32,
+            parent.depth + 1,
+        ));
+        begin += size;
+    }
+}
+
+/// Links the nodes `mine` (ids from `id`) to their children, which it writes to `children`
+/// (ids from `child`): each node with more than one leaf takes the next of `splits` (its
+/// children's sizes) and the next bounds index from `inner`.
+fn link_children<'a>(
+    id: usize,
+    mine: &mut [Node],
+    child: usize,
+    children: &mut [Node],
+    inner: u32,
+    mut splits: impl Iterator<Item = &'a [u32]>,
+) {
+    let (mut next_child, mut next_inner, mut written) = (child as u32, inner, 0usize);
+    for (k, node) in mine.iter_mut().enumerate() {
+        if node.leaf_count() <= 1 {
+            continue;
+        }
+        let sizes = splits
+            .next()
+            .expect("a split recorded for every inner node");
+        node.first_child = next_child;
+        node.child_count = sizes.len() as u8;
+        node.bounds = next_inner;
+        next_inner += 1;
+        let mut begin = node.leaf_begin;
+        for &size in sizes {
+            children[written] =
+                Node::topology(begin, begin + size, (id + k) as u32, node.depth + 1);
+            begin += size;
+            written += 1;
+        }
+        next_child += sizes.len() as u32;
+    }
+    debug_assert!(splits.next().is_none(), "every recorded split linked");
+    debug_assert_eq!(written, children.len(), "every child written");
+}
+
+/// The splits one depth-first task made on one level, in leaf order: each split's child
+/// count, and all their child sizes one after another (5 bytes a node instead of a
+/// [`Children`] each, since a task's records stay alive until every level is appended).
+#[derive(Default)]
+struct LevelSplits {
+    counts: Vec<u8>,
+    sizes: Vec<u32>,
+}
+
+impl LevelSplits {
+    /// Each split's child sizes, in order.
+    fn iter(&self) -> impl Iterator<Item = &[u32]> {
+        let mut rest = self.sizes.as_slice();
+        self.counts.iter().map(move |&count| {
+            let (sizes, tail) = rest.split_at(usize::from(count));
+            rest = tail;
+            sizes
+        })
+    }
+}
+
+/// Splits the subtree whose items are `from` (with `to`, its range of the other buffer)
+/// depth first, recording each split in `records[level]`. A one-item node is a leaf; its item
+/// must end in the first buffer, so a leaf read from the second is copied across.
+fn split_depth_first(
+    from: &mut [Item],
+    to: &mut [Item],
+    from_is_first: bool,
+    level: usize,
+    records: &mut Vec<LevelSplits>,
+) {
+    if from.len() == 1 {
+        if !from_is_first {
+            to[0] = from[0];
+        }
+        return;
+    }
+    let children = split(from, to);
+    if records.len() == level {
+        records.push(LevelSplits::default());
+    }
+    let splits = &mut records[level];
+    splits.counts.push(children.count as u8);
+    splits.sizes.extend_from_slice(children.sizes());
+    // The children's items are now in `to`, grouped in order; they read from there.
+    let (mut rest_from, mut rest_to) = (from, to);
+    for &size in children.sizes() {
+        let (child_to, tail) = std::mem::take(&mut rest_to).split_at_mut(size as usize);
+        rest_to = tail;
+        let (child_from, tail) = std::mem::take(&mut rest_from).split_at_mut(size as usize);
+        rest_from = tail;
+        split_depth_first(child_to, child_from, !from_is_first, level + 1, records);
     }
 }
 
@@ -165,6 +372,13 @@ pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
 struct Children {
     sizes: [u32; 8],
     count: usize,
+}
+
+impl Children {
+    /// The children's sizes, in order.
+    fn sizes(&self) -> &[u32] {
+        &self.sizes[..self.count]
+    }
 }
 
 /// Items per parallel task when one node's split is itself split up: the levels near the root
@@ -347,6 +561,33 @@ mod tests {
             assert_eq!(children.count, expected.count);
             assert_eq!(children.sizes, expected.sizes);
         }
+    }
+
+    #[test]
+    fn depth_first_tasks_build_the_same_tree_as_levels() {
+        // Clusters at several scales, coincident runs and a thin plate, so that levels mix
+        // leaves, balanced-chunk splits and octant splits.
+        let mut seed = 11u64;
+        let mut random = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let positions: Vec<[f32; 3]> = (0..20_000u32)
+            .map(|i| match i % 5 {
+                0 => [0.25; 3],
+                1 => [random(), random(), 0.0],
+                2 => [random() * 1e-3, random() * 1e-3, random() * 1e-3],
+                _ => [random(), random() * random(), 0.25 * random()],
+            })
+            .collect();
+        let level_by_level = cluster_in_tasks(&positions, 1);
+        for task_items in [2, 100, 4096, usize::MAX] {
+            let clustering = cluster_in_tasks(&positions, task_items);
+            assert!(clustering == level_by_level, "task size {task_items}");
+        }
+        assert_eq!(cluster(&positions), level_by_level);
     }
 
     #[test]
