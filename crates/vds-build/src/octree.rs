@@ -162,11 +162,7 @@ fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize) -> Clustering {
     // faulted in parallel), then fill each level task by task in parallel. On each level a
     // task owns a contiguous run of nodes (the children of its splits one level up) and
     // appends one to the next level, at the sum of the earlier tasks' runs.
-    let below: usize = records
-        .iter()
-        .flatten()
-        .map(|splits| splits.sizes.len())
-        .sum();
+    let below: usize = records.iter().flatten().map(|splits| splits.children).sum();
     let placeholder = Node::topology(0, 0, NO_PARENT, 0);
     crate::prefault::populate(&mut nodes.spare_capacity_mut()[..below]);
     nodes.par_extend(rayon::iter::repeat_n(placeholder, below));
@@ -175,7 +171,7 @@ fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize) -> Clustering {
         let level_end = level.end;
         let next_runs: Vec<usize> = records
             .iter()
-            .map(|task| task.get(depth).map_or(0, |splits| splits.sizes.len()))
+            .map(|task| task.get(depth).map_or(0, |splits| splits.children))
             .collect();
         let added: usize = next_runs.iter().sum();
         let (upper, lower) = nodes.split_at_mut(level_end);
@@ -277,22 +273,23 @@ fn append_children(nodes: &mut Vec<Node>, id: usize, sizes: &[u32], inner_count:
 /// Links the nodes `mine` (ids from `id`) to their children, which it writes to `children`
 /// (ids from `child`): each node with more than one leaf takes the next of `splits` (its
 /// children's sizes) and the next bounds index from `inner`.
-fn link_children<'a>(
+fn link_children(
     id: usize,
     mine: &mut [Node],
     child: usize,
     children: &mut [Node],
     inner: u32,
-    mut splits: impl Iterator<Item = &'a [u32]>,
+    mut splits: impl Iterator<Item = Children>,
 ) {
     let (mut next_child, mut next_inner, mut written) = (child as u32, inner, 0usize);
     for (k, node) in mine.iter_mut().enumerate() {
         if node.leaf_count() <= 1 {
             continue;
         }
-        let sizes = splits
+        let split = splits
             .next()
             .expect("a split recorded for every inner node");
+        let sizes = split.sizes();
         node.first_child = next_child;
         node.child_count = sizes.len() as u8;
         node.bounds = next_inner;
@@ -311,22 +308,50 @@ fn link_children<'a>(
 }
 
 /// The splits one depth-first task made on one level, in leaf order: each split's child
-/// count, and all their child sizes one after another (5 bytes a node instead of a
-/// [`Children`] each, since a task's records stay alive until every level is appended).
+/// count, and all their child sizes one after another as LEB128 varints (most sizes are
+/// below 128: about 1.3 bytes a node instead of 4, since every task's records stay alive
+/// until all levels are linked, and that memory is fresh).
 #[derive(Default)]
 struct LevelSplits {
     counts: Vec<u8>,
-    sizes: Vec<u32>,
+    sizes: Vec<u8>,
+    children: usize,
 }
 
 impl LevelSplits {
-    /// Each split's child sizes, in order.
-    fn iter(&self) -> impl Iterator<Item = &[u32]> {
-        let mut rest = self.sizes.as_slice();
+    fn push(&mut self, children: &Children) {
+        self.counts.push(children.count as u8);
+        self.children += children.count;
+        for &size in children.sizes() {
+            let mut rest = size;
+            while rest >= 0x80 {
+                self.sizes.push(rest as u8 | 0x80);
+                rest >>= 7;
+            }
+            self.sizes.push(rest as u8);
+        }
+    }
+
+    /// Each split's children, in order.
+    fn iter(&self) -> impl Iterator<Item = Children> {
+        let mut bytes = self.sizes.iter();
         self.counts.iter().map(move |&count| {
-            let (sizes, tail) = rest.split_at(usize::from(count));
-            rest = tail;
-            sizes
+            let mut children = Children {
+                sizes: [0; 8],
+                count: usize::from(count),
+            };
+            for size in &mut children.sizes[..children.count] {
+                let mut shift = 0;
+                loop {
+                    let byte = *bytes.next().expect("a size for every child");
+                    *size |= u32::from(byte & 0x7f) << shift;
+                    if byte < 0x80 {
+                        break;
+                    }
+                    shift += 7;
+                }
+            }
+            children
         })
     }
 }
@@ -352,8 +377,7 @@ fn split_depth_first(
         records.push(LevelSplits::default());
     }
     let splits = &mut records[level];
-    splits.counts.push(children.count as u8);
-    splits.sizes.extend_from_slice(children.sizes());
+    splits.push(&children);
     // The children's items are now in `to`, grouped in order; they read from there.
     let (mut rest_from, mut rest_to) = (from, to);
     for &size in children.sizes() {
