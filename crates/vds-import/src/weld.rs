@@ -101,8 +101,9 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
             .par_iter_mut()
             .for_each(|t| *t = t.map(|v| final_index[v as usize]));
     } else {
-        // Final indices repeat exactly where representatives do: used representatives get
-        // distinct ones, and a triangle with an unused one repeats it.
+        // The test on final indices drops the same triangles as the test on representatives:
+        // a triangle with distinct representatives marked them all used, and used ones get
+        // distinct final indices; one with a repeated representative keeps the repeat.
         let mut kept = 0;
         for i in 0..triangles.len() {
             let corners = triangles[i].map(|v| final_index[v as usize]);
