@@ -61,18 +61,19 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         .into_par_iter()
         .map(|_| AtomicU32::new(0))
         .collect();
-    let degenerate = triangles
+    let degenerate: u64 = triangles
         .par_iter()
-        .filter(|t| {
+        .map(|t| {
             let corners = corners(t);
-            if stays(corners) {
-                for v in corners {
-                    used[v as usize].store(1, Ordering::Relaxed);
-                }
+            if !stays(corners) {
+                return 1;
             }
-            !stays(corners)
+            for v in corners {
+                used[v as usize].store(1, Ordering::Relaxed);
+            }
+            0
         })
-        .count() as u64;
+        .sum();
 
     // New indices for the used representatives, in input order, with the positions compacted
     // in place (one pass: each position moves down, never up); then every vertex's final
