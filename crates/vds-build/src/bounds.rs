@@ -148,7 +148,13 @@ impl NormalCone {
                 min_cos = cos;
             }
         }
-        let half_angle = min_cos.clamp(-1.0, 1.0).acos();
+        // All normals along the axis (flat regions of CAD models, often exactly): acos(1) is
+        // exactly 0, without the call.
+        let half_angle = if min_cos >= 1.0 {
+            0.0
+        } else {
+            min_cos.clamp(-1.0, 1.0).acos()
+        };
         NormalCone {
             axis,
             half_angle: (half_angle + CONE_SLACK_RADIANS).min(std::f64::consts::PI),
@@ -175,7 +181,15 @@ impl NormalCone {
         if self.is_empty() {
             return *other;
         }
-        let between = angle_between(self.axis, other.axis);
+        // `angle_between`, its parts kept: the sine and cosine also decide most containments
+        // without the arc tangent.
+        let normal = cross(self.axis, other.axis);
+        let sin_between = dot(normal, normal).sqrt();
+        let cos_between = dot(self.axis, other.axis);
+        if self.surely_contains(other, sin_between, cos_between) {
+            return *self;
+        }
+        let between = sin_between.atan2(cos_between);
         if between + other.half_angle <= self.half_angle {
             return *self;
         }
@@ -191,8 +205,6 @@ impl NormalCone {
         }
         // Rotate self.axis towards other.axis by (half_angle - self.half_angle).
         let rotate_by = half_angle - self.half_angle;
-        let normal = cross(self.axis, other.axis);
-        let sin_between = dot(normal, normal).sqrt();
         if sin_between < 1e-12 {
             // Axes (anti)parallel: containment failed above only if they are opposite.
             return NormalCone {
@@ -209,6 +221,24 @@ impl NormalCone {
             axis: axis.map(|x| x / length),
             half_angle,
         }
+    }
+
+    /// True only where [`NormalCone::merge`]'s first test, `between + other.half_angle <=
+    /// self.half_angle` with `between` the arc tangent of `sin_between / cos_between`, holds
+    /// too, so that skipping the arc tangent there changes no result. Parallel axes (exact
+    /// in CAD models, whose faces are often axis-aligned) give an arc tangent of exactly zero.
+    /// Otherwise, for an acute angle `θ ≤ tan θ`, so `between` is at most `sin / cos` plus the
+    /// arc tangent's rounding (under an ulp); the relative margin of 10⁻¹² covers that and
+    /// the rounding of the sums several thousand times over.
+    fn surely_contains(&self, other: &NormalCone, sin_between: f64, cos_between: f64) -> bool {
+        if cos_between <= 0.0 {
+            return false;
+        }
+        if sin_between == 0.0 {
+            // Parallel axes: the arc tangent is exactly zero, and so is the test's rounding.
+            return other.half_angle <= self.half_angle;
+        }
+        (sin_between / cos_between + other.half_angle) * (1.0 + 1e-12) <= self.half_angle
     }
 
     /// True when `n` (unit) lies in the cone, with `tolerance` radians of slack.
@@ -282,6 +312,57 @@ mod tests {
             assert!(merged.contains_either_way(n.map(|c| c / length), 1e-9));
         }
         assert!(merged.half_angle < 0.2, "{merged:?}");
+    }
+
+    #[test]
+    fn the_containment_shortcut_agrees_with_the_arc_tangent_test() {
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        let mut random = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut shortcuts = 0;
+        for k in 0..200_000 {
+            let a = NormalCone::fit(&[[0.0, 0.0, 1.0]]).axis;
+            // Axes from exactly parallel to a quarter turn away.
+            let tilt = if k % 4 == 0 {
+                0.0
+            } else {
+                random() * random() * 1.5
+            };
+            let b = [tilt.sin(), 0.0, tilt.cos()];
+            let other = NormalCone {
+                axis: b,
+                half_angle: random() * 0.5,
+            };
+            // Half-angles around the containment boundary, some exactly on it.
+            let between = angle_between(a, b);
+            let boundary = between + other.half_angle;
+            let half_angle = match k % 3 {
+                0 => boundary,
+                1 => boundary * (1.0 + (random() - 0.5) * 1e-9),
+                _ => boundary + (random() - 0.5) * 0.2,
+            };
+            let cone = NormalCone {
+                axis: a,
+                half_angle,
+            };
+            let normal = cross(a, b);
+            let (sin, cos) = (dot(normal, normal).sqrt(), dot(a, b));
+            if cone.surely_contains(&other, sin, cos) {
+                shortcuts += 1;
+                assert!(
+                    between + other.half_angle <= half_angle,
+                    "{cone:?} {other:?}"
+                );
+            }
+        }
+        assert!(
+            shortcuts > 50_000,
+            "the shortcut should decide many cases: {shortcuts}"
+        );
     }
 
     #[test]
