@@ -103,37 +103,46 @@ fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize) -> Clustering {
     // nodes in id order.
     let mut inner_count = 0u32;
     let task_items = u32::try_from(task_items).unwrap_or(u32::MAX);
+    // What a node slot holds until `link_children` writes the node.
+    let placeholder = Node::topology(0, 0, NO_PARENT, 0);
 
     // Near the root, level by level: few nodes, each split by parallel chunks.
     while level.clone().any(|id| nodes[id].leaf_count() > task_items) {
         // Each node's own slices of both buffers; a leaf's item goes to the first buffer (see
         // `split_depth_first`).
-        let mut work: Vec<(usize, &mut [Item], &mut [Item])> = Vec::with_capacity(level.len());
+        let mut work: Vec<(&mut [Item], &mut [Item])> = Vec::with_capacity(level.len());
         let slices = node_slices(
             &nodes[level.clone()],
             &mut items,
             &mut second,
             reading_first,
         );
-        for (id, (from, to)) in level.clone().zip(slices) {
+        for (from, to) in slices {
             if from.len() > 1 {
-                work.push((id, from, to));
+                work.push((from, to));
             } else if !reading_first {
                 to[0] = from[0];
             }
         }
-        let splits: Vec<(usize, Children)> = work
+        let splits: Vec<Children> = work
             .into_par_iter()
-            .map(|(id, from, to)| (id, split(from, to)))
+            .map(|(from, to)| split(from, to))
             .collect();
         reading_first = !reading_first;
         let next_start = nodes.len();
-        // The loop below appends on one thread; have the pages it will write mapped first.
-        let added: usize = splits.iter().map(|(_, children)| children.count).sum();
-        crate::prefault::populate(&mut nodes.spare_capacity_mut()[..added]);
-        for (id, children) in splits {
-            append_children(&mut nodes, id, children.sizes(), &mut inner_count);
-        }
+        let added: usize = splits.iter().map(|children| children.count).sum();
+        nodes.extend(std::iter::repeat_n(placeholder, added));
+        let (upper, lower) = nodes.split_at_mut(next_start);
+        let inner = splits.len() as u32;
+        link_children(
+            level.start,
+            &mut upper[level.clone()],
+            next_start,
+            lower,
+            inner_count,
+            splits.into_iter(),
+        );
+        inner_count += inner;
         level = next_start..nodes.len();
         level_starts.push(next_start as u32);
     }
@@ -163,7 +172,6 @@ fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize) -> Clustering {
     // task owns a contiguous run of nodes (the children of its splits one level up) and
     // appends one to the next level, at the sum of the earlier tasks' runs.
     let below: usize = records.iter().flatten().map(|splits| splits.children).sum();
-    let placeholder = Node::topology(0, 0, NO_PARENT, 0);
     crate::prefault::populate(&mut nodes.spare_capacity_mut()[..below]);
     nodes.par_extend(rayon::iter::repeat_n(placeholder, below));
     let mut runs: Vec<usize> = vec![1; records.len()];
@@ -248,26 +256,6 @@ fn node_slices<'a>(
         });
     }
     slices
-}
-
-/// Appends the children of node `id` (their sizes in leaf order) and links them to it; inner
-/// nodes get bounds indices in the order they are linked.
-fn append_children(nodes: &mut Vec<Node>, id: usize, sizes: &[u32], inner_count: &mut u32) {
-    let parent = nodes[id];
-    nodes[id].first_child = nodes.len() as u32;
-    nodes[id].child_count = sizes.len() as u8;
-    nodes[id].bounds = *inner_count;
-    *inner_count += 1;
-    let mut begin = parent.leaf_begin;
-    for &size in sizes {
-        nodes.push(Node::topology(
-            begin,
-            begin + size,
-            id as u32,
-            parent.depth + 1,
-        ));
-        begin += size;
-    }
 }
 
 /// Links the nodes `mine` (ids from `id`) to their children, which it writes to `children`
@@ -560,16 +548,20 @@ mod tests {
         assert_eq!(c.nodes.iter().filter(|n| n.child_count == 0).count(), 3);
     }
 
-    #[test]
-    fn splits_in_parallel_tasks_match_one_sequential_split() {
-        // Clustered and repeated positions, so octants are uneven and some chunks miss some.
-        let mut seed = 7u64;
-        let mut random = move || {
+    /// Deterministic values in `[0, 1)` (xorshift), for test scenes.
+    fn randoms(mut seed: u64) -> impl FnMut() -> f32 {
+        move || {
             seed ^= seed << 13;
             seed ^= seed >> 7;
             seed ^= seed << 17;
             (seed >> 40) as f32 / (1u64 << 24) as f32
-        };
+        }
+    }
+
+    #[test]
+    fn splits_in_parallel_tasks_match_one_sequential_split() {
+        // Clustered and repeated positions, so octants are uneven and some chunks miss some.
+        let mut random = randoms(7);
         let from: Vec<Item> = (0..5000u32)
             .map(|vertex| {
                 let p = [random(), random() * random(), 0.25 * random()];
@@ -592,13 +584,7 @@ mod tests {
     fn depth_first_tasks_build_the_same_tree_as_levels() {
         // Clusters at several scales, coincident runs and a thin plate, so that levels mix
         // leaves, balanced-chunk splits and octant splits.
-        let mut seed = 11u64;
-        let mut random = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut random = randoms(11);
         let positions: Vec<[f32; 3]> = (0..20_000u32)
             .map(|i| match i % 5 {
                 0 => [0.25; 3],
