@@ -163,6 +163,9 @@ impl NormalCone {
 
     /// The two-sided cone containing two two-sided cones: `other`'s axis, which stands for
     /// itself and its opposite, is taken on `self`'s side before the one-sided merge.
+    // Inlined into the build's wide kernels (`crate::isa`), which would call a baseline
+    // copy otherwise.
+    #[inline(always)]
     pub fn merge_two_sided(&self, other: &NormalCone) -> NormalCone {
         if !self.is_empty() && !other.is_empty() && dot(self.axis, other.axis) < 0.0 {
             return self.merge(&NormalCone {
@@ -174,6 +177,7 @@ impl NormalCone {
     }
 
     /// The smallest cone containing both cones (as an axis rotation in their common plane).
+    #[inline(always)]
     pub fn merge(&self, other: &NormalCone) -> NormalCone {
         if other.is_empty() {
             return *self;

@@ -11,7 +11,8 @@ use rayon::prelude::*;
 use vds_import::Scene;
 
 use crate::bounds::{Aabb, NormalCone, round_up_f32};
-use crate::octree::cluster;
+use crate::isa::{Isa, dispatched};
+use crate::octree::cluster_with;
 use crate::prefault::filled;
 use crate::quadric::{Quadric, cross, dot, sub};
 use crate::tree::{Node, NodeBounds, VertexTree};
@@ -43,12 +44,17 @@ pub fn build_tree(scene: &Scene) -> VertexTree {
 
 /// Builds the vertex tree of a scene and reports how long each phase took.
 pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
+    build_tree_with(scene, Isa::detect())
+}
+
+/// [`build_tree_timed`] with the kernels compiled for `isa`.
+fn build_tree_with(scene: &Scene, isa: Isa) -> (VertexTree, BuildTimings) {
     let mut timings = BuildTimings::default();
     if scene.positions.is_empty() {
         return (VertexTree::default(), timings);
     }
     let start = Instant::now();
-    let clustering = cluster(&scene.positions);
+    let clustering = cluster_with(&scene.positions, isa);
     timings.cluster = start.elapsed();
 
     // The adjacency and the leaf-rank tables are each one thread's scatter: built side by
@@ -69,6 +75,7 @@ pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
             leaf_vertex: &clustering.leaf_vertex,
             adjacency: &adjacency,
             leaf_positions: &clustering.leaf_positions,
+            isa,
         },
     );
     timings.attributes = start.elapsed();
@@ -171,6 +178,7 @@ struct Inputs<'a> {
     leaf_vertex: &'a [u32],
     adjacency: &'a Adjacency,
     leaf_positions: &'a [[f32; 3]],
+    isa: Isa,
 }
 
 /// Subtrees filled as one task hold at most this share of all leaves (or
@@ -280,11 +288,11 @@ fn compute_attributes(nodes: &[Node], levels: &[u32], inputs: &Inputs) -> Vec<No
                 let family = &below_ref[first..first + usize::from(node.child_count)];
                 let mut sum = family[0].0;
                 for (child, _) in &family[1..] {
-                    sum.absorb(child);
+                    absorb_on(inputs.isa, &mut sum, child);
                 }
                 let spheres = family.iter().map(|&(_, sphere)| sphere);
                 let (node_bounds, sphere) =
-                    inner_attributes(node, spheres, &sum, inputs.leaf_positions);
+                    inner_attributes_on(inputs.isa, node, spheres, &sum, inputs.leaf_positions);
                 ((sum, sphere), Some(node_bounds))
             })
             .collect();
@@ -302,7 +310,8 @@ impl Inputs<'_> {
     /// A leaf's accumulator and sphere.
     fn leaf(&self, node: &Node, scratch: &mut LeafScratch) -> (Accumulator, Sphere) {
         let vertex = self.leaf_vertex[node.leaf_begin as usize];
-        leaf_attributes(vertex, self.scene, self.adjacency.of(vertex), scratch)
+        let incident = self.adjacency.of(vertex);
+        leaf_attributes_on(self.isa, vertex, self.scene, incident, scratch)
     }
 
     /// Fills the bounds of node `id`'s subtree and returns its accumulator and sphere.
@@ -330,11 +339,12 @@ impl Inputs<'_> {
         spheres[0] = sphere;
         for k in 1..usize::from(node.child_count) {
             let (child, sphere) = self.fill_subtree(nodes, deeper, first + k, scratch);
-            sum.absorb(&child);
+            absorb_on(self.isa, &mut sum, &child);
             spheres[k] = sphere;
         }
         let spheres = spheres[..usize::from(node.child_count)].iter().copied();
-        let (node_bounds, sphere) = inner_attributes(node, spheres, &sum, self.leaf_positions);
+        let (node_bounds, sphere) =
+            inner_attributes_on(self.isa, node, spheres, &sum, self.leaf_positions);
         this_level[(node.bounds - *first_index) as usize] = node_bounds;
         (sum, sphere)
     }
@@ -350,7 +360,19 @@ struct LeafScratch {
     normals: Vec<[f64; 3]>,
 }
 
-/// A leaf's accumulator and sphere, from its incident triangles.
+dispatched! {
+    /// [`leaf_attributes`] compiled for `isa`.
+    fn leaf_attributes_on(
+        vertex: u32,
+        scene: &Scene,
+        incident: &[u32],
+        scratch: &mut LeafScratch,
+    ) -> (Accumulator, Sphere) = leaf_attributes;
+}
+
+/// A leaf's accumulator and sphere, from its incident triangles. (Inlined into both
+/// compilations of [`leaf_attributes_on`], as the other kernels are into theirs.)
+#[inline(always)]
 fn leaf_attributes(
     vertex: u32,
     scene: &Scene,
@@ -436,9 +458,15 @@ fn leaf_attributes(
     (accumulator, sphere)
 }
 
+dispatched! {
+    /// [`Accumulator::absorb`] compiled for `isa`.
+    fn absorb_on(sum: &mut Accumulator, other: &Accumulator) = Accumulator::absorb;
+}
+
 impl Accumulator {
     /// Adds `other` in place (a 224-byte accumulator moved in and out per child cost
     /// copies; the sums and their order are the same).
+    #[inline(always)]
     fn absorb(&mut self, other: &Accumulator) {
         let before = self.cone;
         self.quadric.add(&other.quadric);
@@ -459,8 +487,19 @@ impl Accumulator {
     }
 }
 
+dispatched! {
+    /// [`inner_attributes`] compiled for `isa`.
+    fn inner_attributes_on(
+        node: &Node,
+        child_spheres: impl Iterator<Item = Sphere>,
+        sum: &Accumulator,
+        leaf_positions: &[[f32; 3]],
+    ) -> (NodeBounds, Sphere) = inner_attributes;
+}
+
 /// An inner node's proxy and bounds from its children's accumulated sum and their spheres,
 /// and the sphere it passes up.
+#[inline(always)]
 fn inner_attributes(
     node: &Node,
     child_spheres: impl Iterator<Item = Sphere>,
@@ -572,4 +611,64 @@ fn assign_subtris(tree: &mut VertexTree, triangles: &[[u32; 3]]) {
         counts[node as usize] += 1;
     }
     tree.subtris = subtris;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The wide kernels (`crate::isa`) must build the tree the baseline ones build, bit for
+    /// bit, or `.vdt` files would depend on the CPU that built them.
+    #[test]
+    fn wide_kernels_build_the_same_tree_as_baseline_ones() {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../testdata/as1_assembly.obj"
+        );
+        let mut scene = vds_import::load_file(path, &Default::default()).expect("test mesh");
+        // A thin shell and coincident, differently oriented triangles besides the CAD parts,
+        // so two-sided cones and exactly parallel cone axes both occur.
+        let base = scene.positions.len() as u32;
+        for k in 0..64u32 {
+            let x = k as f32 * 0.37;
+            scene
+                .positions
+                .extend([[x, 0.0, 5.0], [x + 0.3, 0.0, 5.0], [x, 0.3, 5.0]]);
+            let v = base + 3 * k;
+            let triangle = if k % 2 == 0 {
+                [v, v + 1, v + 2]
+            } else {
+                [v, v + 2, v + 1]
+            };
+            scene.triangles.push(triangle);
+            scene.triangle_parts.push(0);
+        }
+        let isa = Isa::detect();
+        #[cfg(target_arch = "x86_64")]
+        assert!(
+            isa.is_wide(),
+            "comparing the two compilations needs an x86-64 CPU with AVX2, BMI1/2 and LZCNT"
+        );
+        let (wide, _) = build_tree_with(&scene, isa);
+        let (baseline, _) = build_tree_with(&scene, Isa::BASELINE);
+        assert!(wide.nodes.len() > 5_000, "{} nodes", wide.nodes.len());
+        assert!(wide.bounds.iter().any(|b| b.cone_two_sided));
+        assert_eq!(wide, baseline);
+        // Compared as bits: equal values with different bits (−0.0, NaN payloads) would
+        // still change a file.
+        let bits = |tree: &VertexTree| -> Vec<u32> {
+            tree.bounds
+                .iter()
+                .flat_map(|b| {
+                    let mut words = vec![b.error_radius, b.sphere_radius, b.cone_half_angle];
+                    words.extend(b.proxy.iter().chain(&b.sphere_center).chain(&b.cone_axis));
+                    words
+                        .into_iter()
+                        .map(f32::to_bits)
+                        .chain([u32::from(b.cone_two_sided)])
+                })
+                .collect()
+        };
+        assert_eq!(bits(&wide), bits(&baseline));
+    }
 }

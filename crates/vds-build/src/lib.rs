@@ -12,6 +12,7 @@
 
 pub mod bounds;
 mod build;
+mod isa;
 pub mod octree;
 mod prefault;
 pub mod quadric;

@@ -26,6 +26,7 @@
 use rayon::prelude::*;
 
 use crate::bounds::Aabb;
+use crate::isa::{Isa, dispatched};
 use crate::tree::Node;
 
 /// No parent (the root).
@@ -64,14 +65,19 @@ fn bounds_of(items: &[Item]) -> Aabb {
 
 /// Clusters `positions` (at least one) into a tight octree.
 pub fn cluster(positions: &[[f32; 3]]) -> Clustering {
+    cluster_with(positions, Isa::detect())
+}
+
+/// [`cluster`] with the splits compiled for `isa`.
+pub(crate) fn cluster_with(positions: &[[f32; 3]], isa: Isa) -> Clustering {
     let task_items = (positions.len() / TASK_SHARE).max(MIN_TASK_ITEMS);
-    cluster_in_tasks(positions, task_items)
+    cluster_in_tasks(positions, task_items, isa)
 }
 
 /// [`cluster`], splitting level by level near the root until every node holds at most
 /// `task_items` vertices, and each subtree below depth first. The tree is the same whatever
 /// `task_items` is.
-fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize) -> Clustering {
+fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize, isa: Isa) -> Clustering {
     assert!(!positions.is_empty(), "cluster() needs at least one vertex");
     assert!(
         positions.len() < u32::MAX as usize,
@@ -126,7 +132,7 @@ fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize) -> Clustering {
         }
         let splits: Vec<Children> = work
             .into_par_iter()
-            .map(|(from, to)| split(from, to))
+            .map(|(from, to)| split_on(isa, from, to))
             .collect();
         reading_first = !reading_first;
         let next_start = nodes.len();
@@ -163,7 +169,7 @@ fn cluster_in_tasks(positions: &[[f32; 3]], task_items: usize) -> Clustering {
         .into_par_iter()
         .map(|(from, to)| {
             let mut records = Vec::new();
-            split_depth_first(from, to, reading_first, 0, &mut records);
+            split_depth_first(from, to, reading_first, 0, &mut records, isa);
             records
         })
         .collect();
@@ -354,6 +360,7 @@ fn split_depth_first(
     from_is_first: bool,
     level: usize,
     records: &mut Vec<LevelSplits>,
+    isa: Isa,
 ) {
     if from.len() == 1 {
         if !from_is_first {
@@ -361,7 +368,7 @@ fn split_depth_first(
         }
         return;
     }
-    let children = split(from, to);
+    let children = split_on(isa, from, to);
     if records.len() == level {
         records.push(LevelSplits::default());
     }
@@ -374,7 +381,14 @@ fn split_depth_first(
         rest_to = tail;
         let (child_from, tail) = std::mem::take(&mut rest_from).split_at_mut(size as usize);
         rest_from = tail;
-        split_depth_first(child_to, child_from, !from_is_first, level + 1, records);
+        split_depth_first(
+            child_to,
+            child_from,
+            !from_is_first,
+            level + 1,
+            records,
+            isa,
+        );
     }
 }
 
@@ -398,12 +412,20 @@ impl Children {
 /// hold a few nodes with most of the vertices, which one thread each would partition alone.
 const ITEMS_PER_TASK: usize = 1 << 16;
 
+dispatched! {
+    /// [`split`] compiled for `isa`.
+    fn split_on(from: &[Item], to: &mut [Item]) -> Children = split;
+}
+
 /// Writes `from` (≥ 2 items) into `to`, grouped by child in order, and returns the children.
+/// (Inlined into both compilations of [`split_on`].)
+#[inline(always)]
 fn split(from: &[Item], to: &mut [Item]) -> Children {
     split_in_tasks(from, to, ITEMS_PER_TASK)
 }
 
 /// [`split`], cutting `from` into parallel tasks of `items_per_task` when it is longer.
+#[inline(always)]
 fn split_in_tasks(from: &[Item], to: &mut [Item], items_per_task: usize) -> Children {
     let large = from.len() > items_per_task;
     let Aabb { min, max } = if large {
@@ -593,9 +615,9 @@ mod tests {
                 _ => [random(), random() * random(), 0.25 * random()],
             })
             .collect();
-        let level_by_level = cluster_in_tasks(&positions, 1);
+        let level_by_level = cluster_in_tasks(&positions, 1, Isa::detect());
         for task_items in [2, 100, 4096, usize::MAX] {
-            let clustering = cluster_in_tasks(&positions, task_items);
+            let clustering = cluster_in_tasks(&positions, task_items, Isa::detect());
             assert!(clustering == level_by_level, "task size {task_items}");
         }
         assert_eq!(cluster(&positions), level_by_level);

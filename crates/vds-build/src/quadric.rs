@@ -95,6 +95,8 @@ impl Quadric {
 
     /// The point minimising the error, solved around `mean` along well-conditioned
     /// directions only (rank-truncated pseudo-inverse).
+    // Inlined into the build's wide kernels (`crate::isa`), as is `symmetric_eigen`.
+    #[inline(always)]
     pub fn minimizer_near(&self, mean: [f64; 3]) -> [f64; 3] {
         let (values, vectors) = symmetric_eigen(self.a);
         let largest = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -119,6 +121,7 @@ impl Quadric {
 
 /// Eigenvalues and unit eigenvectors of a symmetric 3×3 matrix (upper triangle
 /// `xx, xy, xz, yy, yz, zz`), by cyclic Jacobi rotations.
+#[inline(always)]
 pub fn symmetric_eigen(upper: [f64; 6]) -> ([f64; 3], [[f64; 3]; 3]) {
     let mut m = [
         [upper[0], upper[1], upper[2]],
