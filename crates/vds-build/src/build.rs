@@ -24,9 +24,10 @@ pub struct BuildTimings {
     pub cluster: Duration,
     /// Vertex → triangle adjacency.
     pub adjacency: Duration,
-    /// Quadrics, proxies, error radii, spheres and cones.
+    /// Quadrics, proxies, error radii, spheres and cones, and, beside them on the same
+    /// threads, sorting the triangles into each node's subtris.
     pub attributes: Duration,
-    /// Assigning triangles to nodes as subtris.
+    /// Storing each node's subtri range once both are done.
     pub subtris: Duration,
 }
 
@@ -66,24 +67,9 @@ fn build_tree_with(scene: &Scene, isa: Isa) -> (VertexTree, BuildTimings) {
     );
     timings.adjacency = start.elapsed();
 
-    let start = Instant::now();
-    let bounds = compute_attributes(
-        &clustering.nodes,
-        &clustering.level_starts,
-        &Inputs {
-            scene,
-            leaf_vertex: &clustering.leaf_vertex,
-            adjacency: &adjacency,
-            leaf_positions: &clustering.leaf_positions,
-            isa,
-        },
-    );
-    timings.attributes = start.elapsed();
-    drop(adjacency);
-
     let mut tree = VertexTree {
         nodes: clustering.nodes,
-        bounds,
+        bounds: Vec::new(),
         leaf_positions: clustering.leaf_positions,
         leaf_vertex: clustering.leaf_vertex,
         vertex_rank,
@@ -91,8 +77,34 @@ fn build_tree_with(scene: &Scene, isa: Isa) -> (VertexTree, BuildTimings) {
         subtris: Vec::new(),
         level_starts: clustering.level_starts,
     };
+    // Sorting triangles into subtris needs the topology and the leaf tables, not the
+    // attributes, so it runs beside them: its counting sort is one thread's scattered writes,
+    // which wait on memory, while the attributes are arithmetic that fills both cores; side
+    // by side the sort's thread no longer leaves the other core idle.
     let start = Instant::now();
-    assign_subtris(&mut tree, &scene.triangles);
+    let (bounds, (subtri_ends, subtris)) = rayon::join(
+        || {
+            compute_attributes(
+                &tree.nodes,
+                &tree.level_starts,
+                &Inputs {
+                    scene,
+                    leaf_vertex: &tree.leaf_vertex,
+                    adjacency: &adjacency,
+                    leaf_positions: &tree.leaf_positions,
+                    isa,
+                },
+            )
+        },
+        || sort_subtris(&tree, &scene.triangles),
+    );
+    timings.attributes = start.elapsed();
+    drop(adjacency);
+
+    let start = Instant::now();
+    tree.bounds = bounds;
+    set_subtri_ranges(&mut tree.nodes, &subtri_ends);
+    tree.subtris = subtris;
     timings.subtris = start.elapsed();
     (tree, timings)
 }
@@ -587,30 +599,36 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     dot(d, d).sqrt()
 }
 
-/// Fills `tree.subtris` and each node's subtri range.
-fn assign_subtris(tree: &mut VertexTree, triangles: &[[u32; 3]]) {
+/// The triangles sorted by the node they are a subtri of (a counting sort, stable), and the
+/// end of each node's run in that order.
+fn sort_subtris(tree: &VertexTree, triangles: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
     let owner: Vec<u32> = triangles.par_iter().map(|&t| tree.subtri_node(t)).collect();
-    let mut counts = filled(tree.nodes.len() + 1, 0u32);
+    // `ends[id]` starts as the count of the nodes before `id`, where its run starts, and is
+    // advanced past each subtri written: at the end it is where the run ends.
+    let mut ends = filled(tree.nodes.len() + 1, 0u32);
     for &node in &owner {
-        counts[node as usize + 1] += 1;
+        ends[node as usize + 1] += 1;
     }
     for i in 0..tree.nodes.len() {
-        counts[i + 1] += counts[i];
+        ends[i + 1] += ends[i];
     }
-    // In parallel: a pass over every node, the whole node array.
-    tree.nodes
-        .par_iter_mut()
-        .enumerate()
-        .for_each(|(id, node)| {
-            node.subtri_begin = counts[id];
-            node.subtri_end = counts[id + 1];
-        });
     let mut subtris = filled(triangles.len(), 0u32);
     for (t, &node) in owner.iter().enumerate() {
-        subtris[counts[node as usize] as usize] = t as u32;
-        counts[node as usize] += 1;
+        subtris[ends[node as usize] as usize] = t as u32;
+        ends[node as usize] += 1;
     }
-    tree.subtris = subtris;
+    ends.pop();
+    (ends, subtris)
+}
+
+/// Sets each node's subtri range from the ends of the runs ([`sort_subtris`]): a node's run
+/// starts where the previous node's ends.
+fn set_subtri_ranges(nodes: &mut [Node], ends: &[u32]) {
+    // In parallel: a pass over every node, the whole node array.
+    nodes.par_iter_mut().enumerate().for_each(|(id, node)| {
+        node.subtri_begin = if id == 0 { 0 } else { ends[id - 1] };
+        node.subtri_end = ends[id];
+    });
 }
 
 #[cfg(test)]
