@@ -44,6 +44,7 @@ impl Isa {
     }
 
     /// True when the wide kernels run: this CPU has every extension they are compiled for.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     pub(crate) fn is_wide(self) -> bool {
         self.wide
     }
