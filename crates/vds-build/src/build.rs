@@ -281,7 +281,10 @@ fn compute_attributes(nodes: &[Node], levels: &[u32], inputs: &Inputs) -> Vec<No
         .into_par_iter()
         .enumerate()
         .map_init(LeafScratch::default, |scratch, (root, mut task)| {
-            inputs.fill_subtree(nodes, &mut task, frontier_start + root, scratch)
+            let mut sum = Accumulator::EMPTY;
+            let sphere =
+                inputs.fill_subtree(nodes, &mut task, frontier_start + root, scratch, &mut sum);
+            (sum, sphere)
         })
         .collect();
 
@@ -294,7 +297,9 @@ fn compute_attributes(nodes: &[Node], levels: &[u32], inputs: &Inputs) -> Vec<No
             .par_iter()
             .map_init(LeafScratch::default, |scratch, node| {
                 if node.is_leaf() {
-                    return (inputs.leaf(node, scratch), None);
+                    let mut sum = Accumulator::EMPTY;
+                    let sphere = inputs.leaf(node, scratch, &mut sum);
+                    return ((sum, sphere), None);
                 }
                 let first = (node.first_child - next_start) as usize;
                 let family = &below_ref[first..first + usize::from(node.child_count)];
@@ -320,25 +325,28 @@ fn compute_attributes(nodes: &[Node], levels: &[u32], inputs: &Inputs) -> Vec<No
 
 impl Inputs<'_> {
     /// A leaf's accumulator and sphere.
-    fn leaf(&self, node: &Node, scratch: &mut LeafScratch) -> (Accumulator, Sphere) {
+    fn leaf(&self, node: &Node, scratch: &mut LeafScratch, out: &mut Accumulator) -> Sphere {
         let vertex = self.leaf_vertex[node.leaf_begin as usize];
         let incident = self.adjacency.of(vertex);
-        leaf_attributes_on(self.isa, vertex, self.scene, incident, scratch)
+        leaf_attributes_on(self.isa, vertex, self.scene, incident, scratch, out)
     }
 
-    /// Fills the bounds of node `id`'s subtree and returns its accumulator and sphere.
-    /// `levels` holds the subtree's bounds on each level from `id`'s down, each slice with
-    /// the bounds index of its first entry.
+    /// Fills the bounds of node `id`'s subtree, writes its accumulator to `sum` and returns
+    /// its sphere. `levels` holds the subtree's bounds on each level from `id`'s down, each
+    /// slice with the bounds index of its first entry. (Accumulators are written in place,
+    /// not returned: returning 224 bytes through each level of the recursion cost a copy each
+    /// time, 2 % of a build.)
     fn fill_subtree(
         &self,
         nodes: &[Node],
         levels: &mut [(u32, &mut [NodeBounds])],
         id: usize,
         scratch: &mut LeafScratch,
-    ) -> (Accumulator, Sphere) {
+        sum: &mut Accumulator,
+    ) -> Sphere {
         let node = &nodes[id];
         if node.is_leaf() {
-            return self.leaf(node, scratch);
+            return self.leaf(node, scratch, sum);
         }
         let ((first_index, this_level), deeper) =
             levels.split_first_mut().expect("the node's level");
@@ -347,18 +355,17 @@ impl Inputs<'_> {
             center: [0.0; 3],
             radius: 0.0,
         }; 8];
-        let (mut sum, sphere) = self.fill_subtree(nodes, deeper, first, scratch);
-        spheres[0] = sphere;
+        spheres[0] = self.fill_subtree(nodes, deeper, first, scratch, sum);
+        let mut child = Accumulator::EMPTY;
         for k in 1..usize::from(node.child_count) {
-            let (child, sphere) = self.fill_subtree(nodes, deeper, first + k, scratch);
-            absorb_on(self.isa, &mut sum, &child);
-            spheres[k] = sphere;
+            spheres[k] = self.fill_subtree(nodes, deeper, first + k, scratch, &mut child);
+            absorb_on(self.isa, sum, &child);
         }
         let spheres = spheres[..usize::from(node.child_count)].iter().copied();
         let (node_bounds, sphere) =
-            inner_attributes_on(self.isa, node, spheres, &sum, self.leaf_positions);
+            inner_attributes_on(self.isa, node, spheres, sum, self.leaf_positions);
         this_level[(node.bounds - *first_index) as usize] = node_bounds;
-        (sum, sphere)
+        sphere
     }
 }
 
@@ -379,10 +386,11 @@ dispatched! {
         scene: &Scene,
         incident: &[u32],
         scratch: &mut LeafScratch,
-    ) -> (Accumulator, Sphere) = leaf_attributes;
+        out: &mut Accumulator,
+    ) -> Sphere = leaf_attributes;
 }
 
-/// A leaf's accumulator and sphere, from its incident triangles. (Inlined into both
+/// A leaf's accumulator (written to `out`) and sphere, from its incident triangles. (Inlined into both
 /// compilations of [`leaf_attributes_on`], as the other kernels are into theirs.)
 #[inline(always)]
 fn leaf_attributes(
@@ -390,7 +398,8 @@ fn leaf_attributes(
     scene: &Scene,
     incident: &[u32],
     scratch: &mut LeafScratch,
-) -> (Accumulator, Sphere) {
+    out: &mut Accumulator,
+) -> Sphere {
     let position = scene.positions[vertex as usize];
     let p = widen(position);
     // Σ area·n·nᵀ of the incident planes; they all pass through this vertex, which gives
@@ -459,7 +468,7 @@ fn leaf_attributes(
     };
     let mut vertex_box = Aabb::EMPTY;
     vertex_box.add_point(position);
-    let accumulator = Accumulator {
+    *out = Accumulator {
         quadric: Quadric::through_point(moments, p),
         position_sum: p,
         vertex_box,
@@ -467,7 +476,7 @@ fn leaf_attributes(
         cone,
         two_sided,
     };
-    (accumulator, sphere)
+    sphere
 }
 
 dispatched! {
@@ -476,6 +485,20 @@ dispatched! {
 }
 
 impl Accumulator {
+    /// A placeholder to be overwritten (the sum of nothing).
+    const EMPTY: Accumulator = Accumulator {
+        quadric: Quadric {
+            a: [0.0; 6],
+            b: [0.0; 3],
+            c: 0.0,
+        },
+        position_sum: [0.0; 3],
+        vertex_box: Aabb::EMPTY,
+        triangle_box: Aabb::EMPTY,
+        cone: NormalCone::EMPTY,
+        two_sided: None,
+    };
+
     /// Adds `other` in place (a 224-byte accumulator moved in and out per child cost
     /// copies; the sums and their order are the same).
     #[inline(always)]
