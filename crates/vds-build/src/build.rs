@@ -390,8 +390,9 @@ dispatched! {
     ) -> Sphere = leaf_attributes;
 }
 
-/// A leaf's accumulator (written to `out`) and sphere, from its incident triangles. (Inlined into both
-/// compilations of [`leaf_attributes_on`], as the other kernels are into theirs.)
+/// A leaf's accumulator (written to `out`) and sphere, from its incident triangles.
+/// (Inlined into both compilations of [`leaf_attributes_on`], as the other kernels are into
+/// theirs.)
 #[inline(always)]
 fn leaf_attributes(
     vertex: u32,
@@ -626,8 +627,8 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// end of each node's run in that order.
 fn sort_subtris(tree: &VertexTree, triangles: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
     let owner: Vec<u32> = triangles.par_iter().map(|&t| tree.subtri_node(t)).collect();
-    // `ends[id]` starts as the count of the nodes before `id`, where its run starts, and is
-    // advanced past each subtri written: at the end it is where the run ends.
+    // `ends[id]` starts as the number of subtris of the nodes before `id`, where its run
+    // starts, and is advanced past each subtri written: at the end it is where the run ends.
     let mut ends = filled(tree.nodes.len() + 1, 0u32);
     for &node in &owner {
         ends[node as usize + 1] += 1;
@@ -667,8 +668,8 @@ mod tests {
             "/../../testdata/as1_assembly.obj"
         );
         let mut scene = vds_import::load_file(path, &Default::default()).expect("test mesh");
-        // A thin shell and coincident, differently oriented triangles besides the CAD parts,
-        // so two-sided cones and exactly parallel cone axes both occur.
+        // Besides the CAD parts, a row of coplanar triangles of alternating winding (normals
+        // exactly ±z), so two-sided cones and exactly parallel cone axes both occur.
         let base = scene.positions.len() as u32;
         for k in 0..64u32 {
             let x = k as f32 * 0.37;
