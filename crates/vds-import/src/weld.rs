@@ -329,15 +329,21 @@ fn tolerance_representatives(positions: &[[f32; 3]], tolerance: f64) -> Vec<u32>
 mod tests {
     use super::*;
 
+    /// One step of a xorshift generator: the next state, which is also the value drawn.
+    fn xorshift(seed: &mut u64) -> u64 {
+        *seed ^= *seed << 13;
+        *seed ^= *seed >> 7;
+        *seed ^= *seed << 17;
+        *seed
+    }
+
     /// Positions with many exact repeats (and `-0.0` beside `0.0`), over several chunks and
     /// buckets.
     fn repeating_positions(n: usize) -> Vec<[f32; 3]> {
         let mut seed = 0x2545_F491_4F6C_DD1Du64;
         (0..n)
             .map(|_| {
-                seed ^= seed << 13;
-                seed ^= seed >> 7;
-                seed ^= seed << 17;
+                xorshift(&mut seed);
                 let pick = (seed % 50_000) as f32;
                 let sign = if seed >> 63 == 0 { 1.0 } else { -1.0 };
                 [pick * 0.25, (pick * 0.5).floor(), sign * 0.0]
@@ -412,12 +418,7 @@ mod tests {
     fn weld_matches_the_reference_with_repeats_degenerates_and_unused_vertices() {
         let positions = repeating_positions(2 * WELD_CHUNK + 77);
         let mut seed = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = move |n: usize| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed % n as u64) as u32
-        };
+        let mut next = move |n: usize| (xorshift(&mut seed) % n as u64) as u32;
         // Corners drawn from the first half only, so the second half's vertices go unused;
         // some triangles repeat an index, more collapse when welded.
         let half = positions.len() / 2;
