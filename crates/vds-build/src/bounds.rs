@@ -4,6 +4,11 @@
 //!
 //! Everything is computed in `f64` and rounded outwards when stored as `f32`, so stored bounds
 //! stay conservative.
+//!
+//! Angles use the `libm` crate's `acos`, `atan2` and `sincos` rather than the platform's: the
+//! system library picks an implementation by CPU at run time (glibc has FMA and non-FMA
+//! versions, which may round differently), so the same input could give different `.vdt`
+//! bytes on two machines. `libm` is plain Rust arithmetic, the same everywhere.
 
 use crate::quadric::{cross, dot, sub};
 
@@ -153,7 +158,7 @@ impl NormalCone {
         let half_angle = if min_cos >= 1.0 {
             0.0
         } else {
-            min_cos.clamp(-1.0, 1.0).acos()
+            libm::acos(min_cos.clamp(-1.0, 1.0))
         };
         NormalCone {
             axis,
@@ -193,7 +198,7 @@ impl NormalCone {
         if self.surely_contains(other, sin_between, cos_between) {
             return *self;
         }
-        let between = sin_between.atan2(cos_between);
+        let between = libm::atan2(sin_between, cos_between);
         if between + other.half_angle <= self.half_angle {
             return *self;
         }
@@ -218,7 +223,7 @@ impl NormalCone {
         }
         // Unit vector in the plane of both axes, perpendicular to self.axis, towards other.
         let towards = cross(normal, self.axis).map(|c| c / sin_between);
-        let (s, c) = rotate_by.sin_cos();
+        let (s, c) = libm::sincos(rotate_by);
         let axis = [0, 1, 2].map(|k| c * self.axis[k] + s * towards[k]);
         let length = dot(axis, axis).sqrt();
         NormalCone {
@@ -259,7 +264,7 @@ impl NormalCone {
 /// The angle between two unit vectors, robust near 0 and π (atan2 of sine and cosine).
 pub fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {
     let c = cross(a, b);
-    dot(c, c).sqrt().atan2(dot(a, b))
+    libm::atan2(dot(c, c).sqrt(), dot(a, b))
 }
 
 /// A triangle's unit normal, or `None` when its area is zero.

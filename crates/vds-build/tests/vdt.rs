@@ -118,6 +118,29 @@ fn output_is_byte_identical_on_one_and_two_threads() {
     assert!(on(1) == on(2));
 }
 
+/// The same input gives the same bytes on every machine, not only on every thread count: the
+/// digests below were recorded on the dev machine, and CI checks them on its own. Nothing in
+/// the build may depend on the CPU (the wide kernels compute what the baseline ones do; angles
+/// come from the `libm` crate, not the system library, which picks code by CPU). A deliberate
+/// change to the builder or the format changes these digests: print the new ones with
+/// `cargo test -p vds-build --test vdt -- --nocapture digests` and update them here.
+#[test]
+fn output_digests_are_the_same_on_every_machine() {
+    let mut differ = Vec::new();
+    for (name, expected) in [
+        ("bunny.obj", 0xd21d50097c552351u64),
+        ("as1_assembly.obj", 0xd07f5f550a186d20),
+        ("bone.ply", 0xb765242e63dbe078),
+    ] {
+        let digest = xxh3_64(&encoded(name, &WriteOptions::default()));
+        println!("digests: {name} {digest:#018x}");
+        if digest != expected {
+            differ.push(format!("{name}: {digest:#018x}, expected {expected:#018x}"));
+        }
+    }
+    assert!(differ.is_empty(), "{differ:?}");
+}
+
 #[test]
 fn write_is_atomic_and_leaves_no_partial_file() {
     let dir = std::env::temp_dir().join(format!("vds-vdt-test-{}", std::process::id()));

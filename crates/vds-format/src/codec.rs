@@ -108,6 +108,9 @@ fn unoctahedral(e: [u8; 2]) -> [f32; 3] {
     [x * inverse, y * inverse, z * inverse]
 }
 
+/// The angle between two vectors, with `libm`'s `atan2` (the same bits on every machine, unlike
+/// the system library's, which picks its code by CPU): it decides how far a cone is widened,
+/// so it reaches the file's bytes.
 fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
     let [a, b] = [a, b].map(|v| v.map(f64::from));
     let c = [
@@ -116,7 +119,7 @@ fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
         a[0] * b[1] - a[1] * b[0],
     ];
     let sin = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
-    sin.atan2(a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+    libm::atan2(sin, a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
 }
 
 /// Half-angles are stored in units of π / 254, rounded up; 255 marks the empty cone.
