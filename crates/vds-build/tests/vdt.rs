@@ -237,6 +237,21 @@ fn rejects_corrupted_page_by_checksum() {
         file.read_page(last_page),
         Err(VdtError::Checksum { .. })
     ));
+    // The undecoded streams are checked the same way, and the intact pages' are as long as
+    // the directory says.
+    assert!(matches!(
+        file.with_page_streams(last_page, |streams| streams.len()),
+        Err(VdtError::Checksum { .. })
+    ));
+    for index in 0..last_page {
+        let length = file
+            .with_page_streams(index, |streams| streams.len())
+            .unwrap();
+        assert_eq!(
+            length,
+            file.directory()[index as usize].raw_length.get() as usize
+        );
+    }
 }
 
 /// Recomputes every checksum so mutations reach the validation behind them.

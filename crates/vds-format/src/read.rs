@@ -395,6 +395,37 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         })
     }
 
+    /// Hands `look` page `index`'s stream table and streams, decompressed after its checksum
+    /// is verified and not decoded into records (from the thread's reused buffer, so nothing
+    /// is copied or allocated): for tools that study the page encoding, and for timing
+    /// decompression apart from decoding (`vds-bench decode`).
+    pub fn with_page_streams<R>(
+        &self,
+        index: u32,
+        look: impl FnOnce(&[u8]) -> R,
+    ) -> Result<R, VdtError> {
+        let entry = self
+            .directory
+            .get(index as usize)
+            .ok_or_else(|| VdtError::invalid("page index", format!("{index} is out of range")))?;
+        let what = format!("page {index}");
+        let frame = self.frame(entry);
+        check_sum(&what, frame, entry.checksum.get())?;
+        DECODER.with(|cell| {
+            let decoder = &mut *cell.borrow_mut();
+            decoder
+                .decompress(frame, entry.raw_length.get() as usize)
+                .map_err(|e| VdtError::Decompress {
+                    page: index,
+                    message: e.to_string(),
+                })?;
+            if decoder.raw.len() != entry.raw_length.get() as usize {
+                return Err(VdtError::invalid(&what, "decodes to the wrong size"));
+            }
+            Ok(look(&decoder.raw))
+        })
+    }
+
     /// Checks a decoded page's records against this file: tree links, leaf, subtri and child
     /// ranges, depths, finite non-negative bounds, corners and parts. Every page
     /// [`VdtFile::read_page_into`] returns already passes (the decoder checks the same as it

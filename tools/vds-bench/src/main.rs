@@ -336,8 +336,24 @@ fn decode(path: &Path, runs: usize) -> Result<()> {
             })
             .collect(),
     );
+    // What checksums and zstd alone take, in the same run: the part of the decode time that
+    // no page decoder can remove (docs/benchmarks.md, the .vdt section).
+    let unpack_seconds = median(
+        (0..runs.max(1))
+            .map(|_| {
+                let start = Instant::now();
+                for index in 0..file.directory().len() as u32 {
+                    file.with_page_streams(index, |streams| {
+                        std::hint::black_box(streams);
+                    })
+                    .expect("every page decompresses");
+                }
+                start.elapsed().as_secs_f64()
+            })
+            .collect(),
+    );
     println!(
-        "{}: {} pages, {:.1} MB compressed, {:.1} MB of page streams, records digest {:016x}\n  decode on one core {:.3} s (median of {runs}): {:.0} MB/s of page streams, {:.1} M triangles/s",
+        "{}: {} pages, {:.1} MB compressed, {:.1} MB of page streams, records digest {:016x}\n  decode on one core {:.3} s (median of {runs}): {:.0} MB/s of page streams, {:.1} M triangles/s\n  checksums and zstd alone {:.3} s: {:.0} MB/s of page streams, {:.0} % of the decode time",
         path.display(),
         file.directory().len(),
         compressed as f64 / 1e6,
@@ -345,7 +361,10 @@ fn decode(path: &Path, runs: usize) -> Result<()> {
         digest.digest(),
         seconds,
         raw as f64 / seconds / 1e6,
-        triangles / seconds / 1e6
+        triangles / seconds / 1e6,
+        unpack_seconds,
+        raw as f64 / unpack_seconds / 1e6,
+        100.0 * unpack_seconds / seconds
     );
     Ok(())
 }
