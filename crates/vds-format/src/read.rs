@@ -352,37 +352,20 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
     /// decoding page after page allocates nothing once its buffers have grown. On error the
     /// page's contents are unspecified.
     pub fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError> {
-        let entry = self
-            .directory
-            .get(index as usize)
-            .ok_or_else(|| VdtError::invalid("page index", format!("{index} is out of range")))?;
-        let what = format!("page {index}");
-        let frame = self.frame(entry);
-        check_sum(&what, frame, entry.checksum.get())?;
-        let h = &self.header;
-        let shape = crate::codec::PageShape {
-            first_node: entry.first_node.get(),
-            node_count: entry.node_count.get(),
-            first_triangle: entry.first_triangle.get(),
-            triangle_count: entry.triangle_count.get(),
-            file_nodes: h.node_count.get(),
-            file_vertices: h.vertex_count.get(),
-            max_depth: h.max_depth.get(),
-            parts: self.metadata.part_names.len() as u64,
-        };
-        page.first_node = shape.first_node;
-        page.first_triangle = shape.first_triangle;
-        DECODER.with(|cell| {
-            let decoder = &mut *cell.borrow_mut();
-            decoder
-                .decompress(frame, entry.raw_length.get() as usize)
-                .map_err(|e| VdtError::Decompress {
-                    page: index,
-                    message: e.to_string(),
-                })?;
-            if decoder.raw.len() != entry.raw_length.get() as usize {
-                return Err(VdtError::invalid(&what, "decodes to the wrong size"));
-            }
+        self.with_decompressed(index, |entry, what, decoder| {
+            let h = &self.header;
+            let shape = crate::codec::PageShape {
+                first_node: entry.first_node.get(),
+                node_count: entry.node_count.get(),
+                first_triangle: entry.first_triangle.get(),
+                triangle_count: entry.triangle_count.get(),
+                file_nodes: h.node_count.get(),
+                file_vertices: h.vertex_count.get(),
+                max_depth: h.max_depth.get(),
+                parts: self.metadata.part_names.len() as u64,
+            };
+            page.first_node = shape.first_node;
+            page.first_triangle = shape.first_triangle;
             crate::codec::decode_page(
                 &self.grid(),
                 &decoder.raw,
@@ -391,7 +374,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
                 &mut page.nodes,
                 &mut page.triangles,
             )
-            .map_err(|message| VdtError::invalid(&what, message))
+            .map_err(|message| VdtError::invalid(what, message))
         })
     }
 
@@ -403,6 +386,17 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         &self,
         index: u32,
         look: impl FnOnce(&[u8]) -> R,
+    ) -> Result<R, VdtError> {
+        self.with_decompressed(index, |_, _, decoder| Ok(look(&decoder.raw)))
+    }
+
+    /// Page `index`'s checksum verified and its frame decompressed into this thread's
+    /// decoder, then `then` with the page's directory entry, its name for errors and the
+    /// decoder.
+    fn with_decompressed<R>(
+        &self,
+        index: u32,
+        then: impl FnOnce(&PageEntry, &str, &mut PageDecoder) -> Result<R, VdtError>,
     ) -> Result<R, VdtError> {
         let entry = self
             .directory
@@ -422,7 +416,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
             if decoder.raw.len() != entry.raw_length.get() as usize {
                 return Err(VdtError::invalid(&what, "decodes to the wrong size"));
             }
-            Ok(look(&decoder.raw))
+            then(entry, &what, decoder)
         })
     }
 
