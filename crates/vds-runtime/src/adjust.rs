@@ -62,7 +62,8 @@ pub struct AdjustStats {
     pub unfolds: u32,
     /// Nodes folded.
     pub folds: u32,
-    /// Folds refused because they would flip a triangle.
+    /// Folds refused because they would flip a triangle (a fold tried again at the end of
+    /// the frame and refused again counts twice).
     pub refused_folds: u32,
 }
 
@@ -100,6 +101,8 @@ pub struct Adjuster {
     queued: Vec<u32>,
     work: Vec<u32>,
     stack: Vec<u32>,
+    /// Nodes whose fold mesh-fold prevention refused this frame, to try again at its end.
+    refused: Vec<u32>,
     unfold_queue: BinaryHeap<(Priority, Reverse<u32>)>,
     fold_queue: BinaryHeap<Reverse<(Priority, u32)>>,
     motion: MotionLog,
@@ -115,6 +118,7 @@ impl Adjuster {
             self.queued = vec![0; nodes];
         }
         self.stats = AdjustStats::default();
+        self.refused.clear();
     }
 
     /// The threshold decision for `id`. Not cached: the traversal asks each node at most
@@ -221,7 +225,27 @@ impl Adjuster {
                 }
             }
         }
+        self.retry_refused_folds(cut, judge, t, prevent_flips);
         Ok(self.stats)
+    }
+
+    /// Mesh-fold prevention refuses a fold for the triangles around the node as they are at
+    /// that moment; later folds and unfolds of the same frame can remove the triangle that
+    /// would have flipped. Refused folds are tried again, until a round folds nothing, so
+    /// that the frame ends with a settled cut: adjusting again for the same camera changes
+    /// nothing. Each round that goes on folds a node, so the rounds end.
+    fn retry_refused_folds(&mut self, cut: &mut Cut, judge: &Judge, t: f32, prevent: bool) {
+        while !self.refused.is_empty() {
+            let folds = self.stats.folds;
+            for id in std::mem::take(&mut self.refused) {
+                if cut.can_fold(id) && self.decision(cut, judge, t, id) == Decision::Fold {
+                    self.coarsen(cut, judge, t, id, prevent);
+                }
+            }
+            if self.stats.folds == folds {
+                return;
+            }
+        }
     }
 
     /// Unfolds `id` (which was decided to need it) and, recursively, each new boundary node
@@ -250,6 +274,7 @@ impl Adjuster {
         loop {
             if !cut.fold_node(id, prevent) {
                 self.stats.refused_folds += 1;
+                self.refused.push(id);
                 return;
             }
             self.stats.folds += 1;

@@ -1,6 +1,7 @@
 //! The method's invariants for the cut: the threshold guarantee, the budget's stopping rule,
 //! unfold-all/fold-all, coherence of incremental adjusts with a recomputation from scratch,
-//! the change journal a renderer applies, and the two corner-tracking strategies agreeing.
+//! the change journal a renderer applies, the two corner-tracking strategies agreeing, and one
+//! threshold adjust leaving a settled cut.
 
 mod common;
 
@@ -453,5 +454,63 @@ fn reused_tests_keep_the_threshold_on_smooth_paths() {
             reused > tested,
             "{name}: {reused} groups reused, {tested} tested: the paths should reuse most"
         );
+    }
+}
+
+/// One threshold adjust settles the cut: adjusting again for the same camera changes nothing.
+/// After an adjust every boundary node has passed its test and every fold candidate has
+/// failed its own (or was just unfolded because it failed it), so a second traversal finds
+/// nothing to do — whatever the criteria, and whether group tests are reused or made again.
+#[test]
+fn a_second_adjust_for_the_same_camera_changes_nothing() {
+    let gaze = vds_runtime::Gaze {
+        direction: [0.3, -0.2, -1.0],
+        falloff: 2.0,
+    };
+    let settings = [
+        Criteria::default(),
+        Criteria {
+            frustum: FrustumMode::Ignore,
+            ..Criteria::default()
+        },
+        Criteria {
+            prevent_mesh_folds: true,
+            ..Criteria::default()
+        },
+        Criteria {
+            gaze: Some(gaze),
+            silhouette_factor: None,
+            ..no_backface()
+        },
+    ];
+    for name in ["bunny.obj", "as1_assembly.obj"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let path = vds_runtime::CameraPath::fly_through(center, radius * 1.5, 30, 480, 320);
+        for (setting, criteria) in settings.iter().enumerate() {
+            let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+            let mut changed = 0;
+            for (frame, camera) in path.cameras.iter().enumerate() {
+                let view = Viewpoint::Camera(*camera);
+                let t = [1.0, 3.0][frame % 2];
+                let first = runtime.adjust(&view, criteria, Goal::Threshold(t)).unwrap();
+                changed += first.stats.folds + first.stats.unfolds;
+                let second = runtime.adjust(&view, criteria, Goal::Threshold(t)).unwrap();
+                let what = format!("{name}, criteria {setting}, frame {frame}");
+                assert_eq!(
+                    second.stats.folds, 0,
+                    "{what}: folded again ({:?})",
+                    second.stats
+                );
+                assert_eq!(second.stats.unfolds, 0, "{what}: unfolded again");
+                assert!(
+                    second.changes.dirty_slots.is_empty(),
+                    "{what}: slots changed"
+                );
+            }
+            runtime.cut_mut().check().unwrap();
+            assert!(changed > 1000, "{name}: the path should change the cut");
+        }
     }
 }
