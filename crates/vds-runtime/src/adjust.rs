@@ -101,7 +101,7 @@ pub struct Adjuster {
     queued: Vec<u32>,
     work: Vec<u32>,
     stack: Vec<u32>,
-    /// Nodes whose fold mesh-fold prevention refused this frame, to try again at its end.
+    /// Nodes whose fold mesh-fold prevention refused this frame, to try again.
     refused: Vec<u32>,
     unfold_queue: BinaryHeap<(Priority, Reverse<u32>)>,
     fold_queue: BinaryHeap<Reverse<(Priority, u32)>>,
@@ -336,6 +336,31 @@ impl Adjuster {
             self.stats.folds += 1;
             self.after_fold(cut, judge, f);
         }
+        self.exchange(cut, judge, budget, prevent_flips)?;
+        // Refused folds again (see `retry_refused_folds`): back in the queue after changes
+        // that may have removed the triangle they would have flipped.
+        while !self.refused.is_empty() {
+            let changes = self.stats.folds + self.stats.unfolds;
+            for f in std::mem::take(&mut self.refused) {
+                self.queue_fold(cut, judge, f);
+            }
+            self.exchange(cut, judge, budget, prevent_flips)?;
+            if self.stats.folds + self.stats.unfolds == changes {
+                break;
+            }
+        }
+        Ok(self.stats)
+    }
+
+    /// The budget's exchanges (see the module documentation) until the worst boundary node
+    /// does not fit and no cheaper candidate can fold.
+    fn exchange(
+        &mut self,
+        cut: &mut Cut,
+        judge: &Judge,
+        budget: u32,
+        prevent_flips: bool,
+    ) -> Result<(), VdtError> {
         while let Some(&(Priority(worst), Reverse(u))) = self.peek_unfold(cut) {
             if worst <= 0.0 {
                 break;
@@ -359,12 +384,13 @@ impl Adjuster {
                         self.after_fold(cut, judge, f);
                     } else {
                         self.stats.refused_folds += 1;
+                        self.refused.push(f);
                     }
                 }
                 _ => break,
             }
         }
-        Ok(self.stats)
+        Ok(())
     }
 
     fn after_fold(&mut self, cut: &Cut, judge: &Judge, id: u32) {

@@ -1,7 +1,7 @@
 //! The method's invariants for the cut: the threshold guarantee, the budget's stopping rule,
 //! unfold-all/fold-all, coherence of incremental adjusts with a recomputation from scratch,
 //! the change journal a renderer applies, the two corner-tracking strategies agreeing, and one
-//! threshold adjust leaving a settled cut.
+//! adjust leaving a settled cut.
 
 mod common;
 
@@ -457,12 +457,13 @@ fn reused_tests_keep_the_threshold_on_smooth_paths() {
     }
 }
 
-/// One threshold adjust settles the cut: adjusting again for the same camera changes nothing.
-/// After an adjust every boundary node has passed its test and every fold candidate has
-/// failed its own (or was just unfolded because it failed it), so a second traversal finds
-/// nothing to do — whatever the criteria, and whether group tests are reused or made again.
+/// One adjust settles the cut: adjusting again for the same camera and goal changes nothing,
+/// so a still camera shows a still mesh. After a threshold adjust every boundary node has
+/// passed its test and every fold candidate has failed its own (or was just unfolded because
+/// it failed it); after a budget adjust no exchange is left. With mesh-fold prevention this
+/// holds because refused folds are tried again within the adjust.
 #[test]
-fn a_second_adjust_for_the_same_camera_changes_nothing() {
+fn a_second_adjust_for_the_same_camera_and_goal_changes_nothing() {
     let gaze = vds_runtime::Gaze {
         direction: [0.3, -0.2, -1.0],
         falloff: 2.0,
@@ -493,11 +494,16 @@ fn a_second_adjust_for_the_same_camera_changes_nothing() {
             let mut changed = 0;
             for (frame, camera) in path.cameras.iter().enumerate() {
                 let view = Viewpoint::Camera(*camera);
-                let t = [1.0, 3.0][frame % 2];
-                let first = runtime.adjust(&view, criteria, Goal::Threshold(t)).unwrap();
+                let goal = [
+                    Goal::Threshold(1.0),
+                    Goal::Budget(2000),
+                    Goal::Threshold(3.0),
+                    Goal::Budget(5000),
+                ][frame % 4];
+                let first = runtime.adjust(&view, criteria, goal).unwrap();
                 changed += first.stats.folds + first.stats.unfolds;
-                let second = runtime.adjust(&view, criteria, Goal::Threshold(t)).unwrap();
-                let what = format!("{name}, criteria {setting}, frame {frame}");
+                let second = runtime.adjust(&view, criteria, goal).unwrap();
+                let what = format!("{name}, criteria {setting}, frame {frame}, {goal:?}");
                 assert_eq!(
                     second.stats.folds, 0,
                     "{what}: folded again ({:?})",
