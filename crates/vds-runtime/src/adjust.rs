@@ -62,8 +62,8 @@ pub struct AdjustStats {
     pub unfolds: u32,
     /// Nodes folded.
     pub folds: u32,
-    /// Folds refused because they would flip a triangle (a fold tried again at the end of
-    /// the frame and refused again counts twice).
+    /// Folds refused because they would flip a triangle (a fold tried again within the same
+    /// adjust and refused again counts again).
     pub refused_folds: u32,
 }
 
@@ -338,7 +338,9 @@ impl Adjuster {
         }
         self.exchange(cut, judge, budget, prevent_flips)?;
         // Refused folds again (see `retry_refused_folds`): back in the queue after changes
-        // that may have removed the triangle they would have flipped.
+        // that may have removed the triangle they would have flipped. A round that goes on
+        // made an exchange, and a frame's exchanges are finite (module documentation), so
+        // the rounds end.
         while !self.refused.is_empty() {
             let changes = self.stats.folds + self.stats.unfolds;
             for f in std::mem::take(&mut self.refused) {
