@@ -34,6 +34,17 @@ fn percentile(values: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
+/// What [`play`] times.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Timed {
+    /// Each frame's adjust.
+    Adjusts,
+    /// A second adjust of each frame for the same camera: what confirming a cut that needs
+    /// no change costs. A run of its own, so that the extra adjusts do not warm the cache
+    /// for the frames timed by [`Timed::Adjusts`].
+    SettledChecks,
+}
+
 /// Plays `path` through a fresh runtime and prints one line of figures. `resident`: every
 /// page is decoded before the first frame, so frames time the cut alone; otherwise pages load
 /// as the cut first reaches them, inside the adjust that needs them.
@@ -43,22 +54,9 @@ fn play(
     goal: Goal,
     tracking: CornerTracking,
     resident: bool,
+    timed: Timed,
 ) -> Result<()> {
-    play_timing(bytes, path, goal, tracking, resident, false)
-}
-
-/// [`play`], or with `settled` each frame adjusted twice for the same camera and only the
-/// second adjust timed: what checking a cut that needs no change costs (the traversal's
-/// floor), in a separate run so that the extra pass does not warm the cache for the frames
-/// [`play`] times.
-fn play_timing(
-    bytes: &[u8],
-    path: &CameraPath,
-    goal: Goal,
-    tracking: CornerTracking,
-    resident: bool,
-    settled: bool,
-) -> Result<()> {
+    let settled = timed == Timed::SettledChecks;
     let file = VdtFile::from_bytes(bytes.to_vec())?;
     let mut runtime = Runtime::new(Box::new(file), tracking)?;
     if resident {
@@ -69,6 +67,7 @@ fn play_timing(
         (vec![], vec![], vec![], vec![], vec![], vec![]);
     let (mut groups, mut failed, mut reused) = (vec![], vec![], vec![]);
     let mut first_ms = 0.0;
+    // Folds and unfolds of the timed adjusts: none when each first adjust settled its cut.
     let mut settled_changes = 0u64;
     for (i, camera) in path.cameras.iter().enumerate() {
         if settled {
@@ -192,18 +191,25 @@ pub fn paths_of_vdt(
     };
     for t in [1.0, 5.0] {
         for &tracking in resident_trackings {
-            play(bytes, &path, Goal::Threshold(t), tracking, true)?;
+            play(
+                bytes,
+                &path,
+                Goal::Threshold(t),
+                tracking,
+                true,
+                Timed::Adjusts,
+            )?;
         }
         if resident_only {
             continue;
         }
-        play_timing(
+        play(
             bytes,
             &path,
             Goal::Threshold(t),
             CornerTracking::Incidence,
             true,
-            true,
+            Timed::SettledChecks,
         )?;
         play(
             bytes,
@@ -211,6 +217,7 @@ pub fn paths_of_vdt(
             Goal::Threshold(t),
             CornerTracking::Incidence,
             false,
+            Timed::Adjusts,
         )?;
     }
     println!();
