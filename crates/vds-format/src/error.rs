@@ -55,6 +55,9 @@ pub enum VdtError {
         /// What is wrong.
         message: String,
     },
+    /// An output file could not be written (or may not be: it is not a regular file).
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
     /// A page failed to decompress.
     #[error("page {page}: zstd: {message}")]
     Decompress {

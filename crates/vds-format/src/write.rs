@@ -11,8 +11,7 @@
 //! node range, siblings stay contiguous, and parents precede children.
 
 use std::collections::VecDeque;
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use rayon::prelude::*;
 use xxhash_rust::xxh3::xxh3_64;
@@ -368,33 +367,18 @@ impl PageWork {
     }
 }
 
-/// Encodes the tree and writes it to `path` atomically: the bytes go to a temporary file in
-/// the same directory, which is renamed over `path` only once complete, so an interrupted
-/// or failed write never leaves a partial `.vdt`.
+/// Encodes the tree and writes it to `path` atomically ([`crate::output::write_atomically`]):
+/// the bytes go to a temporary file in the same directory, which is renamed over `path` only
+/// once complete, so an interrupted or failed write never leaves a partial `.vdt`; stale
+/// partials of killed writes are removed, and a `path` that names a device, a directory or
+/// anything else that is not a regular file is refused before anything is encoded.
 pub fn write_file<N: NodeSource>(
     path: &Path,
     content: &TreeContent<N>,
     options: &WriteOptions,
 ) -> Result<WriteReport, VdtError> {
+    crate::output::resolve_output(path)?;
     let (bytes, report) = encode(content, options)?;
-    let io = |cause| VdtError::Io {
-        path: path.to_path_buf(),
-        cause,
-    };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let temporary: PathBuf = path.with_file_name(format!(".{name}.{}.partial", std::process::id()));
-    let result = (|| {
-        let mut file = std::fs::File::create(&temporary)?;
-        file.write_all(&bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&temporary, path)
-    })();
-    if let Err(cause) = result {
-        let _ = std::fs::remove_file(&temporary);
-        return Err(io(cause));
-    }
+    crate::output::write_atomically(path, |out| out.write_all(&bytes))?;
     Ok(report)
 }
