@@ -179,9 +179,16 @@ fn leading_smallest(mut c: [u32; 3]) -> [u32; 3] {
 pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
     file: &VdtFile<B>,
 ) -> Result<(VertexTree, Scene), VdtError> {
+    tree_from_pages(file, file.read_all_pages()?)
+}
+
+/// [`tree_from_file`] of pages already decoded (all of `file`'s, in order).
+fn tree_from_pages<B: AsRef<[u8]>>(
+    file: &VdtFile<B>,
+    pages: Vec<vds_format::Page>,
+) -> Result<(VertexTree, Scene), VdtError> {
     let header = file.header();
     let vertex_count = header.vertex_count.get() as usize;
-    let pages = file.read_all_pages()?;
     let mut nodes = Vec::with_capacity(header.node_count.get() as usize);
     let mut bounds = Vec::new();
     let mut positions = vec![[f32::NAN; 3]; vertex_count];
@@ -267,6 +274,36 @@ pub fn tree_from_file<B: AsRef<[u8]> + Sync>(
         stats: Default::default(),
     };
     Ok((tree, scene))
+}
+
+/// Why a file fails [`verify_file`].
+#[derive(Debug, thiserror::Error)]
+pub enum VerifyError {
+    /// The file does not read: a checksum, a record, or a figure its header or metadata
+    /// states that the pages contradict ([`VdtError::Misstated`]).
+    #[error(transparent)]
+    File(#[from] VdtError),
+    /// The file reads, but its tree breaks an invariant of the builder.
+    #[error("tree invariant broken: {0}")]
+    Tree(#[from] crate::TreeError),
+}
+
+/// Everything `--verify` checks of a file: decodes every page (checksums and records), holds
+/// the header's and metadata's figures to what the pages hold (counts, depth, degree
+/// histogram, input counts: [`VdtFile::check_figures`]), rebuilds the tree and checks every
+/// invariant of the builder ([`crate::verify_tree`]).
+pub fn verify_file<B: AsRef<[u8]> + Sync>(file: &VdtFile<B>) -> Result<(), VerifyError> {
+    let pages = file.read_all_pages()?;
+    let mut figures = vds_format::TreeFigures::default();
+    for page in &pages {
+        figures.add_page(page);
+    }
+    // Before the tree is rebuilt: a false vertex count would otherwise surface as a leaf
+    // rank without a leaf, not as the header field it is.
+    file.check_figures(&figures)?;
+    let (tree, scene) = tree_from_pages(file, pages)?;
+    crate::verify_tree(&tree, &scene)?;
+    Ok(())
 }
 
 /// The `.vdt` bytes of `scene`, built in memory: snaps the scene to the file's grid, builds the

@@ -143,3 +143,46 @@ fn info_rejects_a_corrupted_file() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("checksum"));
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A header whose depth is false, its checksum recomputed so only the lie remains: `--verify`
+/// fails naming the field and both values, and prints none of the figures.
+#[test]
+fn info_verify_refuses_a_false_header_depth() {
+    let dir = temp_dir("false-depth");
+    let out = dir.join("as1.vdt");
+    assert!(
+        build(&[path(&demo_model()), "-o", path(&out), "-q"])
+            .status
+            .success()
+    );
+    let mut bytes = std::fs::read(&out).unwrap();
+    let depth = u32::from_le_bytes(bytes[52..56].try_into().unwrap());
+    let nodes = u64::from_le_bytes(bytes[24..32].try_into().unwrap());
+    // The deepest a header may claim and still open: below the node count.
+    let claimed = (nodes - 1) as u32;
+    assert!(claimed > depth);
+    bytes[52..56].copy_from_slice(&claimed.to_le_bytes());
+    let sum = xxhash_rust::xxh3::xxh3_64(&bytes[..120]);
+    bytes[120..128].copy_from_slice(&sum.to_le_bytes());
+    std::fs::write(&out, bytes).unwrap();
+    // Without --verify the file opens (what open checks holds) and shows the lie.
+    let shown = info(&[path(&out), "--json"]);
+    assert!(shown.status.success());
+    let described: serde_json::Value = serde_json::from_slice(&shown.stdout).unwrap();
+    assert_eq!(described["depth"], claimed);
+    let run = info(&[path(&out), "--verify"]);
+    assert_eq!(run.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        message.contains("max_depth")
+            && message.contains(&claimed.to_string())
+            && message.contains(&depth.to_string()),
+        "{message}"
+    );
+    assert!(
+        run.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&run.stdout)
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -5,8 +5,10 @@
 use std::path::PathBuf;
 
 use proptest::prelude::*;
-use vds_build::{build_tree, snap_to_grid, tree_content, tree_from_file, verify_tree};
-use vds_format::{VdtError, VdtFile, WriteOptions, encode, write_file};
+use vds_build::{
+    VerifyError, build_tree, snap_to_grid, tree_content, tree_from_file, verify_file, verify_tree,
+};
+use vds_format::{StatedField, VdtError, VdtFile, WriteOptions, encode, write_file};
 use xxhash_rust::xxh3::xxh3_64;
 
 fn shared(name: &str) -> PathBuf {
@@ -460,4 +462,171 @@ proptest! {
         fix_checksums(&mut out);
         exercise(out);
     }
+}
+
+/// A file of `name` with every figure of its metadata stated truly (the import's counts, the
+/// tree's degree histogram), after `lie` has edited that metadata: the writer stores
+/// metadata as given, so its output is the honest file with the field patched and every
+/// checksum recomputed.
+fn stated_file(name: &str, lie: impl FnOnce(&mut vds_format::Metadata)) -> Vec<u8> {
+    let mut scene = vds_import::load_file(shared(name), &Default::default()).unwrap();
+    let grid = snap_to_grid(&mut scene);
+    let tree = build_tree(&scene);
+    let mut metadata = vds_format::Metadata {
+        tool: "test".into(),
+        part_names: scene.part_names.clone(),
+        input_vertices: scene.stats.input_vertices,
+        input_triangles: scene.stats.input_triangles,
+        degree_histogram: tree.degree_histogram(),
+        ..Default::default()
+    };
+    lie(&mut metadata);
+    encode(&tree_content(&tree, &scene, metadata, grid), &small_pages())
+        .unwrap()
+        .0
+}
+
+/// `verify_file`'s verdict on `bytes`, which must open.
+fn verified(bytes: Vec<u8>) -> Result<(), VerifyError> {
+    verify_file(&VdtFile::from_bytes(bytes).expect("the file opens"))
+}
+
+/// Asserts that `bytes` opens but fails verification naming `field` with both values.
+fn refused_naming(bytes: Vec<u8>, field: StatedField, stated: u64, counted: u64) {
+    match verified(bytes) {
+        Err(VerifyError::File(
+            ref e @ VdtError::Misstated {
+                field: f,
+                stated: s,
+                counted: c,
+            },
+        )) if f == field && s == stated && c == counted => {
+            let message = e.to_string();
+            assert!(
+                message.contains(&field.to_string())
+                    && message.contains(&stated.to_string())
+                    && message.contains(&counted.to_string()),
+                "{message}"
+            );
+        }
+        other => panic!("{field}: expected Misstated {stated} / {counted}, got {other:?}"),
+    }
+}
+
+fn put_u32(bytes: &mut [u8], at: usize, value: u32) {
+    bytes[at..at + 4].copy_from_slice(&value.to_le_bytes());
+}
+
+fn get_u64(bytes: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap())
+}
+
+#[test]
+fn verify_file_accepts_a_file_whose_figures_are_true() {
+    let bytes = stated_file("cow.obj", |_| {});
+    let file = VdtFile::from_bytes(bytes.clone()).unwrap();
+    let figures = vds_format::TreeFigures::of_file(&file).unwrap();
+    assert_eq!(figures.nodes, file.header().node_count.get());
+    assert_eq!(figures.degree_histogram, file.metadata().degree_histogram);
+    verified(bytes).unwrap();
+}
+
+#[test]
+fn verify_refuses_a_header_max_depth_deeper_than_the_tree() {
+    let mut bytes = stated_file("cow.obj", |_| {});
+    let depth = u32::from_le_bytes(bytes[52..56].try_into().unwrap());
+    // Deeper than the tree, still below the node count (what opening checks).
+    put_u32(&mut bytes, 52, depth + 5);
+    fix_checksums(&mut bytes);
+    refused_naming(
+        bytes,
+        StatedField::MaxDepth,
+        u64::from(depth + 5),
+        u64::from(depth),
+    );
+}
+
+/// A shallower depth than the tree's is refused by the page decoder (a node deeper than the
+/// header's), a deeper one only by counting: both fail.
+#[test]
+fn verify_refuses_a_header_max_depth_shallower_than_the_tree() {
+    let mut bytes = stated_file("cow.obj", |_| {});
+    let depth = u32::from_le_bytes(bytes[52..56].try_into().unwrap());
+    put_u32(&mut bytes, 52, depth - 1);
+    fix_checksums(&mut bytes);
+    let error = verified(bytes).unwrap_err();
+    assert!(error.to_string().contains("depth"), "{error}");
+}
+
+#[test]
+fn verify_refuses_a_header_vertex_count_above_the_leaves() {
+    let mut bytes = stated_file("cow.obj", |_| {});
+    let vertices = get_u64(&bytes, 40);
+    bytes[40..48].copy_from_slice(&(vertices + 1).to_le_bytes());
+    fix_checksums(&mut bytes);
+    refused_naming(bytes, StatedField::VertexCount, vertices + 1, vertices);
+}
+
+/// The node, triangle and page counts are held to the directory when the file opens, so a
+/// false one never reaches the count of the pages.
+#[test]
+fn header_node_triangle_and_page_counts_are_refused_on_open() {
+    let honest = stated_file("cow.obj", |_| {});
+    for (at, width) in [(24usize, 8usize), (32, 8), (48, 4)] {
+        let mut bytes = honest.clone();
+        let value = if width == 8 {
+            get_u64(&bytes, at)
+        } else {
+            u64::from(u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()))
+        };
+        bytes[at..at + width].copy_from_slice(&(value - 1).to_le_bytes()[..width]);
+        fix_checksums(&mut bytes);
+        assert!(
+            VdtFile::from_bytes(bytes).is_err(),
+            "header field at {at} lowered by one was accepted"
+        );
+    }
+}
+
+#[test]
+fn verify_refuses_every_false_degree_histogram_entry() {
+    for k in 0..9u8 {
+        let mut truth = 0;
+        let bytes = stated_file("cow.obj", |m| {
+            truth = m.degree_histogram[k as usize];
+            m.degree_histogram[k as usize] += 7;
+        });
+        refused_naming(bytes, StatedField::DegreeHistogram(k), truth + 7, truth);
+    }
+}
+
+/// Nodes moved from one degree to another keep the histogram's total: still refused.
+#[test]
+fn verify_refuses_a_degree_histogram_with_the_right_total() {
+    let mut truth = [0; 9];
+    let bytes = stated_file("cow.obj", |m| {
+        truth = m.degree_histogram;
+        m.degree_histogram[2] -= 3;
+        m.degree_histogram[8] += 3;
+    });
+    refused_naming(
+        bytes,
+        StatedField::DegreeHistogram(2),
+        truth[2] - 3,
+        truth[2],
+    );
+}
+
+#[test]
+fn verify_refuses_input_triangles_fewer_than_the_tree_holds() {
+    let bytes = stated_file("cow.obj", |m| m.input_triangles = 12);
+    let triangles = get_u64(&bytes, 32);
+    refused_naming(bytes, StatedField::InputTriangles, 12, triangles);
+}
+
+#[test]
+fn verify_refuses_input_vertices_fewer_than_the_leaves() {
+    let bytes = stated_file("cow.obj", |m| m.input_vertices = 3);
+    let leaves = get_u64(&bytes, 40);
+    refused_naming(bytes, StatedField::InputVertices, 3, leaves);
 }

@@ -55,6 +55,17 @@ pub enum VdtError {
         /// What is wrong.
         message: String,
     },
+    /// A figure the header or metadata states is not what the pages hold (found by
+    /// [`crate::VdtFile::check_figures`], which `--verify` runs after decoding every page).
+    #[error("{field} states {stated}, but the pages hold {counted}{}", field.bound_note())]
+    Misstated {
+        /// The false figure.
+        field: crate::StatedField,
+        /// What the file states.
+        stated: u64,
+        /// What the pages hold.
+        counted: u64,
+    },
     /// An output file could not be written (or may not be: it is not a regular file).
     #[error(transparent)]
     Output(#[from] crate::output::OutputError),

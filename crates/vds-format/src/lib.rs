@@ -13,6 +13,7 @@
 
 mod codec;
 mod error;
+mod figures;
 #[cfg(feature = "fuzzing")]
 pub mod fuzzing;
 mod grid;
@@ -23,6 +24,7 @@ mod read;
 mod write;
 
 pub use error::VdtError;
+pub use figures::{StatedField, TreeFigures};
 pub use grid::{GRID_STEPS, Grid};
 pub use layout::{
     FLAG_TWO_SIDED_CONE, HEADER_BYTES, Header, NO_NODE, NODE_BYTES, NodeRecord,
