@@ -1,11 +1,15 @@
 //! The current cut as an ordinary indexed mesh, and writing it as OBJ or PLY: what
 //! `vds-cut` exports ("what the viewer would draw from here").
 //!
-//! Files are written to a temporary name beside the target and renamed into place, so a
-//! failed export never leaves a half-written file.
+//! Files are written through [`vds_format::write_atomically`], the workspace's one atomic
+//! writer: to a temporary name beside the target, renamed into place, so a failed export never
+//! leaves a half-written file; an output that is a device, a directory or anything else but a
+//! regular file is refused.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+use vds_format::OutputError;
 
 use rustc_hash::FxHashMap;
 
@@ -67,33 +71,23 @@ impl MeshFormat {
 
 /// Writes `mesh` to `path` atomically. `part_names` name the OBJ objects (missing names are
 /// numbered).
+///
+/// # Errors
+/// [`OutputError::NotRegularFile`] when `path` names something other than a regular file,
+/// [`OutputError::Io`] when writing fails (the target is then left as it was).
 pub fn write_mesh(
     path: &Path,
     mesh: &Mesh,
     format: MeshFormat,
     part_names: &[String],
-) -> std::io::Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let temporary: PathBuf = path.with_file_name(format!(".{name}.{}.partial", std::process::id()));
-    let result = (|| {
-        let mut out = std::io::BufWriter::new(std::fs::File::create(&temporary)?);
-        match format {
-            MeshFormat::Obj => write_obj(&mut out, mesh, part_names)?,
-            MeshFormat::Ply => write_ply(&mut out, mesh)?,
-        }
-        out.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        std::fs::rename(&temporary, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temporary);
-    }
-    result
+) -> Result<(), OutputError> {
+    vds_format::write_atomically(path, |out| match format {
+        MeshFormat::Obj => write_obj(out, mesh, part_names),
+        MeshFormat::Ply => write_ply(out, mesh),
+    })
 }
 
-fn write_obj(out: &mut impl Write, mesh: &Mesh, part_names: &[String]) -> std::io::Result<()> {
+fn write_obj(out: &mut dyn Write, mesh: &Mesh, part_names: &[String]) -> std::io::Result<()> {
     writeln!(out, "# vds-cut: {} triangles", mesh.triangles.len())?;
     for p in &mesh.positions {
         writeln!(out, "v {} {} {}", p[0], p[1], p[2])?;
@@ -115,7 +109,7 @@ fn write_obj(out: &mut impl Write, mesh: &Mesh, part_names: &[String]) -> std::i
     Ok(())
 }
 
-fn write_ply(out: &mut impl Write, mesh: &Mesh) -> std::io::Result<()> {
+fn write_ply(out: &mut dyn Write, mesh: &Mesh) -> std::io::Result<()> {
     write!(
         out,
         "ply\nformat binary_little_endian 1.0\ncomment vds-cut\nelement vertex {}\n\

@@ -99,3 +99,119 @@ fn bad_inputs_fail_with_a_message_and_no_output() {
     assert_eq!(result.status.code(), Some(1));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A small `.vdt` file in `dir`.
+fn small_vdt(dir: &std::path::Path) -> std::path::PathBuf {
+    let file = dir.join("cow.vdt");
+    std::fs::write(&file, vdt_bytes(&mut load("cow.obj"))).unwrap();
+    file
+}
+
+#[test]
+fn cut_refuses_an_output_that_is_its_input() {
+    let dir = temp_dir("same");
+    let file = small_vdt(&dir);
+    let before = std::fs::read(&file).unwrap();
+    // The same file under another name, an .obj one: the names differ, the inode does not.
+    let same = dir.join("same.obj");
+    std::fs::hard_link(&file, &same).unwrap();
+    let result = vds_cut()
+        .arg(&file)
+        .arg("-o")
+        .arg(&same)
+        .args(["--threshold", "1"])
+        .output()
+        .unwrap();
+    assert_eq!(result.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        message.contains("same.obj") && message.contains("is the input"),
+        "{message}"
+    );
+    assert!(
+        std::fs::read(&file).unwrap() == before,
+        "the input was replaced"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[cfg(unix)]
+#[test]
+fn cut_refuses_an_output_that_links_to_a_device() {
+    let dir = temp_dir("device");
+    let file = small_vdt(&dir);
+    // A link, so that if the refusal broke, the rename would replace the link and not the
+    // device.
+    let null = dir.join("null.ply");
+    std::os::unix::fs::symlink("/dev/null", &null).unwrap();
+    let result = vds_cut()
+        .arg(&file)
+        .arg("-o")
+        .arg(&null)
+        .args(["--budget", "100"])
+        .output()
+        .unwrap();
+    assert_eq!(result.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        message.contains("null.ply") && message.contains("character device"),
+        "{message}"
+    );
+    assert!(std::fs::symlink_metadata(&null).unwrap().is_symlink());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn cut_rejects_nan_and_out_of_range_numbers_naming_the_option() {
+    let dir = temp_dir("numbers");
+    let file = dir.join("never-read.vdt");
+    let out = dir.join("out.obj");
+    for (option, value) in [
+        ("--silhouette-factor", "nan"),
+        ("--silhouette-factor", "1.5"),
+        ("--threshold", "nan"),
+        ("--threshold", "-1"),
+        ("--threshold", "inf"),
+        ("--budget", "0"),
+        ("--fov", "180"),
+        ("--fov", "nan"),
+        ("--size", "0x100"),
+        ("--size", "100x20000"),
+        ("--gaze-falloff", "-0.5"),
+        ("--up", "0,0,0"),
+        ("--eye", "nan,0,0"),
+    ] {
+        let mut command = vds_cut();
+        command.arg(&file).arg("-o").arg(&out);
+        if option != "--threshold" && option != "--budget" {
+            command.args(["--threshold", "1"]);
+        }
+        let result = command.arg(format!("{option}={value}")).output().unwrap();
+        let message = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(2), "{option} {value}: {message}");
+        assert!(message.contains(option), "{option} {value}: {message}");
+    }
+    assert!(!out.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn cut_names_the_file_that_is_not_a_vdt() {
+    let dir = temp_dir("magic");
+    let garbage = dir.join("garbage.vdt");
+    std::fs::write(&garbage, vec![0u8; 4096]).unwrap();
+    let result = vds_cut()
+        .arg(&garbage)
+        .arg("-o")
+        .arg(dir.join("out.obj"))
+        .args(["--threshold", "1"])
+        .output()
+        .unwrap();
+    assert_eq!(result.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        message.contains("garbage.vdt") && message.contains("not a .vdt file"),
+        "{message}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

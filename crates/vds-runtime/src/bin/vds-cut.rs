@@ -2,9 +2,10 @@
 //! as an OBJ or PLY mesh, and measures it.
 //!
 //! Without `--eye`, the camera frames the whole model the way `vds-view` does on open.
-//! Exit codes: 0 success, 1 the file could not be read or written, 2 bad command line.
+//! Exit codes: 0 success, 1 the file could not be read or written, 2 bad command line (every
+//! number is checked for its range, and NaN or infinity for none, before anything is read).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -24,14 +25,15 @@ use vds_runtime::{
 struct Args {
     /// The .vdt file.
     file: PathBuf,
-    /// Output mesh: .obj or .ply.
+    /// Output mesh: .obj or .ply (a regular file or a new one, never the input).
     #[arg(short, long)]
     output: PathBuf,
-    /// Screen-space error threshold in pixels (scene units with --view-independent).
-    #[arg(long)]
+    /// Screen-space error threshold in pixels (scene units with --view-independent); a finite
+    /// number, at least 0.
+    #[arg(long, value_parser = non_negative)]
     threshold: Option<f32>,
-    /// Triangle budget: the best cut of at most this many triangles.
-    #[arg(long)]
+    /// Triangle budget: the best cut of at most this many triangles (at least 1).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     budget: Option<u32>,
     /// Eye position X,Y,Z (default: framing the whole model).
     #[arg(long, value_parser = parse_vec3, conflicts_with = "view_independent")]
@@ -39,13 +41,13 @@ struct Args {
     /// Point looked at X,Y,Z (default: the model's centre).
     #[arg(long, value_parser = parse_vec3, conflicts_with = "view_independent")]
     target: Option<[f32; 3]>,
-    /// Up direction X,Y,Z.
-    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0")]
+    /// Up direction X,Y,Z (not zero).
+    #[arg(long, value_parser = parse_direction, default_value = "0,1,0")]
     up: [f32; 3],
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 45.0)]
+    /// Vertical field of view in degrees, above 0 and below 180.
+    #[arg(long, default_value_t = 45.0, value_parser = parse_fov)]
     fov: f32,
-    /// Viewport size WIDTHxHEIGHT in pixels.
+    /// Viewport size WIDTHxHEIGHT in pixels, each from 1 to 16384.
     #[arg(long, value_parser = parse_size, default_value = "1920x1080")]
     size: (u32, u32),
     /// Object-space error instead of a camera: no culling, no cones.
@@ -54,8 +56,8 @@ struct Args {
     /// Do not hold silhouettes to a tighter threshold.
     #[arg(long)]
     no_silhouette: bool,
-    /// Silhouette threshold as a fraction of the threshold.
-    #[arg(long, default_value_t = 0.25)]
+    /// Silhouette threshold as a fraction of the threshold, from 0 to 1.
+    #[arg(long, default_value_t = 0.25, value_parser = fraction)]
     silhouette_factor: f32,
     /// Do not fold entirely backfacing regions.
     #[arg(long)]
@@ -64,8 +66,8 @@ struct Args {
     #[arg(long, value_enum, default_value_t = Frustum::Fold)]
     frustum: Frustum,
     /// Gaze falloff: the threshold grows by this factor per radian away from the view
-    /// direction (0: off).
-    #[arg(long, default_value_t = 0.0)]
+    /// direction (0: off); a finite number, at least 0.
+    #[arg(long, default_value_t = 0.0, value_parser = non_negative)]
     gaze_falloff: f32,
     /// Refuse folds that would flip a triangle.
     #[arg(long)]
@@ -99,15 +101,71 @@ fn parse_vec3(text: &str) -> Result<[f32; 3], String> {
     }
 }
 
+/// A direction: three finite numbers, not all zero.
+fn parse_direction(text: &str) -> Result<[f32; 3], String> {
+    let v = parse_vec3(text)?;
+    if v == [0.0; 3] {
+        return Err(format!("expected a direction, not zero, got {text:?}"));
+    }
+    Ok(v)
+}
+
+/// The largest viewport side: wgpu's limit on a texture side on most adapters, and what the
+/// viewer accepts.
+const MAX_SIZE: u32 = 16384;
+
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let (w, h) = text
         .split_once(['x', 'X'])
         .ok_or_else(|| format!("expected WIDTHxHEIGHT, got {text:?}"))?;
+    let side = 1..=MAX_SIZE;
     match (w.trim().parse::<u32>(), h.trim().parse::<u32>()) {
-        (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
+        (Ok(w), Ok(h)) if side.contains(&w) && side.contains(&h) => Ok((w, h)),
         _ => Err(format!(
-            "expected WIDTHxHEIGHT with positive integers, got {text:?}"
+            "expected WIDTHxHEIGHT, each from 1 to {MAX_SIZE}, got {text:?}"
         )),
+    }
+}
+
+/// A finite number (NaN and infinities are refused: they would poison every comparison).
+fn finite(text: &str) -> Result<f32, String> {
+    match text.trim().parse::<f32>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => Err(format!("expected a finite number, got {text:?}")),
+        Err(e) => Err(format!("expected a number, got {text:?}: {e}")),
+    }
+}
+
+/// A finite number, at least 0.
+fn non_negative(text: &str) -> Result<f32, String> {
+    match finite(text)? {
+        v if v >= 0.0 => Ok(v),
+        v => Err(format!("expected a number of at least 0, got {v}")),
+    }
+}
+
+/// A finite number from 0 to 1.
+fn fraction(text: &str) -> Result<f32, String> {
+    match finite(text)? {
+        v if (0.0..=1.0).contains(&v) => Ok(v),
+        v => Err(format!("expected a number from 0 to 1, got {v}")),
+    }
+}
+
+/// A field of view in degrees, above 0 and below 180.
+fn parse_fov(text: &str) -> Result<f32, String> {
+    match finite(text)? {
+        v if v > 0.0 && v < 180.0 => Ok(v),
+        v => Err(format!("expected degrees above 0 and below 180, got {v}")),
+    }
+}
+
+/// An error of reading the `.vdt` file `path`, named for it (the operating system's errors
+/// already are).
+fn naming(path: &Path) -> impl FnOnce(vds_format::VdtError) -> anyhow::Error + '_ {
+    move |error| match error {
+        error @ vds_format::VdtError::Io { .. } => error.into(),
+        error => anyhow::Error::new(error).context(path.display().to_string()),
     }
 }
 
@@ -151,8 +209,18 @@ fn run(args: &Args) -> Result<()> {
             args.output.display()
         );
     };
+    // Refused before anything is read: an output that is not a regular file, or that is the
+    // input itself (by device and inode, however either is spelt).
+    vds_format::resolve_output(&args.output)?;
+    if vds_format::same_file(&args.file, &args.output).unwrap_or(false) {
+        bail!(
+            "{}: is the input {}; refusing to overwrite it",
+            args.output.display(),
+            args.file.display()
+        );
+    }
     let start = Instant::now();
-    let file = vds_format::VdtFile::open(&args.file)?;
+    let file = vds_format::VdtFile::open(&args.file).map_err(naming(&args.file))?;
     let part_names = file.metadata().part_names.clone();
     let tracking = if args.lazy {
         CornerTracking::Lazy
@@ -199,10 +267,9 @@ fn run(args: &Args) -> Result<()> {
         prevent_mesh_folds: args.prevent_folds,
     };
     let goal = match (args.threshold, args.budget) {
-        (Some(t), _) if t.is_finite() && t >= 0.0 => Goal::Threshold(t),
-        (Some(t), _) => bail!("--threshold must be a non-negative number, got {t}"),
+        (Some(t), _) => Goal::Threshold(t),
         (None, Some(n)) => Goal::Budget(n),
-        (None, None) => unreachable!("clap requires one of them"),
+        (None, None) => bail!("give --threshold or --budget"),
     };
 
     let start = Instant::now();
@@ -218,7 +285,7 @@ fn run(args: &Args) -> Result<()> {
             .cut_mut()
             .check()
             .map_err(anyhow::Error::msg)
-            .context("the cut is inconsistent")?;
+            .with_context(|| format!("{}: the cut is inconsistent", args.file.display()))?;
     }
     let positions = runtime
         .leaf_positions()
@@ -241,8 +308,7 @@ fn run(args: &Args) -> Result<()> {
 
     let start = Instant::now();
     let mesh = Mesh::from_cut(runtime.cut_mut());
-    write_mesh(&args.output, &mesh, format, &part_names)
-        .with_context(|| format!("{}: cannot write", args.output.display()))?;
+    write_mesh(&args.output, &mesh, format, &part_names).context("cannot write the cut")?;
     let write_ms = start.elapsed().as_secs_f64() * 1e3;
 
     let cut = runtime.cut();
