@@ -5,7 +5,9 @@
 /// One input file the tree was built from.
 #[derive(Debug, Clone, PartialEq, Default, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
 pub struct InputInfo {
-    /// The file name as given on the command line.
+    /// The file's name, without its directories (so that the same input gives the same bytes
+    /// however it was spelt and wherever the build ran; [`InputInfo::content_hash`] says which
+    /// file it was).
     pub name: String,
     /// Its size in bytes.
     pub bytes: u64,

@@ -3,13 +3,13 @@
 //! input it builds the bundled demo assembly and reports what it built.
 //!
 //! Exit codes: 0 success, 1 an input could not be read, built or written (in batch mode: any
-//! input), 2 bad command line.
+//! input), 2 bad command line (numbers out of range, NaN or infinite included).
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::Parser;
 use serde::Serialize;
 use vds_import::{ImportOptions, Weld};
@@ -58,7 +58,7 @@ struct Args {
     /// Input meshes (.obj, .gltf, .glb, .ply, .stl, optionally .gz); all merge into one scene.
     /// Without inputs, the bundled demo assembly is built.
     inputs: Vec<PathBuf>,
-    /// Write the vertex tree to this .vdt file.
+    /// Write the vertex tree to this .vdt file (a regular file or a new one, never an input).
     #[arg(short, long, value_name = "OUT.vdt", conflicts_with = "batch")]
     output: Option<PathBuf>,
     /// Build each input on its own into DIR/NAME.vdt, going on past failures.
@@ -70,11 +70,12 @@ struct Args {
     /// zstd level of the pages (1-22).
     #[arg(long, default_value_t = vds_format::DEFAULT_ZSTD_LEVEL, value_parser = clap::value_parser!(i32).range(1..=22))]
     zstd_level: i32,
-    /// Weld vertices closer than this fraction of the bounding-box diagonal (default: exact).
-    #[arg(long, value_name = "EPS")]
+    /// Weld vertices closer than this fraction of the bounding-box diagonal, a finite number
+    /// from 0 up to (not including) 1 (default: exact).
+    #[arg(long, value_name = "EPS", value_parser = weld_fraction)]
     weld: Option<f32>,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
+    /// Worker threads, 1 to 1024 (default: all cores).
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_THREADS))]
     threads: Option<usize>,
     /// Print a machine-readable JSON report on stdout instead of the summary.
     #[arg(long)]
@@ -85,6 +86,39 @@ struct Args {
     /// Check every tree invariant after building (slow on large scenes).
     #[arg(long)]
     verify: bool,
+}
+
+/// The most worker threads `--threads` accepts: far above any core count the builder scales
+/// to, and low enough that starting them is instant (100 000 took over a minute).
+const MAX_THREADS: u64 = 1024;
+
+/// `--weld`: a finite fraction of the diagonal in `[0, 1)` (1 or more would weld everything
+/// into one vertex; NaN would compare false everywhere).
+fn weld_fraction(text: &str) -> Result<f32, String> {
+    match text.trim().parse::<f32>() {
+        Ok(v) if v.is_finite() && (0.0..1.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!(
+            "expected a finite number from 0 up to (not including) 1, got {v}"
+        )),
+        Err(e) => Err(format!("expected a number, got {text:?}: {e}")),
+    }
+}
+
+/// Refuses, before any work, an output that would replace an input (the same file by device
+/// and inode, however either is spelt, through links too) or that is not a regular file.
+fn check_output(output: &Path, inputs: &[PathBuf]) -> Result<()> {
+    vds_format::resolve_output(output)?;
+    if let Some(input) = inputs
+        .iter()
+        .find(|input| vds_format::same_file(input, output).unwrap_or(false))
+    {
+        bail!(
+            "{}: is the input {}; refusing to overwrite it",
+            output.display(),
+            input.display()
+        );
+    }
+    Ok(())
 }
 
 #[derive(Serialize)]
@@ -193,7 +227,9 @@ fn run_batch(args: &Args) -> Result<()> {
         let stem = stem.strip_suffix(".gz").unwrap_or(&stem);
         let stem = stem.rsplit_once('.').map_or(stem, |(s, _)| s);
         let output = out_dir.join(format!("{stem}.vdt"));
-        match build_one(args, std::slice::from_ref(input), Some(&output)) {
+        let built = check_output(&output, &args.inputs)
+            .and_then(|()| build_one(args, std::slice::from_ref(input), Some(&output)));
+        match built {
             Ok(report) => {
                 if !args.json && !args.quiet {
                     print_summary(&report, args.verify);
@@ -245,6 +281,9 @@ fn hash_file(path: &std::path::Path) -> Result<(u64, u64)> {
 }
 
 fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) -> Result<Report> {
+    if let Some(output) = output {
+        check_output(output, inputs)?;
+    }
     let show_progress = !args.quiet && !args.json && std::io::stderr().is_terminal();
     let options = ImportOptions {
         weld: args.weld.map_or(Weld::Exact, Weld::Relative),
@@ -264,7 +303,10 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
         if let Some(bar) = &bar {
             bar.set_message("verifying the tree");
         }
-        vds_build::verify_tree(&tree, &scene).context("tree invariant broken")?;
+        vds_build::verify_tree(&tree, &scene).with_context(|| {
+            let names: Vec<String> = inputs.iter().map(|p| p.display().to_string()).collect();
+            format!("{}: tree invariant broken", names.join(", "))
+        })?;
     }
     // What the report needs of the scene, so it can go before the pages are encoded: the
     // writer's triangle records would otherwise sit beside it. (The writer reads the tree's
@@ -299,7 +341,12 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
             for input in inputs {
                 let (content_hash, bytes) = hash_file(input)?;
                 metadata.inputs.push(vds_format::InputInfo {
-                    name: input.display().to_string(),
+                    // The name alone, no directories, so a build is the same bytes wherever
+                    // it runs and however the input is spelt; the hash says which file it was.
+                    name: input.file_name().map_or_else(
+                        || input.display().to_string(),
+                        |n| n.to_string_lossy().into_owned(),
+                    ),
                     bytes,
                     content_hash,
                 });
