@@ -1,4 +1,7 @@
 //! `vds-gen`: writes a deterministic CAD-like scene of about N triangles as binary PLY.
+//!
+//! Exit codes: 0 success, 1 the file could not be written, 2 bad command line (a count that
+//! is not a finite number from 1 to 1000M).
 
 use std::io::BufWriter;
 use std::path::PathBuf;
@@ -9,13 +12,18 @@ use clap::Parser;
 #[derive(Parser)]
 #[command(about = "Generate a deterministic CAD-like scene as binary PLY")]
 struct Args {
-    /// Approximate triangle count (suffixes k and M accepted: 1M, 250k).
+    /// Approximate triangle count, from 1 to 1000M (suffixes k and M accepted: 1M, 250k).
     #[arg(long, short, default_value = "1M", value_parser = parse_count)]
     triangles: u64,
     /// Output file (.ply).
     #[arg(long, short)]
     out: PathBuf,
 }
+
+/// The largest count `--triangles` accepts: a billion triangles hold 12 GB of indices alone
+/// before positions and the PLY buffer, more than the largest benchmark (10 M) by far; a
+/// larger count is a typo, and one past `u64` (`1e30`) would generate until memory runs out.
+const MAX_TRIANGLES: f64 = 1e9;
 
 fn parse_count(text: &str) -> Result<u64, String> {
     let (digits, scale) = match text.strip_suffix(['M', 'm']) {
@@ -25,10 +33,16 @@ fn parse_count(text: &str) -> Result<u64, String> {
             None => (text, 1.0),
         },
     };
-    digits
+    let n = digits
         .parse::<f64>()
-        .map(|n| (n * scale) as u64)
-        .map_err(|e| format!("bad count '{text}': {e}"))
+        .map_err(|e| format!("bad count '{text}': {e}"))?
+        * scale;
+    // NaN fails both comparisons, so it is refused too.
+    if (1.0..=MAX_TRIANGLES).contains(&n) {
+        Ok(n as u64)
+    } else {
+        Err(format!("expected a count from 1 to 1000M, got '{text}'"))
+    }
 }
 
 fn main() -> Result<()> {
