@@ -119,6 +119,8 @@ impl Mirror {
 
 /// Runs `headless` over `model` and returns the rows.
 pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
+    // Errors of the simplifier (a page that fails to load or decode) name the model.
+    let name = model.name.clone();
     let gpu = Gpu::headless()?;
     let pipeline = CutPipeline::new(&gpu, vds_render::target_format());
     let first = headless
@@ -136,7 +138,8 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
                 std::fs::File::create(path)
                     .with_context(|| format!("creating {}", path.display()))?,
             );
-            writeln!(file, "{CSV_HEADER}")?;
+            writeln!(file, "{CSV_HEADER}")
+                .with_context(|| format!("writing {}", path.display()))?;
             Some(file)
         }
         None => None,
@@ -186,13 +189,17 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
         let frozen = headless.freeze_after.is_some_and(|f| i > f);
         let batches: Vec<Batch> = match (&mut simplifier, &asynchronous) {
             _ if frozen => Vec::new(),
-            (Some(simplifier), _) => vec![simplifier.step(camera, &headless.settings)?],
+            (Some(simplifier), _) => vec![
+                simplifier
+                    .step(camera, &headless.settings)
+                    .with_context(|| name.clone())?,
+            ],
             (None, Some(worker)) => {
                 worker.request(*camera, headless.settings);
-                let mut queued = worker.drain()?;
+                let mut queued = worker.drain().with_context(|| name.clone())?;
                 if i == 0 && queued.is_empty() {
                     // Nothing to show yet on the very first frame: wait for the first cut.
-                    queued.push(worker.wait()?);
+                    queued.push(worker.wait().with_context(|| name.clone())?);
                 }
                 queued
             }
@@ -236,8 +243,9 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
         finish_frame(headless, &image, &row, csv.as_mut())?;
         rows.push(row);
     }
-    if let Some(file) = &mut csv {
-        file.flush()?;
+    if let (Some(file), Some(path)) = (&mut csv, &headless.stats) {
+        file.flush()
+            .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(rows)
 }
@@ -252,8 +260,8 @@ fn finish_frame(
         let path = out.join(format!("frame-{:05}.png", row.frame));
         image.write_png(&path)?;
     }
-    if let Some(csv) = csv {
-        writeln!(csv, "{}", row.csv())?;
+    if let (Some(csv), Some(path)) = (csv, &headless.stats) {
+        writeln!(csv, "{}", row.csv()).with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
 }

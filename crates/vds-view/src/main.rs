@@ -3,7 +3,8 @@
 //! `vds-view [FILE]` opens a window on a `.vdt` file, a mesh file (its tree is built in memory
 //! first) or, with no file, the bundled demo assembly. `--headless` renders a camera path
 //! offscreen instead: PNGs and a CSV of per-frame figures. Exit codes: 0 success, 1 failure
-//! (named), 2 bad command line.
+//! (named, with the file it is about), 2 bad command line (every number is checked for its
+//! range, and NaN or infinity for none, before anything is opened).
 
 mod controls;
 mod headless;
@@ -40,14 +41,15 @@ struct Args {
     /// Generate a loop flown through the model (at 60% of its radius) as the camera path.
     #[arg(long, conflicts_with_all = ["orbit", "camera_path"])]
     fly: bool,
-    /// Frames to render: the first N of the camera path.
-    #[arg(long)]
+    /// Frames to render: the first N of the camera path (1 to 1000000).
+    #[arg(long, value_parser = frame_count())]
     frames: Option<usize>,
-    /// Length of a generated orbit or fly-through loop in frames (default: --frames, or 120);
-    /// with a longer loop, `--frames` renders its first steps at that smaller pace.
-    #[arg(long)]
+    /// Length of a generated orbit or fly-through loop in frames, 1 to 1000000 (default:
+    /// --frames, or 120); with a longer loop, `--frames` renders its first steps at that
+    /// smaller pace.
+    #[arg(long, value_parser = frame_count())]
     path_frames: Option<usize>,
-    /// Image or window size WIDTHxHEIGHT.
+    /// Image or window size WIDTHxHEIGHT, each from 1 to 16384.
     #[arg(long, value_parser = parse_size, default_value = "1280x720")]
     size: (u32, u32),
     /// Directory for the PNGs of a headless run.
@@ -56,11 +58,11 @@ struct Args {
     /// CSV file for per-frame figures of a headless run.
     #[arg(long)]
     stats: Option<PathBuf>,
-    /// Screen-space error threshold in pixels.
-    #[arg(long, default_value_t = 1.0, conflicts_with = "budget")]
+    /// Screen-space error threshold in pixels; a finite number, at least 0.
+    #[arg(long, default_value_t = 1.0, conflicts_with = "budget", value_parser = non_negative)]
     threshold: f32,
-    /// Triangle budget instead of a threshold.
-    #[arg(long)]
+    /// Triangle budget instead of a threshold (at least 1).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     budget: Option<u32>,
     /// Simplify on a separate thread (frames never wait for simplification).
     #[arg(long = "async")]
@@ -86,8 +88,9 @@ struct Args {
     /// What nodes outside the view frustum do.
     #[arg(long, value_enum, default_value_t = FrustumArg::Fold)]
     frustum: FrustumArg,
-    /// Gaze falloff per radian away from the view direction (0: off).
-    #[arg(long, default_value_t = 0.0)]
+    /// Gaze falloff per radian away from the view direction (0: off); a finite number, at
+    /// least 0.
+    #[arg(long, default_value_t = 0.0, value_parser = non_negative)]
     gaze_falloff: f32,
     /// Check every cut and every rendered frame's consistency (slow).
     #[arg(long)]
@@ -122,6 +125,24 @@ enum FrustumArg {
     Off,
 }
 
+/// The most frames `--frames` and `--path-frames` accept: a generated path holds a camera per
+/// frame, and a million (over four hours at 60 fps) is more than any run needs.
+const MAX_FRAMES: u64 = 1_000_000;
+
+fn frame_count() -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_FRAMES)
+}
+
+/// A finite number, at least 0 (NaN and infinities are refused: they would poison every
+/// comparison of the simplifier).
+fn non_negative(text: &str) -> Result<f32, String> {
+    match text.trim().parse::<f32>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        Ok(v) => Err(format!("expected a finite number of at least 0, got {v}")),
+        Err(e) => Err(format!("expected a number, got {text:?}: {e}")),
+    }
+}
+
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let (w, h) = text
         .split_once(['x', 'X'])
@@ -139,7 +160,7 @@ impl Args {
         Settings {
             goal: match self.budget {
                 Some(n) => Goal::Budget(n),
-                None => Goal::Threshold(self.threshold.max(0.0)),
+                None => Goal::Threshold(self.threshold),
             },
             criteria: Criteria {
                 silhouette_factor: (!self.no_silhouette).then_some(0.25),

@@ -33,10 +33,18 @@ pub fn open(path: Option<&Path>, keep_mesh: bool) -> Result<Model> {
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("vdt")) =>
         {
-            let file = VdtFile::open(path)?;
+            let file = VdtFile::open(path).map_err(|error| match error {
+                // The operating system's errors name the file already.
+                error @ vds_format::VdtError::Io { .. } => anyhow::Error::new(error),
+                error => anyhow::Error::new(error).context(path.display().to_string()),
+            })?;
             let triangles = file.header().triangle_count.get();
-            let mut runtime = Runtime::new(Box::new(file), tracking)?;
-            let mesh = keep_mesh.then(|| mesh_of(&mut runtime)).transpose()?;
+            let mut runtime = Runtime::new(Box::new(file), tracking)
+                .with_context(|| path.display().to_string())?;
+            let mesh = keep_mesh
+                .then(|| mesh_of(&mut runtime))
+                .transpose()
+                .with_context(|| path.display().to_string())?;
             return Ok(Model {
                 runtime,
                 name: path.display().to_string(),
@@ -65,8 +73,9 @@ pub fn open(path: Option<&Path>, keep_mesh: bool) -> Result<Model> {
         &Default::default(),
     )
     .with_context(|| format!("building the tree of {name}"))?;
-    let file = VdtFile::from_bytes(bytes)?;
-    let runtime = Runtime::new(Box::new(file), tracking)?;
+    let file = VdtFile::from_bytes(bytes).with_context(|| format!("the tree of {name}"))?;
+    let runtime =
+        Runtime::new(Box::new(file), tracking).with_context(|| format!("the tree of {name}"))?;
     Ok(Model {
         runtime,
         name,

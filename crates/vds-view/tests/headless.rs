@@ -153,3 +153,44 @@ fn failures_are_named() {
     assert!(String::from_utf8_lossy(&result.stderr).contains("missing.vdt"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn view_rejects_nan_and_out_of_range_numbers_naming_the_option() {
+    for (option, value) in [
+        ("--threshold", "nan"),
+        ("--threshold", "-1"),
+        ("--budget", "0"),
+        ("--frames", "0"),
+        ("--frames", "100000000"),
+        ("--path-frames", "0"),
+        ("--gaze-falloff", "inf"),
+        ("--size", "0x10"),
+    ] {
+        let result = vds_view()
+            .args(["--headless", "--orbit", &format!("{option}={value}")])
+            .output()
+            .unwrap();
+        let message = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(2), "{option} {value}: {message}");
+        assert!(message.contains(option), "{option} {value}: {message}");
+    }
+}
+
+#[test]
+fn view_names_the_file_that_is_not_a_vdt() {
+    let dir = temp_dir("magic");
+    let garbage = dir.join("garbage.vdt");
+    std::fs::write(&garbage, vec![0u8; 4096]).unwrap();
+    let result = vds_view()
+        .arg(&garbage)
+        .args(["--headless", "--orbit", "--frames", "1"])
+        .output()
+        .unwrap();
+    assert_eq!(result.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        message.contains("garbage.vdt") && message.contains("not a .vdt file"),
+        "{message}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
