@@ -67,6 +67,38 @@ pub enum Problem {
     Unsupported(String),
     /// The text or structure does not follow the format.
     Syntax(String),
+    /// A coordinate is finite but so large that the tree's arithmetic could overflow.
+    CoordinateOutOfRange {
+        /// The coordinate as read (after any transform).
+        value: f64,
+        /// The largest magnitude accepted ([`crate::MAX_COORDINATE`]).
+        limit: f64,
+    },
+    /// A text line is longer than any real file writes (a hostile or corrupt file).
+    LineTooLong {
+        /// The line's length in bytes.
+        bytes: u64,
+        /// The longest line accepted.
+        limit: u64,
+    },
+    /// The input would grow past a limit of [`crate::ImportOptions`].
+    LimitExceeded {
+        /// What grew too large, e.g. "decompressed size" or "node 3 ('Bolt') expands to".
+        what: String,
+        /// How large it is (or at least how far it got before reading stopped).
+        amount: u64,
+        /// The limit.
+        limit: u64,
+        /// The command-line option that raises the limit.
+        option: &'static str,
+    },
+    /// A glTF URI names something outside the model's folder, or a scheme other than `data:`.
+    RefusedUri {
+        /// The URI as written in the file.
+        uri: String,
+        /// Why it is refused.
+        reason: String,
+    },
 }
 
 impl fmt::Display for Problem {
@@ -99,6 +131,27 @@ impl fmt::Display for Problem {
             ),
             Problem::Unsupported(what) => write!(f, "unsupported: {what}"),
             Problem::Syntax(what) => write!(f, "{what}"),
+            Problem::CoordinateOutOfRange { value, limit } => write!(
+                f,
+                "coordinate {value:e} is out of range (at most {limit:e} in magnitude)"
+            ),
+            Problem::LineTooLong { bytes, limit } => write!(
+                f,
+                "line is {bytes} bytes long (at most {limit} are accepted)"
+            ),
+            Problem::LimitExceeded {
+                what,
+                amount,
+                limit,
+                option,
+            } => write!(
+                f,
+                "{what} {amount}, more than the limit of {limit} (raise it with {option})"
+            ),
+            Problem::RefusedUri { uri, reason } => write!(
+                f,
+                "URI '{uri}' is refused: {reason} (--allow-external-uris reads it anyway)"
+            ),
         }
     }
 }
@@ -122,6 +175,27 @@ pub enum ImportError {
         /// The file.
         path: PathBuf,
     },
+    /// The path names something that is not a regular file (a FIFO, a device, a directory),
+    /// itself or through a symbolic link: reading it could block or never end.
+    #[error("{path}: not a regular file ({kind}); only regular files are read")]
+    NotAFile {
+        /// The file.
+        path: PathBuf,
+        /// What it is instead.
+        kind: &'static str,
+    },
+    /// The file was read but holds no triangle (only points, lines, or nothing).
+    #[error("{path}: the file has no triangles (points and lines are ignored)")]
+    NoTriangles {
+        /// The file.
+        path: PathBuf,
+    },
+    /// Every triangle of the inputs was degenerate after welding, so nothing is left to build.
+    #[error("{}: no usable triangle: every triangle has two corners at the same welded vertex", display_paths(.paths))]
+    NoUsableTriangles {
+        /// The inputs.
+        paths: Vec<PathBuf>,
+    },
     /// The file's contents are malformed.
     #[error("{path}: {location}: {problem}")]
     Malformed {
@@ -132,6 +206,11 @@ pub enum ImportError {
         /// What is wrong.
         problem: Problem,
     },
+}
+
+fn display_paths(paths: &[PathBuf]) -> String {
+    let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    names.join(", ")
 }
 
 impl ImportError {

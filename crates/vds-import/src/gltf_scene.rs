@@ -2,6 +2,10 @@
 //! walks the default scene's node hierarchy, applies world transforms, and reads every
 //! triangle primitive (strips and fans converted). Each mesh-carrying node becomes a part.
 //!
+//! Buffer URIs resolve inside the model's folder (see [`crate::uri`]), external buffers are
+//! read only up to their `byteLength`, and the instance tree is counted before it is
+//! expanded, so a small file cannot make the reader grow without bound.
+//!
 //! The `gltf` crate parses and validates the JSON; accessor data is read here, after checking
 //! every byte range with checked arithmetic, because the crate's own accessor iterators
 //! assume well-formed ranges (a zero count or an overflowing stride would panic there).
@@ -15,26 +19,36 @@ use gltf::mesh::Mode;
 
 use crate::error::{FormatError, Location, Problem};
 use crate::soup::{MeshSoup, check_index};
+use crate::uri;
 
 /// glTF node trees deeper than this are rejected: real scenes nest a few dozen levels, and the
 /// limit bounds recursion on hostile files.
 const MAX_NODE_DEPTH: usize = 1024;
 
-/// Reads a glTF or GLB file's bytes into `soup`. `path` locates external buffers.
-pub fn read_gltf(data: &[u8], path: &Path, soup: &mut MeshSoup) -> Result<(), FormatError> {
-    // gltf-json 1.4's validation indexes `accessors` with a POSITION index before checking it
-    // (mesh.rs, `primitive_validate_hook`), so a hostile file can panic it. Until that is
-    // fixed upstream, a panic there is turned into the error it should have been.
-    let parsed = std::panic::catch_unwind(|| gltf::Gltf::from_slice(data)).map_err(|_| {
-        FormatError::syntax(
-            Location::File,
-            "invalid glTF: a primitive refers to an accessor that does not exist",
-        )
-    })?;
-    let gltf =
-        parsed.map_err(|e| FormatError::syntax(Location::File, format!("invalid glTF: {e}")))?;
-    let buffers = load_buffers(&gltf, path)?;
-    let document = &gltf.document;
+/// How much of its surroundings a glTF file may use.
+pub struct GltfOptions<'a> {
+    /// The model's folder: relative buffer URIs resolve against it (`None`: bytes from
+    /// memory, every URI but `data:` is refused).
+    pub folder: Option<&'a Path>,
+    /// Whether URIs may leave `folder` (see [`crate::ImportOptions::allow_external_uris`]).
+    pub allow_external_uris: bool,
+    /// The most triangles the file's instance tree may expand to.
+    pub max_triangles: u64,
+}
+
+/// Reads a glTF or GLB file's bytes into `soup`.
+pub fn read_gltf(
+    data: &[u8],
+    options: &GltfOptions,
+    soup: &mut MeshSoup,
+) -> Result<(), FormatError> {
+    let invalid =
+        |e: gltf::Error| FormatError::syntax(Location::File, format!("invalid glTF: {e}"));
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(data).map_err(invalid)?;
+    let json = document.into_json();
+    check_position_accessors(&json)?;
+    let document = gltf::Document::from_json(json).map_err(invalid)?;
     let roots: Vec<gltf::Node> = match document
         .default_scene()
         .or_else(|| document.scenes().next())
@@ -51,6 +65,8 @@ pub fn read_gltf(data: &[u8], path: &Path, soup: &mut MeshSoup) -> Result<(), Fo
             document.nodes().filter(|n| !is_child[n.index()]).collect()
         }
     };
+    check_expansion(&document, &roots, options.max_triangles)?;
+    let buffers = load_buffers(&document, blob, options)?;
     let mut on_path = vec![false; document.nodes().len()];
     for root in roots {
         walk(&root, DMat4::IDENTITY, 0, &mut on_path, &buffers, soup)?;
@@ -58,18 +74,206 @@ pub fn read_gltf(data: &[u8], path: &Path, soup: &mut MeshSoup) -> Result<(), Fo
     Ok(())
 }
 
-fn load_buffers(gltf: &gltf::Gltf, path: &Path) -> Result<Vec<Vec<u8>>, FormatError> {
+/// gltf-json 1.4's validation indexes `accessors` with a primitive's POSITION index before
+/// checking it (`primitive_validate_hook` in its mesh.rs), so a hostile file would panic it.
+/// This checks those indices first, so validation never sees a dangling one.
+fn check_position_accessors(json: &gltf::json::Root) -> Result<(), FormatError> {
+    use gltf::json::validation::Checked;
+    for (mesh_index, mesh) in json.meshes.iter().enumerate() {
+        for (primitive_index, primitive) in mesh.primitives.iter().enumerate() {
+            let position = primitive
+                .attributes
+                .get(&Checked::Valid(gltf::json::mesh::Semantic::Positions));
+            if position.is_some_and(|index| index.value() >= json.accessors.len()) {
+                return Err(FormatError::syntax(
+                    Location::Element {
+                        kind: format!("mesh {mesh_index} primitive"),
+                        index: primitive_index as u64,
+                    },
+                    "POSITION refers to an accessor that does not exist",
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Node instances are limited like triangles (each costs a transform in the walk), but never
+/// below 2²⁶ ≈ 67 M, which walk in about a second: a small `max_triangles` should not refuse
+/// a file for its empty grouping nodes.
+const MIN_INSTANCE_LIMIT: u64 = 1 << 26;
+
+/// What a node's subtree expands to when every instance is read: triangles, vertices and
+/// node instances, each saturating at `u64::MAX`.
+#[derive(Clone, Copy, Default)]
+struct Expansion {
+    triangles: u64,
+    vertices: u64,
+    instances: u64,
+}
+
+impl Expansion {
+    fn add(&mut self, other: Expansion) {
+        self.triangles = self.triangles.saturating_add(other.triangles);
+        self.vertices = self.vertices.saturating_add(other.vertices);
+        self.instances = self.instances.saturating_add(other.instances);
+    }
+}
+
+/// Refuses an instance tree that would expand past `max_triangles` before anything is
+/// expanded: a node listed twice by each of 40 nested nodes is 2⁴⁰ instances in a few
+/// hundred bytes. Each node's expansion is computed once (memoised over the node graph), so
+/// this costs one visit per node and per child link; the error names the deepest node whose
+/// subtree alone is over the limit, which is where the instancing multiplies.
+fn check_expansion(
+    document: &gltf::Document,
+    roots: &[gltf::Node],
+    max_triangles: u64,
+) -> Result<(), FormatError> {
+    let meshes: Vec<Expansion> = document.meshes().map(|m| mesh_expansion(&m)).collect();
+    let mut memo: Vec<Option<Expansion>> = vec![None; document.nodes().len()];
+    let mut on_path = vec![false; document.nodes().len()];
+    let mut total = Expansion::default();
+    for root in roots {
+        total.add(node_expansion(root, 0, &meshes, &mut memo, &mut on_path)?);
+    }
+    // Which count is over, in the order that matters most for memory.
+    let vertex_limit = max_triangles.saturating_mul(3);
+    let (what, limit, count): (&str, u64, fn(&Expansion) -> u64) =
+        if total.triangles > max_triangles {
+            ("triangles", max_triangles, |e| e.triangles)
+        } else if total.vertices > vertex_limit {
+            (
+                "vertices (at most 3 per allowed triangle)",
+                vertex_limit,
+                |e| e.vertices,
+            )
+        } else if total.instances > max_triangles.max(MIN_INSTANCE_LIMIT) {
+            (
+                "node instances",
+                max_triangles.max(MIN_INSTANCE_LIMIT),
+                |e| e.instances,
+            )
+        } else {
+            return Ok(());
+        };
+    // Walk down from the roots to the deepest node that is over the limit on its own.
+    let mut culprit: Option<gltf::Node> = None;
+    let mut candidates: Vec<gltf::Node> = roots.to_vec();
+    while let Some(node) = candidates
+        .iter()
+        .find(|n| memo[n.index()].is_some_and(|e| count(&e) > limit))
+        .cloned()
+    {
+        candidates = node.children().collect();
+        culprit = Some(node);
+    }
+    let amount = culprit
+        .as_ref()
+        .and_then(|n| memo[n.index()])
+        .map_or(count(&total), |e| count(&e));
+    let (location, whose) = match &culprit {
+        Some(node) => (
+            Location::Element {
+                kind: "node".into(),
+                index: node.index() as u64,
+            },
+            match node.name() {
+                Some(name) => format!("node '{name}' with its instances expands to {what}:"),
+                None => format!("the node with its instances expands to {what}:"),
+            },
+        ),
+        None => (
+            Location::File,
+            format!("the scene with its instances expands to {what}:"),
+        ),
+    };
+    Err(FormatError::new(
+        location,
+        Problem::LimitExceeded {
+            what: whose,
+            amount,
+            limit,
+            option: "--max-triangles",
+        },
+    ))
+}
+
+/// Triangles and vertices of one instance of a mesh, from its accessors' counts.
+fn mesh_expansion(mesh: &gltf::Mesh) -> Expansion {
+    let mut out = Expansion::default();
+    for primitive in mesh.primitives() {
+        let vertices = primitive
+            .get(&gltf::Semantic::Positions)
+            .map_or(0, |a| a.count() as u64);
+        let corners = primitive.indices().map_or(vertices, |a| a.count() as u64);
+        let triangles = match primitive.mode() {
+            Mode::Triangles => corners / 3,
+            Mode::TriangleStrip | Mode::TriangleFan => corners.saturating_sub(2),
+            _ => 0,
+        };
+        out.add(Expansion {
+            triangles,
+            vertices,
+            instances: 0,
+        });
+    }
+    out
+}
+
+fn node_expansion(
+    node: &gltf::Node,
+    depth: usize,
+    meshes: &[Expansion],
+    memo: &mut [Option<Expansion>],
+    on_path: &mut [bool],
+) -> Result<Expansion, FormatError> {
+    if let Some(known) = memo[node.index()] {
+        return Ok(known);
+    }
+    if depth > MAX_NODE_DEPTH || on_path[node.index()] {
+        return Err(FormatError::syntax(
+            Location::Element {
+                kind: "node".into(),
+                index: node.index() as u64,
+            },
+            "node hierarchy has a cycle or is too deep",
+        ));
+    }
+    on_path[node.index()] = true;
+    let mut out = Expansion {
+        instances: 1,
+        ..node
+            .mesh()
+            .map_or_else(Expansion::default, |m| meshes[m.index()])
+    };
+    for child in node.children() {
+        out.add(node_expansion(&child, depth + 1, meshes, memo, on_path)?);
+    }
+    on_path[node.index()] = false;
+    memo[node.index()] = Some(out);
+    Ok(out)
+}
+
+fn load_buffers(
+    document: &gltf::Document,
+    blob: Option<Vec<u8>>,
+    options: &GltfOptions,
+) -> Result<Vec<Vec<u8>>, FormatError> {
+    let mut blob = blob;
     let mut out = Vec::new();
-    for buffer in gltf.document.buffers() {
+    for buffer in document.buffers() {
         let at = || Location::Element {
             kind: "buffer".into(),
             index: buffer.index() as u64,
         };
         let bytes = match buffer.source() {
-            gltf::buffer::Source::Bin => gltf
-                .blob
-                .clone()
-                .ok_or_else(|| FormatError::syntax(at(), "GLB has no binary chunk"))?,
+            gltf::buffer::Source::Bin => blob.take().ok_or_else(|| {
+                FormatError::syntax(
+                    at(),
+                    "GLB has no binary chunk (or a second buffer claims it)",
+                )
+            })?,
             gltf::buffer::Source::Uri(uri) => {
                 if let Some(rest) = uri.strip_prefix("data:") {
                     let (_, payload) = rest
@@ -79,11 +283,17 @@ fn load_buffers(gltf: &gltf::Gltf, path: &Path) -> Result<Vec<Vec<u8>>, FormatEr
                         .decode(payload)
                         .map_err(|e| FormatError::syntax(at(), format!("bad base64: {e}")))?
                 } else {
-                    let file = path
-                        .parent()
-                        .unwrap_or(Path::new("."))
-                        .join(uri.replace("%20", " "));
-                    std::fs::read(&file).map_err(|e| {
+                    let file = uri::resolve(uri, options.folder, options.allow_external_uris)
+                        .map_err(|reason| {
+                            FormatError::new(
+                                at(),
+                                Problem::RefusedUri {
+                                    uri: uri.to_string(),
+                                    reason,
+                                },
+                            )
+                        })?;
+                    uri::read_prefix(&file, buffer.length() as u64).map_err(|e| {
                         FormatError::syntax(at(), format!("cannot read {}: {e}", file.display()))
                     })?
                 }

@@ -18,6 +18,7 @@ mod ply;
 mod soup;
 mod source;
 mod stl;
+mod uri;
 mod weld;
 
 use std::path::Path;
@@ -59,28 +60,106 @@ pub struct ImportStats {
     pub unreferenced_vertices_dropped: u64,
 }
 
+/// The largest coordinate magnitude accepted, after any transform: 2⁶⁰ ≈ 1.15·10¹⁸.
+///
+/// Near `f32::MAX` (3.4·10³⁸) the builder's squared distances and the `.vdt` grid's step
+/// overflow. At 2⁶⁰ every squared coordinate difference ((2·2⁶⁰)²·3 < 2¹²⁴) is still finite
+/// in `f32`, and the build, the file's verification and the runtime's pixel bound are tested
+/// at this size (the runtime's `threshold_holds_for_models_at_the_largest_accepted_
+/// coordinates`). No real model comes near it: the Earth in micrometres is 1.3·10¹³.
+pub const MAX_COORDINATE: f64 = (1u64 << 60) as f64;
+
 /// Options for [`load_files`].
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImportOptions {
     /// How vertices are welded.
     pub weld: Weld,
+    /// The most triangles all inputs together may hold. glTF instance trees are counted
+    /// before they are expanded, and refused when they would expand to more triangles than
+    /// this, more than three vertices per allowed triangle, or more node instances than this
+    /// or 2²⁶, whichever is larger.
+    pub max_triangles: u64,
+    /// The most bytes a `.gz` input may decompress to (it is decompressed into memory).
+    pub max_decompressed_bytes: u64,
+    /// Whether glTF URIs may name files outside the model's folder (absolute paths, `..`
+    /// leaving the folder, symbolic links out of it). Off by default: a model handed to a
+    /// batch job must not make it read other files. Schemes other than `data:` and file
+    /// paths are refused either way: nothing is fetched from a network.
+    pub allow_external_uris: bool,
+}
+
+impl ImportOptions {
+    /// The default [`ImportOptions::max_triangles`]: 2²⁸ ≈ 268 M, about what the in-memory
+    /// build fits in 24 GiB (it peaks near 100 bytes per triangle).
+    pub const DEFAULT_MAX_TRIANGLES: u64 = 1 << 28;
+    /// The default [`ImportOptions::max_decompressed_bytes`]: 4 GiB.
+    pub const DEFAULT_MAX_DECOMPRESSED_BYTES: u64 = 4 << 30;
+}
+
+impl Default for ImportOptions {
+    fn default() -> Self {
+        Self {
+            weld: Weld::default(),
+            max_triangles: Self::DEFAULT_MAX_TRIANGLES,
+            max_decompressed_bytes: Self::DEFAULT_MAX_DECOMPRESSED_BYTES,
+            allow_external_uris: false,
+        }
+    }
 }
 
 /// Reads one mesh file into a soup, choosing the reader by extension (`.gz` looked through).
-pub fn read_file(path: &Path, soup: &mut MeshSoup) -> Result<(), ImportError> {
+///
+/// The file must be a regular file (links are followed); a file without any triangle is an
+/// error, and so is one that takes the soup past `options.max_triangles`.
+pub fn read_file(
+    path: &Path,
+    options: &ImportOptions,
+    soup: &mut MeshSoup,
+) -> Result<(), ImportError> {
     let (format, gz) = format_of(path).ok_or_else(|| ImportError::UnknownFormat {
         path: path.to_path_buf(),
     })?;
-    let bytes = source::read_bytes(path, gz)?;
+    let bytes = source::read_bytes(path, gz, options.max_decompressed_bytes)?;
     let name = source::part_name_of(path);
     let mut file_soup = MeshSoup::default();
+    let budget = options
+        .max_triangles
+        .saturating_sub(soup.triangles.len() as u64);
     let result = match format {
         Format::Obj => obj::read_obj(&bytes, &name, &mut file_soup),
-        Format::Gltf => gltf_scene::read_gltf(&bytes, path, &mut file_soup),
+        Format::Gltf => {
+            let gltf_options = gltf_scene::GltfOptions {
+                folder: Some(
+                    path.parent()
+                        .filter(|p| !p.as_os_str().is_empty())
+                        .unwrap_or(Path::new(".")),
+                ),
+                allow_external_uris: options.allow_external_uris,
+                max_triangles: budget,
+            };
+            gltf_scene::read_gltf(&bytes, &gltf_options, &mut file_soup)
+        }
         Format::Ply => ply::read_ply(&bytes, &name, &mut file_soup),
         Format::Stl => stl::read_stl(&bytes, &name, &mut file_soup),
     };
     result.map_err(|e| e.in_file(path))?;
+    if file_soup.triangles.is_empty() {
+        return Err(ImportError::NoTriangles {
+            path: path.to_path_buf(),
+        });
+    }
+    if file_soup.triangles.len() as u64 > budget {
+        return Err(FormatError::new(
+            Location::File,
+            Problem::LimitExceeded {
+                what: "the inputs so far hold".into(),
+                amount: soup.triangles.len() as u64 + file_soup.triangles.len() as u64,
+                limit: options.max_triangles,
+                option: "--max-triangles",
+            },
+        )
+        .in_file(path));
+    }
     if soup.positions.is_empty() && soup.part_names.is_empty() {
         *soup = file_soup; // The common single-file case: no copy.
     } else {
@@ -90,7 +169,9 @@ pub fn read_file(path: &Path, soup: &mut MeshSoup) -> Result<(), ImportError> {
 }
 
 /// Reads mesh bytes of a known format (for tests and embedders that hold files in memory).
-/// `name` names the part of single-part formats; glTF external buffers are not available.
+/// `name` names the part of single-part formats; glTF external buffers are not available
+/// (a URI other than `data:` is an error) and instance trees are limited by
+/// [`ImportOptions::DEFAULT_MAX_TRIANGLES`].
 pub fn read_bytes(
     bytes: &[u8],
     format: Format,
@@ -99,7 +180,15 @@ pub fn read_bytes(
 ) -> Result<(), FormatError> {
     match format {
         Format::Obj => obj::read_obj(bytes, name, soup),
-        Format::Gltf => gltf_scene::read_gltf(bytes, Path::new(name), soup),
+        Format::Gltf => {
+            // No folder to read from: every URI other than `data:` is refused.
+            let options = gltf_scene::GltfOptions {
+                folder: None,
+                allow_external_uris: false,
+                max_triangles: ImportOptions::DEFAULT_MAX_TRIANGLES,
+            };
+            gltf_scene::read_gltf(bytes, &options, soup)
+        }
         Format::Ply => ply::read_ply(bytes, name, soup),
         Format::Stl => stl::read_stl(bytes, name, soup),
     }
@@ -112,9 +201,15 @@ pub fn load_files<P: AsRef<Path>>(
 ) -> Result<Scene, ImportError> {
     let mut soup = MeshSoup::default();
     for path in paths {
-        read_file(path.as_ref(), &mut soup)?;
+        read_file(path.as_ref(), options, &mut soup)?;
     }
-    Ok(weld(soup, options.weld))
+    let scene = weld(soup, options.weld);
+    if scene.triangles.is_empty() {
+        return Err(ImportError::NoUsableTriangles {
+            paths: paths.iter().map(|p| p.as_ref().to_path_buf()).collect(),
+        });
+    }
+    Ok(scene)
 }
 
 /// Reads one file into a welded scene.

@@ -1,27 +1,82 @@
 //! Wavefront OBJ through `tobj`: every object or group becomes a named part; polygons are
 //! triangulated by `tobj`; points and lines are ignored.
 //!
-//! `tobj` reports what went wrong but not where, so the reader feeds it through a
-//! line-counting buffer and, on the rare error path, rescans the text to name the exact line
-//! of a non-finite coordinate or an out-of-range face index.
+//! Before `tobj` sees the text, [`prepare`] skips a UTF-8 byte-order mark, turns old Mac
+//! CR-only line endings into LF, and refuses any line longer than [`MAX_LINE_BYTES`] (`tobj`
+//! holds a line and everything parsed from it at once: one 100 MB face line took 2.9 GB).
+//! [`ObjReader`] then hands `tobj` one line at a time and drops `l` (polyline) statements,
+//! which `tobj` would otherwise triangulate as faces when they have three or more corners.
+//!
+//! `tobj` reports what went wrong but not where, so the reader knows how far `tobj` got
+//! and, on the rare error path, rescans the text to name the exact line of a non-finite
+//! coordinate or an out-of-range face index.
 
+use std::borrow::Cow;
 use std::io::{BufRead, Read};
 
 use crate::error::{FormatError, Location, Problem};
 use crate::soup::MeshSoup;
 
-/// A `BufRead` over a byte slice that knows how far the consumer got, so a parse error can
-/// be given a line number.
-struct CountingReader<'a> {
-    data: &'a [u8],
-    position: usize,
+/// The longest line accepted, in bytes. Real files stay far below it (a face with 10,000
+/// corners written as `v/vt/vn` triples is about 200 KB); the limit bounds what one line can
+/// make `tobj` allocate.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// The text `tobj` should see: no byte-order mark, LF line endings, no over-long line.
+fn prepare(data: &[u8]) -> Result<Cow<'_, [u8]>, FormatError> {
+    let data = data.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(data);
+    // A file whose first line break is a lone CR uses CR line endings throughout (classic Mac
+    // OS); CR LF and LF files are read as they are.
+    let cr_only = memchr::memchr2(b'\r', b'\n', data)
+        .is_some_and(|at| data[at] == b'\r' && data.get(at + 1) != Some(&b'\n'));
+    let data: Cow<[u8]> = if cr_only {
+        Cow::Owned(
+            data.iter()
+                .map(|&b| if b == b'\r' { b'\n' } else { b })
+                .collect(),
+        )
+    } else {
+        Cow::Borrowed(data)
+    };
+    let mut line_start = 0;
+    for (line, end) in memchr::memchr_iter(b'\n', &data)
+        .chain(std::iter::once(data.len()))
+        .enumerate()
+    {
+        if end - line_start > MAX_LINE_BYTES {
+            return Err(FormatError::new(
+                Location::Line(line as u64 + 1),
+                Problem::LineTooLong {
+                    bytes: (end - line_start) as u64,
+                    limit: MAX_LINE_BYTES as u64,
+                },
+            ));
+        }
+        line_start = end + 1;
+    }
+    Ok(data)
 }
 
-impl CountingReader<'_> {
+/// Whether a line is an `l` (polyline) statement.
+fn is_polyline(line: &[u8]) -> bool {
+    let line = line.trim_ascii_start();
+    line.first() == Some(&b'l') && line.get(1).is_none_or(|b| b.is_ascii_whitespace())
+}
+
+/// A `BufRead` over the prepared text that hands out one line at a time, skips polylines,
+/// and knows how far the consumer got, so a parse error can be given a line number.
+struct ObjReader<'a> {
+    data: &'a [u8],
+    position: usize,
+    /// The end of the line being handed out (just past its newline).
+    line_end: usize,
+}
+
+impl ObjReader<'_> {
     /// The 1-based number of the line that was read last.
     fn current_line(&self) -> u64 {
         let consumed = &self.data[..self.position];
-        let newlines = consumed.iter().filter(|&&b| b == b'\n').count() as u64;
+        let newlines = memchr::memchr_iter(b'\n', consumed).count() as u64;
         // A consumed line ends with its newline, so the line being parsed is the last
         // newline-terminated one; a final line without a newline adds one.
         let partial = u64::from(consumed.last().is_some_and(|&b| b != b'\n'));
@@ -29,20 +84,29 @@ impl CountingReader<'_> {
     }
 }
 
-impl Read for CountingReader<'_> {
+impl Read for ObjReader<'_> {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = (&self.data[self.position..]).read(buf)?;
-        self.position += n;
+        let n = self.fill_buf()?.read(buf)?;
+        self.consume(n);
         Ok(n)
     }
 }
 
-impl BufRead for CountingReader<'_> {
+impl BufRead for ObjReader<'_> {
     fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
-        Ok(&self.data[self.position..])
+        while self.position >= self.line_end && self.position < self.data.len() {
+            let rest = &self.data[self.position..];
+            let end = memchr::memchr(b'\n', rest).map_or(rest.len(), |at| at + 1);
+            if is_polyline(&rest[..end]) {
+                self.position += end;
+            } else {
+                self.line_end = self.position + end;
+            }
+        }
+        Ok(&self.data[self.position..self.line_end.max(self.position)])
     }
     fn consume(&mut self, amount: usize) {
-        self.position = (self.position + amount).min(self.data.len());
+        self.position = (self.position + amount).min(self.line_end);
     }
 }
 
@@ -54,7 +118,12 @@ pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<
         ignore_points: true,
         ignore_lines: true,
     };
-    let mut reader = CountingReader { data, position: 0 };
+    let data = &*prepare(data)?;
+    let mut reader = ObjReader {
+        data,
+        position: 0,
+        line_end: 0,
+    };
     let loaded = tobj::load_obj_buf(&mut reader, &options, |_| {
         // Materials carry nothing the vertex tree needs; never touch the file system.
         Err(tobj::LoadError::OpenFileFailed)
@@ -84,7 +153,7 @@ pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<
         let base = soup.positions.len();
         for p in mesh.positions.chunks_exact(3) {
             if let Err(error) = soup.push_vertex([p[0], p[1], p[2]], || Location::File) {
-                return Err(locate_non_finite_vertex(data).unwrap_or(error));
+                return Err(locate_bad_vertex(data).unwrap_or(error));
             }
         }
         let vertex_count = soup.positions.len() - base;
@@ -118,17 +187,19 @@ fn statements(data: &[u8]) -> impl Iterator<Item = (u64, &str, std::str::SplitWh
         })
 }
 
-/// Finds the first `v` line with a NaN or infinite coordinate (error path only).
-fn locate_non_finite_vertex(data: &[u8]) -> Option<FormatError> {
+/// Finds the first `v` line with a NaN, infinite or out-of-range coordinate (error path
+/// only).
+fn locate_bad_vertex(data: &[u8]) -> Option<FormatError> {
     statements(data)
         .filter(|(_, keyword, _)| *keyword == "v")
-        .find(|(_, _, words)| {
-            words
-                .clone()
-                .take(3)
-                .any(|w| w.parse::<f32>().is_ok_and(|c| !c.is_finite()))
+        .find_map(|(line, _, words)| {
+            let mut p = [0f32; 3];
+            for (c, word) in p.iter_mut().zip(words.take(3)) {
+                *c = word.parse().unwrap_or(0.0);
+            }
+            let problem = crate::soup::check_position(p).err()?;
+            Some(FormatError::new(Location::Line(line), problem))
         })
-        .map(|(line, _, _)| FormatError::new(Location::Line(line), Problem::NonFiniteCoordinate))
 }
 
 /// Finds the first face corner that refers to a vertex not yet defined (error path only).

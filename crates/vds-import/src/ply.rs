@@ -648,8 +648,8 @@ mod fast {
     use rayon::prelude::*;
 
     use super::{Element, PartMap, Property, Scalar, Values, part_slot};
-    use crate::error::{FormatError, Problem};
-    use crate::soup::MeshSoup;
+    use crate::error::FormatError;
+    use crate::soup::{MeshSoup, check_position};
 
     /// Rows decoded per parallel task.
     const ROWS_PER_TASK: usize = 1 << 14;
@@ -734,15 +734,12 @@ mod fast {
                 [x, y, z].map(|(at, ty)| scalar(&row[at..], ty, big_endian) as f32)
             })
         };
-        if let Some(bad) = positions
+        if let Some((bad, problem)) = positions
             .iter()
-            .position(|p| !p.iter().all(|c| c.is_finite()))
+            .enumerate()
+            .find_map(|(i, &p)| check_position(p).err().map(|e| (i, e)))
         {
-            return Err(FormatError::at_element(
-                "vertex",
-                bad as u64,
-                Problem::NonFiniteCoordinate,
-            ));
+            return Err(FormatError::at_element("vertex", bad as u64, problem));
         }
         if u32::try_from(soup.positions.len() + positions.len()).is_err() {
             return Ok(false); // The general path reports the overflow.

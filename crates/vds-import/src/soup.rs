@@ -29,14 +29,15 @@ impl MeshSoup {
         (self.part_names.len() - 1) as u32
     }
 
-    /// Appends a vertex after checking it is finite, and returns its index.
+    /// Appends a vertex after checking it is finite and within [`crate::MAX_COORDINATE`],
+    /// and returns its index.
     pub fn push_vertex(
         &mut self,
         p: [f32; 3],
         location: impl FnOnce() -> Location,
     ) -> Result<u32, FormatError> {
-        if !p.iter().all(|c| c.is_finite()) {
-            return Err(FormatError::new(location(), Problem::NonFiniteCoordinate));
+        if let Err(problem) = check_position(p) {
+            return Err(FormatError::new(location(), problem));
         }
         let index = u32::try_from(self.positions.len()).map_err(|_| {
             FormatError::new(
@@ -73,6 +74,24 @@ impl MeshSoup {
             .extend(other.triangle_parts.iter().map(|p| p + part_base));
         self.part_names.extend(other.part_names);
         self.short_faces_dropped += other.short_faces_dropped;
+    }
+}
+
+/// Checks that a position is finite and within [`crate::MAX_COORDINATE`]: what every reader
+/// requires of every vertex.
+pub(crate) fn check_position(p: [f32; 3]) -> Result<(), Problem> {
+    if !p.iter().all(|c| c.is_finite()) {
+        return Err(Problem::NonFiniteCoordinate);
+    }
+    match p
+        .iter()
+        .find(|c| f64::from(c.abs()) > crate::MAX_COORDINATE)
+    {
+        Some(&c) => Err(Problem::CoordinateOutOfRange {
+            value: f64::from(c),
+            limit: crate::MAX_COORDINATE,
+        }),
+        None => Ok(()),
     }
 }
 

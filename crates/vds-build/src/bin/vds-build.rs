@@ -86,6 +86,45 @@ struct Args {
     /// Check every tree invariant after building (slow on large scenes).
     #[arg(long)]
     verify: bool,
+    /// Refuse inputs holding more triangles than this, all together; glTF instance trees are
+    /// counted before they are expanded (default: 2^28 = 268,435,456).
+    #[arg(long, value_name = "N", default_value_t = vds_import::ImportOptions::DEFAULT_MAX_TRIANGLES,
+          value_parser = clap::value_parser!(u64).range(1..))]
+    max_triangles: u64,
+    /// Refuse a .gz input that decompresses to more than this (bytes, or with a suffix:
+    /// 512MiB, 8GiB; default 4GiB). Gzipped inputs are decompressed into memory.
+    #[arg(long, value_name = "SIZE", default_value = "4GiB", value_parser = parse_size)]
+    max_decompressed_bytes: u64,
+    /// Let glTF buffer URIs name files outside the model's folder (absolute paths, `..`,
+    /// links out of the folder, file: URIs). Off by default, so that a model cannot make the
+    /// build read other files; other URI schemes are never fetched.
+    #[arg(long)]
+    allow_external_uris: bool,
+}
+
+/// A byte count: digits, optionally followed by K, M, G or T (powers of 1024), with or
+/// without `iB`/`B` (`512MiB`, `2G`, `4096`).
+fn parse_size(text: &str) -> Result<u64, String> {
+    let text = text.trim();
+    let digits = text
+        .find(|c: char| !c.is_ascii_digit())
+        .unwrap_or(text.len());
+    let (number, unit) = text.split_at(digits);
+    let number: u64 = number
+        .parse()
+        .map_err(|_| format!("'{text}' is not a size (digits, then K, M, G or T)"))?;
+    let shift = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 0,
+        "k" | "kb" | "kib" => 10,
+        "m" | "mb" | "mib" => 20,
+        "g" | "gb" | "gib" => 30,
+        "t" | "tb" | "tib" => 40,
+        _ => return Err(format!("'{text}': unknown unit '{unit}' (K, M, G or T)")),
+    };
+    number
+        .checked_mul(1 << shift)
+        .filter(|&n| n > 0)
+        .ok_or_else(|| format!("'{text}' is zero or too large"))
 }
 
 /// The most worker threads `--threads` accepts: far above any core count the builder scales
@@ -287,6 +326,9 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
     let show_progress = !args.quiet && !args.json && std::io::stderr().is_terminal();
     let options = ImportOptions {
         weld: args.weld.map_or(Weld::Exact, Weld::Relative),
+        max_triangles: args.max_triangles,
+        max_decompressed_bytes: args.max_decompressed_bytes,
+        allow_external_uris: args.allow_external_uris,
     };
 
     let start = Instant::now();
