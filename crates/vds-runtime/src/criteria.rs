@@ -209,9 +209,14 @@ impl Judge {
             return None;
         }
         let axis_distance = (c.x * c.x + c.y * c.y).sqrt();
-        let rho = axis_distance + hot.group_radius;
-        let d2 = d * d;
-        if self.focal_sq * r * r * (d2 + rho * rho) > tight * tight * d2 * d2 {
+        // In f64 for the same reason as in `decide_inner`: fourth powers of distances.
+        let (r64, rho, d2, tight64) = (
+            f64::from(r),
+            f64::from(axis_distance + hot.group_radius),
+            f64::from(d) * f64::from(d),
+            f64::from(tight),
+        );
+        if f64::from(self.focal_sq) * r64 * r64 * (d2 + rho * rho) > tight64 * tight64 * d2 * d2 {
             return None;
         }
         Some(if MARGIN {
@@ -272,20 +277,11 @@ impl Judge {
         let c = view.to_camera(Vec3::from(n.hot.proxy));
         let d = c.z - r;
         // Cheapest first: most nodes of a settled cut are far below even the tightest limit.
-        let (lhs, d4, axis_distance) = if d > 0.0 {
-            let rho = (c.x * c.x + c.y * c.y).sqrt();
-            (
-                self.focal_sq * r * r * (d * d + (rho + r) * (rho + r)),
-                (d * d) * (d * d),
-                rho,
-            )
-        } else {
-            (f32::INFINITY, 0.0, 0.0)
-        };
-        let tightest = self.tightest(t);
+        let (lhs, d4, axis_distance) = screen_test_sides(self.focal_sq, r, c);
+        let tightest = f64::from(self.tightest(t));
         if lhs <= tightest * tightest * d4 {
             let margin = if MARGIN {
-                crate::reuse::pass_margin(view.focal_px, r, c.z, axis_distance, r, tightest)
+                crate::reuse::pass_margin(view.focal_px, r, c.z, axis_distance, r, tightest as f32)
             } else {
                 0.0
             };
@@ -304,8 +300,8 @@ impl Judge {
         n: Tested<'_>,
         t: f32,
         d: f32,
-        lhs: f32,
-        d4: f32,
+        lhs: f64,
+        d4: f64,
         shortcut: bool,
     ) -> Decision {
         let ignore_outside = self.criteria.frustum == FrustumMode::Ignore;
@@ -318,7 +314,7 @@ impl Judge {
         if shortcut
             && self.criteria.gaze.is_none()
             && self.criteria.silhouette_factor.is_none_or(|s| s <= 1.0)
-            && lhs > t * t * d4
+            && lhs > f64::from(t) * f64::from(t) * d4
             && !self.may_face_away(view, n)
         {
             return Decision::Unfold;
@@ -338,6 +334,7 @@ impl Judge {
         if let (Some(s), Facing::Silhouette) = (self.criteria.silhouette_factor, facing) {
             limit *= s;
         }
+        let limit = f64::from(limit);
         if lhs > limit * limit * d4 {
             Decision::Unfold
         } else {
@@ -370,7 +367,7 @@ impl Judge {
             f32::MAX
         } else {
             let rho = (c.x * c.x + c.y * c.y).sqrt();
-            view.focal_px * r * (d * d + (rho + r) * (rho + r)).sqrt() / (d * d)
+            screen_bound(view.focal_px, r, d, rho)
         };
         let mut scale = self.gaze_factor(view, n);
         if let (Some(s), Facing::Silhouette) = (self.criteria.silhouette_factor, facing) {
@@ -392,7 +389,7 @@ impl Judge {
             return if r == 0.0 { 0.0 } else { f32::INFINITY };
         }
         let rho = (c.x * c.x + c.y * c.y).sqrt();
-        view.focal_px * r * (d * d + (rho + r) * (rho + r)).sqrt() / (d * d)
+        screen_bound(view.focal_px, r, d, rho)
     }
 
     #[inline]
@@ -482,6 +479,36 @@ impl Judge {
     }
 }
 
+/// The two sides of the screen-space test of an error radius `r` at camera-space position
+/// `c`, without the threshold: `(focal²·r²·(d² + (ρ + r)²), d⁴, ρ)` with `d = c.z − r` and
+/// `ρ` the distance from the view axis, so that the bound is within `T` pixels exactly when
+/// `lhs ≤ T²·d⁴`. A ball reaching the eye plane gives an infinite left side. Both sides hold
+/// fourth powers of distances, so they are formed in f64: in f32 they overflow once distances
+/// pass about 1.4·10⁹/√T, and an infinite right side would fold everything.
+#[inline]
+fn screen_test_sides(focal_sq: f32, r: f32, c: Vec3) -> (f64, f64, f32) {
+    let d = c.z - r;
+    if d <= 0.0 {
+        return (f64::INFINITY, 0.0, 0.0);
+    }
+    let rho = (c.x * c.x + c.y * c.y).sqrt();
+    let (r64, d, reach) = (f64::from(r), f64::from(d), f64::from(rho + r));
+    (
+        f64::from(focal_sq) * r64 * r64 * (d * d + reach * reach),
+        (d * d) * (d * d),
+        rho,
+    )
+}
+
+/// The screen-space error bound in pixels of an error radius `r` whose ball is `d` in front
+/// of the eye plane and `rho` off the view axis: `focal·r·√(d² + (ρ + r)²) / d²`, formed in
+/// f64 so that squares of large distances cannot overflow, saturating at `f32::MAX`.
+fn screen_bound(focal: f32, r: f32, d: f32, rho: f32) -> f32 {
+    let (r, d, reach) = (f64::from(r), f64::from(d), f64::from(rho + r));
+    (f64::from(focal) * r * (d * d + reach * reach).sqrt() / (d * d)).min(f64::from(f32::MAX))
+        as f32
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -536,16 +563,8 @@ mod tests {
             let t = 0.25 + 4.0 * next();
             let c = view.to_camera(Vec3::from(proxy));
             let d = c.z - r;
-            let (lhs, d4) = if d > 0.0 {
-                let rho = (c.x * c.x + c.y * c.y).sqrt();
-                (
-                    judge.focal_sq * r * r * (d * d + (rho + r) * (rho + r)),
-                    (d * d) * (d * d),
-                )
-            } else {
-                (f32::INFINITY, 0.0)
-            };
-            let tightest = judge.tightest(t);
+            let (lhs, d4, _) = screen_test_sides(judge.focal_sq, r, c);
+            let tightest = f64::from(judge.tightest(t));
             if lhs <= tightest * tightest * d4 {
                 continue;
             }
@@ -557,7 +576,9 @@ mod tests {
                 "{camera:?} {criteria:?} {hot:?} {shape:?} t {t}"
             );
             shortcut_taken += usize::from(
-                fast == Decision::Unfold && lhs > t * t * d4 && !judge.may_face_away(view, n),
+                fast == Decision::Unfold
+                    && lhs > f64::from(t * t) * d4
+                    && !judge.may_face_away(view, n),
             );
         }
         assert!(
