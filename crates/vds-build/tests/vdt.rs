@@ -630,3 +630,16 @@ fn verify_refuses_input_vertices_fewer_than_the_leaves() {
     let leaves = get_u64(&bytes, 40);
     refused_naming(bytes, StatedField::InputVertices, 3, leaves);
 }
+
+/// The decoder makes half-angles at most π; the stand-alone record check holds pages from
+/// elsewhere to the same.
+#[test]
+fn validate_page_refuses_a_cone_wider_than_a_sphere() {
+    let file = VdtFile::from_bytes(encoded("cow.obj", &small_pages())).unwrap();
+    let mut page = file.read_page(0).unwrap();
+    file.validate_page(&page).unwrap();
+    let inner = page.nodes.iter().position(|n| n.child_count > 0).unwrap();
+    page.nodes[inner].cone[3] = vds_format::layout::F32::new(3.2);
+    let error = file.validate_page(&page).unwrap_err();
+    assert!(error.to_string().contains("half-angle"), "{error}");
+}

@@ -66,6 +66,17 @@ pub enum VdtError {
         /// What the pages hold.
         counted: u64,
     },
+    /// A node's bounds contradict its parent's, found where the runtime first relies on
+    /// them (when the parent unfolds and the node's page has loaded).
+    #[error("page {page}, node {node}: {violation}")]
+    Bounds {
+        /// The page holding the node.
+        page: u32,
+        /// The node.
+        node: u32,
+        /// What is wrong.
+        violation: BoundViolation,
+    },
     /// An output file could not be written (or may not be: it is not a regular file).
     #[error(transparent)]
     Output(#[from] crate::output::OutputError),
@@ -85,6 +96,43 @@ impl VdtError {
         VdtError::Invalid {
             what: what.into(),
             message: message.into(),
+        }
+    }
+}
+
+/// How a node's decoded bounds contradict its parent's ([`VdtError::Bounds`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum BoundViolation {
+    /// The node's bounding sphere reaches past its parent's by more than the file's
+    /// quantisation can explain. A parent's sphere holds every triangle its children's do, so
+    /// one of the two is false.
+    SphereOutsideParent {
+        /// The parent.
+        parent: u32,
+        /// How far past (scene units).
+        by: f32,
+    },
+    /// A leaf lies farther from its parent's proxy than the parent's error radius, which
+    /// must hold every vertex under the parent.
+    LeafOutsideErrorRadius {
+        /// The parent.
+        parent: u32,
+        /// How far past (scene units).
+        by: f32,
+    },
+}
+
+impl std::fmt::Display for BoundViolation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            BoundViolation::SphereOutsideParent { parent, by } => write!(
+                f,
+                "bounding sphere reaches {by} past the sphere of its parent {parent}"
+            ),
+            BoundViolation::LeafOutsideErrorRadius { parent, by } => write!(
+                f,
+                "leaf lies {by} outside the error radius of its parent {parent}"
+            ),
         }
     }
 }

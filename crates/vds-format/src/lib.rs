@@ -23,7 +23,7 @@ pub mod output;
 mod read;
 mod write;
 
-pub use error::VdtError;
+pub use error::{BoundViolation, VdtError};
 pub use figures::{StatedField, TreeFigures};
 pub use grid::{GRID_STEPS, Grid};
 pub use layout::{

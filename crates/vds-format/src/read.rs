@@ -421,7 +421,8 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
     }
 
     /// Checks a decoded page's records against this file: tree links, leaf, subtri and child
-    /// ranges, depths, finite non-negative bounds, corners and parts. Every page
+    /// ranges, depths, finite non-negative bounds, cone half-angles at most π, corners and
+    /// parts. Every page
     /// [`VdtFile::read_page_into`] returns already passes (the decoder checks the same as it
     /// goes, see `codec.rs`); this stand-alone pass is for pages from elsewhere, and for the
     /// tests that hold the decoder to it.
@@ -519,6 +520,10 @@ pub(crate) fn check_records(what: &str, page: &Page, limits: &Limits) -> Result<
             .fold(0, |m, f| m.max(f.get().to_bits() & 0x7FFF_FFFF));
         if largest >= 0x7F80_0000 || n.error_radius.get() < 0.0 || n.sphere[3].get() < 0.0 {
             return Err(bad("non-finite or negative bound"));
+        }
+        // A half-angle is at most π, or negative for an empty cone (the decoder's 255 units).
+        if n.cone[3].get() > std::f32::consts::PI {
+            return Err(bad("cone half-angle above π"));
         }
     }
     for (k, t) in page.triangles.iter().enumerate() {

@@ -7,6 +7,7 @@
 //! budget replaces this module's residency rule without touching the cut.
 
 use bytemuck::Zeroable;
+use vds_format::BoundViolation::{self, LeafOutsideErrorRadius, SphereOutsideParent};
 use vds_format::{Header, NO_NODE, NodeRecord, Page, PageEntry, VdtError, VdtFile};
 
 /// Where pages come from: a `.vdt` file, or anything else that speaks its page API.
@@ -110,6 +111,19 @@ impl Node {
     pub fn owns_subtri(&self, index: u32) -> bool {
         index.wrapping_sub(self.subtri_begin) < self.subtri_count
     }
+}
+
+/// How far past its parent's sphere an honest child's decoded sphere can reach, for a child
+/// of decoded error radius `error_radius` on a grid of `step`.
+///
+/// The writer quantises each sphere on its own (`docs/format.md`, Bounds): a centre moves
+/// by at most √3 *centre units* `u = max(1, e / 32)` steps (`e`: the error radius in steps)
+/// and the radius grows by that move and by under `u + 1` steps of rounding up. The parent's
+/// radius grows by its own centre's move, so the child's sphere, nested before quantising,
+/// can end up to `(2√3 + 2)·u` steps past the parent's: about 5.5 units, 6 here. On the
+/// bundled meshes the largest is 2.2 units.
+fn nesting_slack(error_radius: f32, step: f32) -> f32 {
+    6.0 * (error_radius / 32.0).max(step)
 }
 
 /// What the per-frame traversal reads of every active node, packed apart from the rest
@@ -381,9 +395,10 @@ impl NodeStore {
     }
 
     /// Makes sure every child of `id` is loaded (children may straddle a page boundary) and
-    /// that they partition `id`'s leaf range in order, as the traversal assumes. The reader
-    /// validates each page on its own; this is the part of the tree's shape that spans
-    /// pages, checked where it is first relied on.
+    /// that they partition `id`'s leaf range in order, as the traversal assumes, and that
+    /// their bounds nest in `id`'s as far as quantisation allows ([`VdtError::Bounds`]
+    /// otherwise, naming the child's page). The reader validates each page on its own; this
+    /// is the part of the tree that spans pages, checked where it is first relied on.
     pub fn load_children(&mut self, id: u32) -> Result<(), VdtError> {
         // Pages never unload in this store, so a node checked once stays checked.
         let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
@@ -414,6 +429,7 @@ impl NodeStore {
                 "its children do not cover its leaf range",
             ));
         }
+        self.check_child_bounds(id)?;
         let center = glam::Vec3::from(node.proxy);
         let (mut radius, mut error) = (0.0f32, 0.0f32);
         for c in node.children() {
@@ -428,6 +444,51 @@ impl NodeStore {
         hot.group_error = error;
         self.children_ready[word] |= bit;
         Ok(())
+    }
+
+    /// Holds the bounds of `id`'s children (loaded) to `id`'s where the file's quantisation
+    /// lets an honest file be held to them: each child's sphere inside the parent's, and
+    /// each leaf child within the parent's error radius of its proxy. A few multiplies per
+    /// child, once per node (the caller marks it checked).
+    ///
+    /// A file can still lie about bounds this cannot see (a sphere or error radius too
+    /// small for the leaves far below, a cone too narrow): `docs/format.md` says what such a
+    /// file can do to a cut. Only `vds-info --verify` checks bounds against the geometry.
+    fn check_child_bounds(&self, id: u32) -> Result<(), VdtError> {
+        let step = self.source.header().grid_step.get();
+        let (parent, parent_hot) = (&self.shape[id as usize], &self.hot[id as usize]);
+        let parent_center = glam::Vec3::from(parent.center);
+        let parent_proxy = glam::Vec3::from(parent_hot.proxy);
+        let first = parent_hot.first_child;
+        for c in first..first + parent_hot.child_count {
+            let (shape, hot) = (&self.shape[c as usize], &self.hot[c as usize]);
+            let center = glam::Vec3::from(shape.center);
+            // Room for f32 rounding of coordinates of this magnitude.
+            let scale = parent_center.abs().max_element() + center.abs().max_element();
+            let rounding = 16.0 * f32::EPSILON * (scale + parent.radius);
+            let by = center.distance(parent_center) + shape.radius - parent.radius;
+            if by > nesting_slack(hot.error_radius, step) + rounding {
+                return Err(self.bound_error(c, SphereOutsideParent { parent: id, by }));
+            }
+            if hot.child_count == 0 {
+                let by =
+                    glam::Vec3::from(hot.proxy).distance(parent_proxy) - parent_hot.error_radius;
+                if by > rounding + 16.0 * f32::EPSILON * parent_hot.error_radius {
+                    return Err(self.bound_error(c, LeafOutsideErrorRadius { parent: id, by }));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A [`VdtError::Bounds`] for node `id`, naming its page.
+    fn bound_error(&self, id: u32, violation: BoundViolation) -> VdtError {
+        let page = self.page_first_node.partition_point(|&first| first <= id) as u32 - 1;
+        VdtError::Bounds {
+            page,
+            node: id,
+            violation,
+        }
     }
 
     fn load_page(&mut self, index: u32) -> Result<(), VdtError> {

@@ -7,7 +7,7 @@ mod common;
 use common::{Rng, bounds, load, random_camera, vdt_bytes};
 use proptest::prelude::*;
 use vds_format::layout::{F32, U16, U32};
-use vds_format::{Header, NO_NODE, Page, PageEntry, VdtError, VdtFile};
+use vds_format::{BoundViolation, Header, NO_NODE, Page, PageEntry, VdtError, VdtFile};
 use vds_runtime::{CornerTracking, Criteria, Goal, PageSource, Runtime, Viewpoint};
 
 struct Mutating {
@@ -123,4 +123,139 @@ proptest! {
             exercise(&mut runtime, seed, center, radius);
         }
     }
+}
+
+/// `scene`'s `.vdt` bytes (small pages) after `lie` has edited the built tree: the writer
+/// encodes what it is given, so the file is a valid one, checksums and all, whose only fault
+/// is the lie.
+fn lying_file(
+    scene: &mut vds_import::Scene,
+    lie: impl FnOnce(&mut vds_build::VertexTree),
+) -> Vec<u8> {
+    let grid = vds_build::snap_to_grid(scene);
+    let mut tree = vds_build::build_tree(scene);
+    lie(&mut tree);
+    let metadata = vds_format::Metadata {
+        part_names: scene.part_names.clone(),
+        ..Default::default()
+    };
+    let options = vds_format::WriteOptions {
+        zstd_level: 1,
+        page_bytes: 4096,
+    };
+    vds_format::encode(
+        &vds_build::tree_content(&tree, scene, metadata, grid),
+        &options,
+    )
+    .unwrap()
+    .0
+}
+
+/// The cow with its root's bounding sphere shrunk to a quarter: the root's children reach
+/// outside it.
+fn cow_with_a_shrunk_root_sphere() -> Vec<u8> {
+    lying_file(&mut load("cow.obj"), |tree| {
+        assert!(!tree.nodes[0].is_leaf());
+        tree.bounds[tree.nodes[0].bounds as usize].sphere_radius *= 0.25;
+    })
+}
+
+#[test]
+fn a_child_sphere_outside_its_parent_fails_the_load_naming_the_page() {
+    let bytes = cow_with_a_shrunk_root_sphere();
+    let file = VdtFile::from_bytes(bytes.clone()).unwrap();
+    // What --verify says of the same file: the root's sphere misses triangles.
+    let (tree, scene) = vds_build::tree_from_file(&file).unwrap();
+    assert!(vds_build::verify_tree(&tree, &scene).is_err());
+    let mut runtime = Runtime::new(Box::new(file), CornerTracking::Incidence).unwrap();
+    match runtime.cut_mut().unfold_all() {
+        Err(
+            ref e @ VdtError::Bounds {
+                page,
+                node,
+                violation: BoundViolation::SphereOutsideParent { parent: 0, by },
+            },
+        ) => {
+            let file = VdtFile::from_bytes(bytes).unwrap();
+            assert_eq!(page, file.page_of_node(node).unwrap());
+            assert!(by > 0.0);
+            assert!(e.to_string().contains(&format!("page {page}")), "{e}");
+        }
+        other => panic!("expected a sphere outside its parent, got {other:?}"),
+    }
+}
+
+#[test]
+fn a_leaf_outside_its_parent_error_radius_fails_the_load() {
+    // One triangle: the root's children are its three leaves.
+    let mut scene = vds_import::Scene {
+        positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        triangles: vec![[0, 1, 2]],
+        triangle_parts: vec![0],
+        part_names: vec!["triangle".into()],
+        stats: Default::default(),
+    };
+    let bytes = lying_file(&mut scene, |tree| {
+        assert!(tree.nodes[1..].iter().all(|n| n.is_leaf()));
+        tree.bounds[tree.nodes[0].bounds as usize].error_radius = 0.0;
+    });
+    let file = VdtFile::from_bytes(bytes).unwrap();
+    let mut runtime = Runtime::new(Box::new(file), CornerTracking::Incidence).unwrap();
+    let error = runtime.cut_mut().unfold_all().unwrap_err();
+    assert!(
+        matches!(
+            error,
+            VdtError::Bounds {
+                page: 0,
+                violation: BoundViolation::LeafOutsideErrorRadius { parent: 0, .. },
+                ..
+            }
+        ),
+        "{error:?}"
+    );
+}
+
+#[test]
+fn honest_files_pass_the_bound_checks_everywhere() {
+    for name in ["cow.obj", "bunny.obj", "as1_assembly.obj", "bone.ply"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let mut runtime = Runtime::new(
+            Box::new(VdtFile::from_bytes(bytes).unwrap()),
+            CornerTracking::Incidence,
+        )
+        .unwrap();
+        runtime
+            .cut_mut()
+            .unfold_all()
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+    }
+}
+
+#[test]
+fn vds_cut_refuses_a_file_with_a_child_sphere_outside_its_parent() {
+    let dir = std::env::temp_dir().join(format!("vds-hostile-cut-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let input = dir.join("lying-cow.vdt");
+    std::fs::write(&input, cow_with_a_shrunk_root_sphere()).unwrap();
+    let output = dir.join("cut.obj");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_vds-cut"))
+        .arg(&input)
+        .arg("-o")
+        .arg(&output)
+        .args(["--threshold", "1"])
+        .output()
+        .unwrap();
+    assert_eq!(run.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        message.contains("lying-cow.vdt") && message.contains("page") && message.contains("sphere"),
+        "{message}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left.len(), 1, "no output, no partial file: {left:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
