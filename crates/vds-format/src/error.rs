@@ -15,6 +15,13 @@ pub enum VdtError {
         /// Why.
         cause: std::io::Error,
     },
+    /// The path names a FIFO, a device or a directory (itself or through a link), which is
+    /// never read: it could block or never end.
+    #[error("{path}: not a regular file; only regular files are read")]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+    },
     /// Not a `.vdt` file.
     #[error("not a .vdt file (bad magic bytes)")]
     Magic,

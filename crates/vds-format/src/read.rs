@@ -58,12 +58,28 @@ impl Page {
 
 impl VdtFile<memmap2::Mmap> {
     /// Opens and memory-maps a file. Only the header, metadata and directory are read.
+    ///
+    /// Only a regular file (itself or through links) is opened: a FIFO would block the open
+    /// or the read forever. It is opened with `O_NONBLOCK` (no effect on a regular file) and
+    /// checked with `fstat` on the descriptor, so nothing swapped in after a check can block.
     pub fn open(path: &Path) -> Result<Self, VdtError> {
         let io = |cause| VdtError::Io {
             path: path.to_path_buf(),
             cause,
         };
-        let file = std::fs::File::open(path).map_err(io)?;
+        let mut options = std::fs::OpenOptions::new();
+        options.read(true);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::OpenOptionsExt;
+            options.custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32);
+        }
+        let file = options.open(path).map_err(io)?;
+        if !file.metadata().map_err(io)?.is_file() {
+            return Err(VdtError::NotAFile {
+                path: path.to_path_buf(),
+            });
+        }
         VdtFile::from_bytes(map(&file).map_err(io)?)
     }
 }

@@ -35,7 +35,8 @@ pub fn open(path: Option<&Path>, keep_mesh: bool) -> Result<Model> {
         {
             let file = VdtFile::open(path).map_err(|error| match error {
                 // The operating system's errors name the file already.
-                error @ vds_format::VdtError::Io { .. } => anyhow::Error::new(error),
+                error @ (vds_format::VdtError::Io { .. }
+                | vds_format::VdtError::NotAFile { .. }) => anyhow::Error::new(error),
                 error => anyhow::Error::new(error).context(path.display().to_string()),
             })?;
             let triangles = file.header().triangle_count.get();

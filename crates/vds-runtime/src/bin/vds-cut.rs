@@ -164,7 +164,9 @@ fn parse_fov(text: &str) -> Result<f32, String> {
 /// already are).
 fn naming(path: &Path) -> impl FnOnce(vds_format::VdtError) -> anyhow::Error + '_ {
     move |error| match error {
-        error @ vds_format::VdtError::Io { .. } => error.into(),
+        error @ (vds_format::VdtError::Io { .. } | vds_format::VdtError::NotAFile { .. }) => {
+            error.into()
+        }
         error => anyhow::Error::new(error).context(path.display().to_string()),
     }
 }
