@@ -10,7 +10,8 @@
 //! every byte range with checked arithmetic, because the crate's own accessor iterators
 //! assume well-formed ranges (a zero count or an overflowing stride would panic there).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
 
 use base64::Engine as _;
 use glam::{DMat4, DVec3};
@@ -255,35 +256,61 @@ fn node_expansion(
     Ok(out)
 }
 
+/// A buffer's bytes: its own, or a share of a file that several buffers name.
+struct Buffer {
+    bytes: Rc<[u8]>,
+    /// How many of `bytes` are this buffer's (at most its `byteLength`).
+    len: usize,
+}
+
+impl Buffer {
+    fn as_slice(&self) -> &[u8] {
+        &self.bytes[..self.len]
+    }
+}
+
+/// Where a buffer's bytes come from, before any file is read.
+enum Origin {
+    Bytes(Vec<u8>),
+    /// Index into the distinct files.
+    File(usize),
+}
+
+/// Reads every buffer. A file is read once however many buffers name it (by any path or
+/// link), up to the largest `byteLength` among them: a hundred buffers naming one large file
+/// cost its size once, not a hundred times.
 fn load_buffers(
     document: &gltf::Document,
     blob: Option<Vec<u8>>,
     options: &GltfOptions,
-) -> Result<Vec<Vec<u8>>, FormatError> {
+) -> Result<Vec<Buffer>, FormatError> {
     let mut blob = blob;
-    let mut out = Vec::new();
+    let mut origins = Vec::new();
+    let mut files: Vec<(uri::BufferFile, u64, PathBuf)> = Vec::new();
     for buffer in document.buffers() {
         let at = || Location::Element {
             kind: "buffer".into(),
             index: buffer.index() as u64,
         };
-        let bytes = match buffer.source() {
-            gltf::buffer::Source::Bin => blob.take().ok_or_else(|| {
+        let origin = match buffer.source() {
+            gltf::buffer::Source::Bin => Origin::Bytes(blob.take().ok_or_else(|| {
                 FormatError::syntax(
                     at(),
                     "GLB has no binary chunk (or a second buffer claims it)",
                 )
-            })?,
+            })?),
             gltf::buffer::Source::Uri(uri) => {
                 if let Some(rest) = uri.strip_prefix("data:") {
                     let (_, payload) = rest
                         .split_once(";base64,")
                         .ok_or_else(|| FormatError::syntax(at(), "data URI is not base64"))?;
-                    base64::engine::general_purpose::STANDARD
-                        .decode(payload)
-                        .map_err(|e| FormatError::syntax(at(), format!("bad base64: {e}")))?
+                    Origin::Bytes(
+                        base64::engine::general_purpose::STANDARD
+                            .decode(payload)
+                            .map_err(|e| FormatError::syntax(at(), format!("bad base64: {e}")))?,
+                    )
                 } else {
-                    let file = uri::resolve(uri, options.folder, options.allow_external_uris)
+                    let path = uri::resolve(uri, options.folder, options.allow_external_uris)
                         .map_err(|reason| {
                             FormatError::new(
                                 at(),
@@ -293,22 +320,58 @@ fn load_buffers(
                                 },
                             )
                         })?;
-                    uri::read_prefix(&file, buffer.length() as u64).map_err(|e| {
-                        FormatError::syntax(at(), format!("cannot read {}: {e}", file.display()))
-                    })?
+                    let file = uri::open_buffer_file(&path).map_err(|e| {
+                        FormatError::syntax(at(), format!("cannot read {}: {e}", path.display()))
+                    })?;
+                    let need = buffer.length() as u64;
+                    match files
+                        .iter()
+                        .position(|(f, _, _)| f.identity == file.identity)
+                    {
+                        Some(known) => {
+                            files[known].1 = files[known].1.max(need);
+                            Origin::File(known)
+                        }
+                        None => {
+                            files.push((file, need, path));
+                            Origin::File(files.len() - 1)
+                        }
+                    }
                 }
             }
         };
-        if bytes.len() < buffer.length() {
+        origins.push(origin);
+    }
+    let mut shared: Vec<Rc<[u8]>> = Vec::with_capacity(files.len());
+    for (file, need, path) in files {
+        let bytes = file.read_prefix(need).map_err(|e| {
+            FormatError::syntax(
+                Location::File,
+                format!("cannot read {}: {e}", path.display()),
+            )
+        })?;
+        shared.push(bytes.into());
+    }
+    let mut out = Vec::with_capacity(origins.len());
+    for (buffer, origin) in document.buffers().zip(origins) {
+        let bytes: Rc<[u8]> = match origin {
+            Origin::Bytes(bytes) => bytes.into(),
+            Origin::File(index) => Rc::clone(&shared[index]),
+        };
+        let len = bytes.len().min(buffer.length());
+        if len < buffer.length() {
             return Err(FormatError::new(
-                at(),
+                Location::Element {
+                    kind: "buffer".into(),
+                    index: buffer.index() as u64,
+                },
                 Problem::Truncated {
                     needed: buffer.length() as u64,
-                    available: bytes.len() as u64,
+                    available: len as u64,
                 },
             ));
         }
-        out.push(bytes);
+        out.push(Buffer { bytes, len });
     }
     Ok(out)
 }
@@ -318,7 +381,7 @@ fn walk(
     parent: DMat4,
     depth: usize,
     on_path: &mut [bool],
-    buffers: &[Vec<u8>],
+    buffers: &[Buffer],
     soup: &mut MeshSoup,
 ) -> Result<(), FormatError> {
     let at = || Location::Element {
@@ -355,7 +418,7 @@ fn walk(
 fn accessor_bytes<'b>(
     accessor: &gltf::Accessor,
     element_size: usize,
-    buffers: &'b [Vec<u8>],
+    buffers: &'b [Buffer],
     at: &dyn Fn() -> Location,
 ) -> Result<(&'b [u8], usize), FormatError> {
     if accessor.sparse().is_some() {
@@ -372,7 +435,8 @@ fn accessor_bytes<'b>(
     })?;
     let buffer = buffers
         .get(view.buffer().index())
-        .ok_or_else(|| FormatError::syntax(at(), "buffer view names a missing buffer"))?;
+        .ok_or_else(|| FormatError::syntax(at(), "buffer view names a missing buffer"))?
+        .as_slice();
     let stride = view.stride().unwrap_or(element_size);
     let overflow = || FormatError::syntax(at(), "accessor byte range overflows");
     let view_end = view
@@ -410,7 +474,7 @@ fn read_primitive(
     mesh: &gltf::Mesh,
     primitive: &gltf::Primitive,
     world: &DMat4,
-    buffers: &[Vec<u8>],
+    buffers: &[Buffer],
     part: u32,
     soup: &mut MeshSoup,
 ) -> Result<(), FormatError> {
@@ -509,4 +573,37 @@ fn read_primitive(
         }
     }
     Ok(())
+}
+
+#[cfg(all(test, unix))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn buffers_naming_one_file_share_its_bytes() {
+        let dir = std::env::temp_dir().join(format!("vds-gltf-share-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("a.bin"), [7u8; 100]).unwrap();
+        std::os::unix::fs::symlink("a.bin", dir.join("b.bin")).unwrap();
+        std::fs::hard_link(dir.join("a.bin"), dir.join("c.bin")).unwrap();
+        std::fs::write(dir.join("d.bin"), [7u8; 100]).unwrap();
+        let json = r#"{"asset":{"version":"2.0"},"buffers":[
+            {"byteLength":10,"uri":"a.bin"},{"byteLength":60,"uri":"b.bin"},
+            {"byteLength":30,"uri":"c.bin"},{"byteLength":30,"uri":"d.bin"}]}"#;
+        let gltf = gltf::Gltf::from_slice(json.as_bytes()).unwrap();
+        let options = GltfOptions {
+            folder: Some(&dir),
+            allow_external_uris: false,
+            max_triangles: 1,
+        };
+        let buffers = load_buffers(&gltf.document, None, &options).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(Rc::ptr_eq(&buffers[0].bytes, &buffers[1].bytes));
+        assert!(Rc::ptr_eq(&buffers[0].bytes, &buffers[2].bytes));
+        assert!(!Rc::ptr_eq(&buffers[0].bytes, &buffers[3].bytes));
+        // Read once, up to the largest byteLength naming the file; each sees its own length.
+        assert_eq!(buffers[0].bytes.len(), 60);
+        let lengths: Vec<usize> = buffers.iter().map(|b| b.as_slice().len()).collect();
+        assert_eq!(lengths, [10, 60, 30, 30]);
+    }
 }

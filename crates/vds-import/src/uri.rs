@@ -119,19 +119,49 @@ fn percent_decode(text: &str) -> Result<String, String> {
     String::from_utf8(out).map_err(|_| "the decoded path is not UTF-8".into())
 }
 
-/// Reads at most `length` bytes from the start of a regular file: a buffer needs no more
-/// than its `byteLength`, and the allocation is never larger than the file.
-pub fn read_prefix(path: &Path, length: u64) -> Result<Vec<u8>, String> {
+/// A regular file a URI names, opened, with what identifies it on its file system: two URIs
+/// (or links) naming one file are read once, however many buffers name it.
+pub struct BufferFile {
+    file: std::fs::File,
+    /// Device and inode on Unix (hard links and symbolic links resolve to one), else the
+    /// canonical path.
+    pub identity: (u64, u64, PathBuf),
+    /// The file's size in bytes.
+    pub size: u64,
+}
+
+/// Opens the regular file at `path` (see [`crate::source::open_regular_file`]).
+pub fn open_buffer_file(path: &Path) -> Result<BufferFile, String> {
     let file = crate::source::open_regular_file(path).map_err(|e| match e {
         crate::ImportError::Io { cause, .. } => cause.to_string(),
         other => other.to_string(),
     })?;
-    let size = file.metadata().map_err(|e| e.to_string())?.len();
-    let mut out = Vec::with_capacity(length.min(size) as usize);
-    file.take(length)
-        .read_to_end(&mut out)
-        .map_err(|e| e.to_string())?;
-    Ok(out)
+    let metadata = file.metadata().map_err(|e| e.to_string())?;
+    #[cfg(unix)]
+    let identity = {
+        use std::os::unix::fs::MetadataExt;
+        (metadata.dev(), metadata.ino(), PathBuf::new())
+    };
+    #[cfg(not(unix))]
+    let identity = (0, 0, path.canonicalize().map_err(|e| e.to_string())?);
+    Ok(BufferFile {
+        file,
+        identity,
+        size: metadata.len(),
+    })
+}
+
+impl BufferFile {
+    /// Reads at most `length` bytes from the start of the file: a buffer needs no more than
+    /// its `byteLength`, and the allocation is never larger than the file.
+    pub fn read_prefix(self, length: u64) -> Result<Vec<u8>, String> {
+        let mut out = Vec::with_capacity(length.min(self.size) as usize);
+        self.file
+            .take(length)
+            .read_to_end(&mut out)
+            .map_err(|e| e.to_string())?;
+        Ok(out)
+    }
 }
 
 #[cfg(test)]

@@ -552,3 +552,30 @@ fn gltf_missing_accessor_is_an_error_not_a_panic() {
     let error = load_file(&model, &ImportOptions::default()).unwrap_err();
     assert!(error.to_string().contains("accessor"), "{error}");
 }
+
+#[cfg(unix)]
+#[test]
+fn gltf_buffers_naming_one_file_share_one_read() {
+    // 200 buffers naming one 1 MiB file (directly, by a symbolic link and by a hard link)
+    // would be 200 MiB read separately; they share one read (the unit test
+    // `buffers_naming_one_file_share_its_bytes` checks the sharing), and each still sees
+    // only its own byteLength.
+    let dir = TempDir::new("shared-buffer");
+    let mut bytes = triangle_buffer();
+    bytes.resize(1 << 20, 0);
+    std::fs::write(dir.join("data.bin"), &bytes).unwrap();
+    std::os::unix::fs::symlink("data.bin", dir.join("soft.bin")).unwrap();
+    std::fs::hard_link(dir.join("data.bin"), dir.join("hard.bin")).unwrap();
+    let names = ["data.bin", "soft.bin", "hard.bin"];
+    let buffers: Vec<String> = (0..200)
+        .map(|i| format!(r#"{{"byteLength":{},"uri":"{}"}}"#, 48 + i, names[i % 3]))
+        .collect();
+    let text = gltf_document("data.bin", ONE_MESH_NODE).replace(
+        r#""buffers":[{"byteLength":48,"uri":"data.bin"}]"#,
+        &format!(r#""buffers":[{}]"#, buffers.join(",")),
+    );
+    let model = dir.join("model.gltf");
+    std::fs::write(&model, text).unwrap();
+    let scene = load_file(&model, &ImportOptions::default()).unwrap();
+    assert_eq!(scene.triangles.len(), 1);
+}
