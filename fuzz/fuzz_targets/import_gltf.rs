@@ -1,0 +1,15 @@
+//! Fuzzes the glTF importer (JSON `.gltf` and binary `.glb`; in memory, buffers other than
+//! `data:` URIs and the GLB chunk are refused) and the weld step after it: any input must give
+//! an error or a scene that keeps `vds_import::Scene`'s invariants (see `import_common.rs`).
+//!
+//! Seed the corpus with small models, e.g. the ones `vds-import`'s tests write.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+
+#[path = "import_common.rs"]
+mod import_common;
+
+fuzz_target!(|data: &[u8]| {
+    import_common::import(data, vds_import::Format::Gltf);
+});
