@@ -281,8 +281,9 @@ pub fn remove_stale_partials(target: &Path) -> std::io::Result<usize> {
         };
         let stale = match try_lock(&file) {
             Lock::Held => false,
-            // Every writer here locks its partial, so an unlocked one of this PID is a dead
-            // predecessor's that had the same PID.
+            // No writer holds it. Only a live other process (a writer that takes no lock, or
+            // one between creating and locking) keeps it; one with this process's PID is a
+            // dead predecessor's, since this process's writers lock theirs.
             Lock::Taken => other_process_alive(pid) != Some(true),
             // Without locks only the PID can tell; this process's own might be another
             // thread's.
