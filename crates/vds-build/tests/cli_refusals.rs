@@ -219,3 +219,39 @@ fn building_by_relative_or_absolute_path_gives_identical_bytes() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn batch_refuses_a_second_input_of_the_same_name_instead_of_replacing_the_first() {
+    let dir = temp_dir("batch-names");
+    std::fs::create_dir_all(dir.join("x")).unwrap();
+    std::fs::create_dir_all(dir.join("y")).unwrap();
+    let first = model_in(&dir.join("x"), "part.obj");
+    // The second has other content (fewer parts), so its file would differ.
+    let second = dir.join("y/part.obj");
+    std::fs::write(&second, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let out = dir.join("out");
+    let run = build(&[
+        Path::new("--batch"),
+        &first,
+        &second,
+        Path::new("--out-dir"),
+        &out,
+        Path::new("-q"),
+    ]);
+    assert_eq!(run.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&run.stderr);
+    assert!(message.contains("is already the output of"), "{message}");
+    let kept = std::fs::read(out.join("part.vdt")).unwrap();
+    let alone = dir.join("alone.vdt");
+    assert!(
+        build(&[&first, Path::new("-o"), &alone, Path::new("-q")])
+            .status
+            .success()
+    );
+    assert_eq!(
+        kept,
+        std::fs::read(&alone).unwrap(),
+        "the first input's file was replaced"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -259,6 +259,9 @@ fn run_batch(args: &Args) -> Result<()> {
         .with_context(|| format!("cannot create {}", out_dir.display()))?;
     let mut reports = Vec::new();
     let mut failed = 0usize;
+    // Inputs of one name in different folders would write one output: the first wins and the
+    // others fail, rather than silently replacing it.
+    let mut claimed: Vec<(PathBuf, &PathBuf)> = Vec::new();
     for input in &args.inputs {
         let stem = input
             .file_name()
@@ -266,8 +269,20 @@ fn run_batch(args: &Args) -> Result<()> {
         let stem = stem.strip_suffix(".gz").unwrap_or(&stem);
         let stem = stem.rsplit_once('.').map_or(stem, |(s, _)| s);
         let output = out_dir.join(format!("{stem}.vdt"));
-        let built = check_output(&output, &args.inputs)
-            .and_then(|()| build_one(args, std::slice::from_ref(input), Some(&output)));
+        let earlier = claimed.iter().find(|(o, _)| *o == output).map(|(_, i)| *i);
+        let built = match earlier {
+            Some(earlier) => Err(anyhow::anyhow!(
+                "{}: {} is already the output of {}; rename one of them",
+                input.display(),
+                output.display(),
+                earlier.display()
+            )),
+            None => {
+                claimed.push((output.clone(), input));
+                check_output(&output, &args.inputs)
+                    .and_then(|()| build_one(args, std::slice::from_ref(input), Some(&output)))
+            }
+        };
         match built {
             Ok(report) => {
                 if !args.json && !args.quiet {
