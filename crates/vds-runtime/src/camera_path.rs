@@ -17,6 +17,21 @@ pub struct CameraPath {
 }
 
 impl CameraPath {
+    /// Parses a path file's JSON and checks every camera: coordinates finite, the eye off
+    /// the target, `up` not along the view direction, a field of view strictly between 0 and
+    /// 180 degrees, a viewport of 1 to 16384 pixels a side, a near distance finite and
+    /// positive. A path with no camera is refused too. The error names the camera.
+    pub fn from_json(text: &str) -> Result<CameraPath, String> {
+        let path: CameraPath = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        if path.cameras.is_empty() {
+            return Err("the path has no cameras".into());
+        }
+        for (i, camera) in path.cameras.iter().enumerate() {
+            check_camera(camera).map_err(|why| format!("camera {i}: {why}"))?;
+        }
+        Ok(path)
+    }
+
     /// An orbit around a bounding sphere (`center`, `radius`) in `frames` steps, swinging in
     /// height and distance (between 1.3 and 3.1 radii) so the cut both refines and coarsens.
     pub fn orbit(
@@ -78,5 +93,75 @@ impl CameraPath {
             })
             .collect();
         CameraPath { cameras }
+    }
+}
+
+/// What [`CameraPath::from_json`] requires of one camera.
+fn check_camera(c: &Camera) -> Result<(), String> {
+    let finite = |v: [f32; 3]| v.iter().all(|x| x.is_finite());
+    if !(finite(c.eye) && finite(c.target) && finite(c.up)) {
+        return Err("eye, target and up must be finite".into());
+    }
+    let forward = Vec3::from(c.target) - Vec3::from(c.eye);
+    if forward.length_squared() == 0.0 {
+        return Err("the eye is on the target".into());
+    }
+    if forward.cross(Vec3::from(c.up)).length_squared() == 0.0 {
+        return Err("up is zero or along the view direction".into());
+    }
+    if !(c.fov_y_degrees > 0.0 && c.fov_y_degrees < 180.0) {
+        return Err(format!(
+            "fov_y_degrees {} is not strictly between 0 and 180",
+            c.fov_y_degrees
+        ));
+    }
+    if !(1..=16384).contains(&c.width) || !(1..=16384).contains(&c.height) {
+        return Err(format!(
+            "viewport {}x{} is not 1 to 16384 pixels a side",
+            c.width, c.height
+        ));
+    }
+    if !(c.near.is_finite() && c.near > 0.0) {
+        return Err(format!("near {} is not finite and positive", c.near));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one(camera: &str) -> Result<CameraPath, String> {
+        CameraPath::from_json(&format!(r#"{{"cameras": [{camera}]}}"#))
+    }
+
+    const GOOD: &str = r#"{"eye":[0,0,5],"target":[0,0,0],"up":[0,1,0],"fov_y_degrees":45,"width":64,"height":48,"near":0.01}"#;
+
+    #[test]
+    fn a_sound_path_parses() {
+        assert_eq!(one(GOOD).unwrap().cameras.len(), 1);
+    }
+
+    #[test]
+    fn paths_with_unusable_cameras_are_refused_naming_the_camera() {
+        assert!(CameraPath::from_json(r#"{"cameras": []}"#).is_err());
+        for (from, to, why) in [
+            (r#""eye":[0,0,5]"#, r#""eye":[0,0,0]"#, "on the target"),
+            (r#""up":[0,1,0]"#, r#""up":[0,0,1]"#, "up"),
+            (r#""fov_y_degrees":45"#, r#""fov_y_degrees":180"#, "fov"),
+            (r#""fov_y_degrees":45"#, r#""fov_y_degrees":0"#, "fov"),
+            (r#""width":64"#, r#""width":0"#, "viewport"),
+            (r#""height":48"#, r#""height":100000"#, "viewport"),
+            (r#""near":0.01"#, r#""near":0"#, "near"),
+            (r#""near":0.01"#, r#""near":-1"#, "near"),
+            (r#""eye":[0,0,5]"#, r#""eye":[0,0,1e39]"#, ""),
+        ] {
+            let bad = GOOD.replace(from, to);
+            let error = one(&format!("{GOOD},{bad}")).unwrap_err();
+            assert!(
+                error.contains(why) && (why.is_empty() || error.starts_with("camera 1")),
+                "{to}: {error}"
+            );
+        }
     }
 }

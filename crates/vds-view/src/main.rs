@@ -235,8 +235,9 @@ fn run(args: &Args) -> Result<()> {
         Some(file) => {
             let text = std::fs::read_to_string(file)
                 .with_context(|| format!("reading {}", file.display()))?;
-            serde_json::from_str::<CameraPath>(&text)
-                .with_context(|| format!("{}: not a camera path", file.display()))?
+            CameraPath::from_json(&text).map_err(|why| {
+                anyhow::anyhow!("{}: not a usable camera path: {why}", file.display())
+            })?
         }
         None if args.fly => CameraPath::fly_through(
             root.sphere_center,
