@@ -65,6 +65,9 @@ pub struct AdjustStats {
     /// Folds refused because they would flip a triangle (a fold tried again within the same
     /// adjust and refused again counts again).
     pub refused_folds: u32,
+    /// Unfolds put off because the node's children were not resident yet (background
+    /// loading only): their pages were asked for.
+    pub deferred_unfolds: u32,
 }
 
 /// How many entries ahead of the threshold traversal its children's data is prefetched.
@@ -251,21 +254,39 @@ impl Adjuster {
     /// Unfolds `id` (which was decided to need it) and, recursively, each new boundary node
     /// that needs it.
     fn refine(&mut self, cut: &mut Cut, judge: &Judge, t: f32, id: u32) -> Result<(), VdtError> {
-        if !cut.can_unfold(id) {
+        if !cut.can_unfold(id) || !self.unfold_if_loaded(cut, judge, id)? {
             return Ok(());
         }
-        cut.unfold_node(id)?;
-        self.stats.unfolds += 1;
         self.stack.clear();
         self.stack.extend(cut.node(id).children());
         while let Some(n) = self.stack.pop() {
-            if cut.can_unfold(n) && self.decision(cut, judge, t, n) == Decision::Unfold {
-                cut.unfold_node(n)?;
-                self.stats.unfolds += 1;
+            if cut.can_unfold(n)
+                && self.decision(cut, judge, t, n) == Decision::Unfold
+                && self.unfold_if_loaded(cut, judge, n)?
+            {
                 self.stack.extend(cut.node(n).children());
             }
         }
         Ok(())
+    }
+
+    /// Unfolds `id` if its children are resident; otherwise asks for their pages, most
+    /// urgent for the nodes farthest past their threshold, and leaves it folded for now.
+    fn unfold_if_loaded(
+        &mut self,
+        cut: &mut Cut,
+        judge: &Judge,
+        id: u32,
+    ) -> Result<bool, VdtError> {
+        if !cut.children_available(id)? {
+            let urgency = judge.screen_error(cut.store().tested(id));
+            cut.request_children(id, urgency);
+            self.stats.deferred_unfolds += 1;
+            return Ok(false);
+        }
+        cut.unfold_node(id)?;
+        self.stats.unfolds += 1;
+        Ok(true)
     }
 
     /// Folds `id` (which may fold and was decided to) and then its ancestors while each may
@@ -366,6 +387,14 @@ impl Adjuster {
         while let Some(&(Priority(worst), Reverse(u))) = self.peek_unfold(cut) {
             if worst <= 0.0 {
                 break;
+            }
+            // A node whose children are not resident is passed over (its pages asked for)
+            // before anything is folded to make room for it.
+            if !cut.children_available(u)? {
+                self.unfold_queue.pop();
+                cut.request_children(u, worst);
+                self.stats.deferred_unfolds += 1;
+                continue;
             }
             let cost = cut.node(u).subtri_count;
             if u64::from(cut.active_triangle_count()) + u64::from(cost) <= u64::from(budget) {

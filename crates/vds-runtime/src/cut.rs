@@ -439,6 +439,17 @@ impl Cut {
         true
     }
 
+    /// Whether boundary node `id`'s children are loaded, so it can unfold without reading a
+    /// page ([`NodeStore::children_available`]: with synchronous loading this loads them).
+    pub fn children_available(&mut self, id: u32) -> Result<bool, VdtError> {
+        self.store.children_available(id)
+    }
+
+    /// Asks for `id`'s children's pages ([`NodeStore::request_children`]).
+    pub fn request_children(&mut self, id: u32, priority: f32) {
+        self.store.request_children(id, priority);
+    }
+
     /// Unfolds every node: the cut becomes the original mesh.
     pub fn unfold_all(&mut self) -> Result<(), VdtError> {
         let mut stack = self.boundary();

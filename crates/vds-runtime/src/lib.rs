@@ -29,6 +29,7 @@ pub mod camera_path;
 pub mod criteria;
 pub mod cut;
 pub mod export;
+mod loader;
 pub mod measure;
 mod prefetch;
 pub mod reuse;
@@ -52,7 +53,8 @@ pub use adjust::{AdjustStats, Adjuster};
 pub use camera_path::CameraPath;
 pub use criteria::{Criteria, Decision, Facing, FrustumMode, Gaze, Goal, Judge, Viewpoint};
 pub use cut::{ActiveTriangle, Changes, CornerTracking, Cut, NIL, NodeState};
-pub use store::{Node, NodeStore, PageSource};
+pub use loader::default_threads as default_loading_threads;
+pub use store::{Loading, Node, NodeStore, PageSource};
 pub use vds_format::VdtError;
 pub use view::{Camera, View};
 
@@ -77,12 +79,40 @@ impl Runtime {
         Runtime::new(Box::new(vds_format::VdtFile::open(path)?), tracking)
     }
 
-    /// A runtime over any page source.
+    /// A runtime over any page source, loading pages synchronously.
     pub fn new(source: Box<dyn PageSource>, tracking: CornerTracking) -> Result<Runtime, VdtError> {
+        Runtime::with_loading(source, tracking, Loading::Synchronous)
+    }
+
+    /// A runtime over any page source, loading pages as `loading` says.
+    pub fn with_loading(
+        source: Box<dyn PageSource>,
+        tracking: CornerTracking,
+        loading: Loading,
+    ) -> Result<Runtime, VdtError> {
         Ok(Runtime {
-            cut: Cut::new(NodeStore::new(source)?, tracking),
+            cut: Cut::new(NodeStore::with_loading(source, loading)?, tracking),
             adjuster: Adjuster::default(),
         })
+    }
+
+    /// Pages asked of the background loader and not yet taken in (0 when loading is
+    /// synchronous): while above zero, some node waits to unfold.
+    pub fn pending_pages(&self) -> u32 {
+        self.cut.store.pending_pages()
+    }
+
+    /// Waits until the background loader has delivered every page asked for, and takes them
+    /// in; the next adjust can then unfold their nodes. Returns at once when loading is
+    /// synchronous.
+    pub fn wait_for_pages(&mut self) {
+        self.cut.store.wait_for_pages();
+    }
+
+    /// Errors of pages the background loader could not read since the last call, each
+    /// reported once, naming the page; the nodes that needed them stay folded.
+    pub fn take_page_errors(&mut self) -> Vec<VdtError> {
+        self.cut.store.take_page_errors()
     }
 
     /// The cut.
@@ -102,6 +132,9 @@ impl Runtime {
         criteria: &Criteria,
         goal: Goal,
     ) -> Result<Frame, VdtError> {
+        // Pages the background loader delivered since the last adjust: their nodes may
+        // unfold in this one.
+        self.cut.store.poll();
         let judge = Judge::new(viewpoint, criteria);
         let prevent = criteria.prevent_mesh_folds;
         let stats = match goal {

@@ -10,8 +10,9 @@ use bytemuck::Zeroable;
 use vds_format::BoundViolation::{self, LeafOutsideErrorRadius, SphereOutsideParent};
 use vds_format::{Header, NO_NODE, NodeRecord, Page, PageEntry, VdtError, VdtFile};
 
-/// Where pages come from: a `.vdt` file, or anything else that speaks its page API.
-pub trait PageSource: Send {
+/// Where pages come from: a `.vdt` file, or anything else that speaks its page API. Shared
+/// with the background loader's threads ([`Loading::Background`]), hence `Sync`.
+pub trait PageSource: Send + Sync {
     /// The file's header (counts and grid).
     fn header(&self) -> &Header;
     /// The page directory.
@@ -20,7 +21,7 @@ pub trait PageSource: Send {
     fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError>;
 }
 
-impl<B: AsRef<[u8]> + Send> PageSource for VdtFile<B> {
+impl<B: AsRef<[u8]> + Send + Sync> PageSource for VdtFile<B> {
     fn header(&self) -> &Header {
         VdtFile::header(self)
     }
@@ -199,6 +200,34 @@ struct Topology {
     cone_two_sided: bool,
 }
 
+/// How a store gets the pages the cut reaches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Loading {
+    /// On the adjusting thread, when first needed: an unfold waits for its children's page.
+    /// What tests, `vds-cut` and batch exports want: every adjust settles the cut fully.
+    #[default]
+    Synchronous,
+    /// On `threads` background threads ([`crate::loader`]): an adjust never reads a page. A
+    /// node whose children are not resident stays folded and asks for their page, most
+    /// urgent first; it unfolds in an adjust after the page arrives (the scene is briefly
+    /// coarser, the frame time does not move).
+    Background {
+        /// Loading threads (at least one; [`crate::default_loading_threads`] suggests how many).
+        threads: usize,
+    },
+}
+
+/// Where one page of the file stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PageState {
+    /// Not loaded, not asked for (or asked for and not arrived: see `awaited`).
+    Absent,
+    /// Decoded into the store's arrays.
+    Resident,
+    /// The background loader could not read it; its nodes stay folded.
+    Failed,
+}
+
 /// Nodes and triangles of the pages loaded so far.
 ///
 /// A node is kept as four records in four arrays, split by who reads them: [`Hot`] by the
@@ -206,10 +235,19 @@ struct Topology {
 /// along a vertex's path, and the rest by fold and unfold. [`NodeStore::node`] assembles
 /// them into a [`Node`].
 pub struct NodeStore {
-    source: Box<dyn PageSource>,
+    source: std::sync::Arc<dyn PageSource>,
     page_first_node: Vec<u32>,
-    resident: Vec<bool>,
+    page_state: Vec<PageState>,
     resident_pages: u32,
+    /// Background loading, when on.
+    loader: Option<crate::loader::Loader>,
+    /// Per page: the highest priority it was asked for with and not yet delivered, or
+    /// negative when it is not awaited.
+    awaited: Vec<f32>,
+    /// Pages asked of the loader and not yet delivered.
+    pending_pages: u32,
+    /// Errors of pages the background loader could not read, not yet taken.
+    page_errors: Vec<VdtError>,
     topology: Vec<Topology>,
     hot: Vec<Hot>,
     shape: Vec<Shape>,
@@ -226,8 +264,18 @@ pub struct NodeStore {
 }
 
 impl NodeStore {
-    /// A store over `source` with the root's page loaded.
+    /// A store over `source` with the root's page loaded, loading pages synchronously.
     pub fn new(source: Box<dyn PageSource>) -> Result<NodeStore, VdtError> {
+        NodeStore::with_loading(source, Loading::Synchronous)
+    }
+
+    /// A store over `source` with the root's page loaded (on this thread, whatever the
+    /// loading: nothing can be drawn before it), loading the others as `loading` says.
+    pub fn with_loading(
+        source: Box<dyn PageSource>,
+        loading: Loading,
+    ) -> Result<NodeStore, VdtError> {
+        let source: std::sync::Arc<dyn PageSource> = source.into();
         let header = source.header();
         let node_count = header.node_count.get() as usize;
         let triangle_count = header.triangle_count.get() as usize;
@@ -240,11 +288,22 @@ impl NodeStore {
             .map(|p| p.first_node.get())
             .collect::<Vec<_>>();
         let page_count = page_first_node.len();
+        let loader = match loading {
+            Loading::Synchronous => None,
+            Loading::Background { threads } => Some(crate::loader::Loader::start(
+                std::sync::Arc::clone(&source),
+                threads,
+            )),
+        };
         let mut store = NodeStore {
             source,
             page_first_node,
-            resident: vec![false; page_count],
+            page_state: vec![PageState::Absent; page_count],
             resident_pages: 0,
+            loader,
+            awaited: vec![-1.0; page_count],
+            pending_pages: 0,
+            page_errors: Vec::new(),
             // Zeroed allocations: the operating system provides the pages lazily, so a
             // store over a huge file costs memory only for the pages actually loaded.
             topology: bytemuck::zeroed_vec(node_count),
@@ -298,7 +357,123 @@ impl NodeStore {
 
     /// Pages loaded so far, and pages in the file.
     pub fn pages_resident(&self) -> (u32, u32) {
-        (self.resident_pages, self.resident.len() as u32)
+        (self.resident_pages, self.page_state.len() as u32)
+    }
+
+    /// Pages asked of the background loader and not yet delivered (0 when loading is
+    /// synchronous).
+    pub fn pending_pages(&self) -> u32 {
+        self.pending_pages
+    }
+
+    /// Errors of pages the background loader could not read since the last call, each
+    /// reported once (the error names the page); those pages' nodes stay folded.
+    pub fn take_page_errors(&mut self) -> Vec<VdtError> {
+        std::mem::take(&mut self.page_errors)
+    }
+
+    /// Whether `id`'s children are loaded and checked, so that it may unfold now. With
+    /// synchronous loading this loads them (and is `false` only by an error); with
+    /// background loading it never reads a page: `false` means ask with
+    /// [`NodeStore::request_children`] and try again after they arrive.
+    pub fn children_available(&mut self, id: u32) -> Result<bool, VdtError> {
+        let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
+        if self.children_ready[word] & bit != 0 {
+            return Ok(true);
+        }
+        if self.loader.is_some() {
+            let hot = self.hot[id as usize];
+            if hot.child_count == 0 {
+                return Ok(true);
+            }
+            let last = hot.first_child + hot.child_count - 1;
+            let resident = |store: &NodeStore, node: u32| {
+                store
+                    .page_of(node)
+                    .is_some_and(|p| store.page_state[p as usize] == PageState::Resident)
+            };
+            if !(resident(self, hot.first_child) && resident(self, last)) {
+                return Ok(false);
+            }
+        }
+        self.load_children(id)?;
+        Ok(true)
+    }
+
+    /// Asks the background loader for the pages of `id`'s children that are not resident,
+    /// with `priority` (higher is more urgent: the node's error in pixels past its
+    /// threshold, say). Pages already asked for keep the higher of their priorities; pages
+    /// that failed are not asked for again. Nothing happens with synchronous loading.
+    pub fn request_children(&mut self, id: u32, priority: f32) {
+        let Some(loader) = &self.loader else {
+            return;
+        };
+        let hot = self.hot[id as usize];
+        if hot.child_count == 0 {
+            return;
+        }
+        let last = hot.first_child + hot.child_count - 1;
+        let pages = [self.page_of(hot.first_child), self.page_of(last)];
+        for page in pages.into_iter().flatten() {
+            let p = page as usize;
+            if self.page_state[p] != PageState::Absent || self.awaited[p] >= priority.max(0.0) {
+                continue;
+            }
+            if self.awaited[p] < 0.0 {
+                self.pending_pages += 1;
+            }
+            self.awaited[p] = priority.max(0.0);
+            loader.request(page, priority.max(0.0));
+        }
+    }
+
+    /// Takes in the pages the background loader has delivered since the last call, without
+    /// waiting; returns how many. Their nodes can unfold from now on.
+    pub fn poll(&mut self) -> u32 {
+        let mut delivered = Vec::new();
+        if let Some(loader) = &self.loader {
+            delivered.extend(std::iter::from_fn(|| loader.try_next()));
+        }
+        let count = delivered.len() as u32;
+        for (index, result) in delivered {
+            self.deliver(index, result);
+        }
+        count
+    }
+
+    /// Waits until every page asked of the background loader has been delivered and takes
+    /// them in (what a test or a batch replay does to let loading settle).
+    pub fn wait_for_pages(&mut self) {
+        while self.pending_pages > 0 {
+            let Some((index, result)) = self.loader.as_ref().and_then(|l| l.wait_next()) else {
+                return;
+            };
+            self.deliver(index, result);
+        }
+    }
+
+    fn deliver(&mut self, index: u32, result: Result<Page, VdtError>) {
+        let p = index as usize;
+        if self.awaited[p] >= 0.0 {
+            self.awaited[p] = -1.0;
+            self.pending_pages -= 1;
+        }
+        if self.page_state[p] != PageState::Absent {
+            return; // Loaded synchronously meanwhile.
+        }
+        match result {
+            Ok(page) => self.install(index, &page),
+            Err(error) => {
+                self.page_state[p] = PageState::Failed;
+                self.page_errors.push(error);
+            }
+        }
+    }
+
+    /// The page holding node `id`, if any.
+    fn page_of(&self, id: u32) -> Option<u32> {
+        let page = self.page_first_node.partition_point(|&first| first <= id);
+        page.checked_sub(1).map(|p| p as u32)
     }
 
     /// Node `id`. Its page must have been loaded ([`NodeStore::load_node`]); nodes of pages
@@ -385,11 +560,12 @@ impl NodeStore {
     }
 
     /// Makes sure node `id` and its subtris are loaded.
+    /// This reads the page on the calling thread if it is not resident, whatever the
+    /// loading (for callers that need the data now: exports, measurements, unfold-all).
     pub fn load_node(&mut self, id: u32) -> Result<(), VdtError> {
-        let page = self.page_first_node.partition_point(|&first| first <= id);
-        match page.checked_sub(1) {
-            Some(index) if self.resident[index] => Ok(()),
-            Some(index) => self.load_page(index as u32),
+        match self.page_of(id) {
+            Some(index) if self.page_state[index as usize] == PageState::Resident => Ok(()),
+            Some(index) => self.load_page(index),
             None => Err(VdtError::invalid("node id", format!("{id} has no page"))),
         }
     }
@@ -492,8 +668,25 @@ impl NodeStore {
     }
 
     fn load_page(&mut self, index: u32) -> Result<(), VdtError> {
-        self.source.read_page_into(index, &mut self.scratch)?;
-        let page = &self.scratch;
+        let mut scratch = std::mem::replace(
+            &mut self.scratch,
+            Page {
+                first_node: 0,
+                first_triangle: 0,
+                nodes: Vec::new(),
+                triangles: Vec::new(),
+            },
+        );
+        let result = self.source.read_page_into(index, &mut scratch);
+        if result.is_ok() {
+            self.install(index, &scratch);
+        }
+        self.scratch = scratch;
+        result
+    }
+
+    /// Copies a decoded page into the arrays and marks it resident.
+    fn install(&mut self, index: u32, page: &Page) {
         let first = page.first_node as usize;
         for (k, record) in page.nodes.iter().enumerate() {
             let node = Node::from_record(record);
@@ -527,11 +720,10 @@ impl NodeStore {
             self.triangle_corners[first + k] = t.corners.map(|c| c.get());
             self.triangle_parts[first + k] = t.part.get();
         }
-        self.resident[index as usize] = true;
+        self.page_state[index as usize] = PageState::Resident;
         self.resident_pages += 1;
         self.loaded
             .push(page.first_node..page.first_node + page.nodes.len() as u32);
-        Ok(())
     }
 
     /// The boundary-node test needs the leaf a rank belongs to only through ranges, so no

@@ -1,0 +1,196 @@
+//! Background page loading: worker threads that read, check and decode pages off the thread
+//! that adjusts the cut, most urgent first (Luebke & Erikson §4.4's asynchronous
+//! simplification, applied to paging).
+//!
+//! The store asks for a page with a priority (how far past its threshold the node waiting
+//! for it is, in pixels); workers take the most urgent request, decode the page through the
+//! [`PageSource`] and hand the result back through a channel that the store drains, without
+//! blocking, at the start of the next adjust. A page asked for again with a higher priority
+//! is queued again; whichever entry a worker reaches first loads it, and the others are
+//! skipped. Dropping the loader stops the workers after the page each is decoding.
+
+use std::collections::BinaryHeap;
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
+use std::thread::JoinHandle;
+
+use vds_format::{Page, VdtError};
+
+use crate::store::PageSource;
+
+/// A decoded page, or why it could not be read.
+pub(crate) type Loaded = (u32, Result<Page, VdtError>);
+
+/// The worker threads and the two ends of their queue.
+pub(crate) struct Loader {
+    shared: Arc<Shared>,
+    results: Receiver<Loaded>,
+    workers: Vec<JoinHandle<()>>,
+}
+
+struct Shared {
+    queue: Mutex<Queue>,
+    wake: Condvar,
+}
+
+struct Queue {
+    requests: BinaryHeap<Request>,
+    /// Per page: a worker has taken it (loaded or failed), so later entries are skipped.
+    taken: Vec<bool>,
+    stop: bool,
+}
+
+/// One queued request: more urgent first, then lower page index (deterministic order).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Request {
+    priority: f32,
+    page: u32,
+}
+
+impl Eq for Request {}
+
+impl PartialOrd for Request {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Request {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.priority
+            .total_cmp(&other.priority)
+            .then(other.page.cmp(&self.page))
+    }
+}
+
+impl Loader {
+    /// Starts `threads` workers (at least one) reading pages of `source`.
+    pub(crate) fn start(source: Arc<dyn PageSource>, threads: usize) -> Loader {
+        let page_count = source.directory().len();
+        let shared = Arc::new(Shared {
+            queue: Mutex::new(Queue {
+                requests: BinaryHeap::new(),
+                taken: vec![false; page_count],
+                stop: false,
+            }),
+            wake: Condvar::new(),
+        });
+        let (sender, results) = channel();
+        let workers = (0..threads.max(1))
+            .map(|k| {
+                let (shared, source, sender) =
+                    (Arc::clone(&shared), Arc::clone(&source), sender.clone());
+                std::thread::Builder::new()
+                    .name(format!("vds-pages-{k}"))
+                    .spawn(move || work(&shared, source.as_ref(), &sender))
+                    .expect("the system can start a page-loading thread")
+            })
+            .collect();
+        Loader {
+            shared,
+            results,
+            workers,
+        }
+    }
+
+    /// Asks for page `page` with `priority` (higher first).
+    pub(crate) fn request(&self, page: u32, priority: f32) {
+        let mut queue = self.lock();
+        if !queue.taken[page as usize] {
+            queue.requests.push(Request { priority, page });
+            drop(queue);
+            self.shared.wake.notify_one();
+        }
+    }
+
+    /// A page a worker has finished since the last call, if any; never blocks.
+    pub(crate) fn try_next(&self) -> Option<Loaded> {
+        self.results.try_recv().ok()
+    }
+
+    /// The next page a worker finishes, waiting for it (for callers that want loading to
+    /// settle: tests, batch replays). `None` if every worker has stopped.
+    pub(crate) fn wait_next(&self) -> Option<Loaded> {
+        self.results.recv().ok()
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Queue> {
+        // A worker never panics while holding the lock (it only pushes and pops), so a
+        // poisoned lock still guards consistent data.
+        self.shared
+            .queue
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+impl Drop for Loader {
+    fn drop(&mut self) {
+        self.lock().stop = true;
+        self.shared.wake.notify_all();
+        for worker in self.workers.drain(..) {
+            let _ = worker.join();
+        }
+    }
+}
+
+/// A worker: takes the most urgent request not yet taken, decodes it, sends it back.
+fn work(shared: &Shared, source: &dyn PageSource, results: &Sender<Loaded>) {
+    loop {
+        let page = {
+            let mut queue = shared.queue.lock().unwrap_or_else(PoisonError::into_inner);
+            loop {
+                if queue.stop {
+                    return;
+                }
+                match queue.requests.pop() {
+                    Some(request) if queue.taken[request.page as usize] => continue,
+                    Some(request) => {
+                        queue.taken[request.page as usize] = true;
+                        break request.page;
+                    }
+                    None => {
+                        queue = shared
+                            .wake
+                            .wait(queue)
+                            .unwrap_or_else(PoisonError::into_inner);
+                    }
+                }
+            }
+        };
+        let mut decoded = Page {
+            first_node: 0,
+            first_triangle: 0,
+            nodes: Vec::new(),
+            triangles: Vec::new(),
+        };
+        let result = source.read_page_into(page, &mut decoded).map(|()| decoded);
+        if results.send((page, result)).is_err() {
+            return; // The store is gone.
+        }
+    }
+}
+
+/// The default number of loading threads: the cores but one (the adjusting thread's),
+/// at least one and at most four (decoding runs at hundreds of MB/s a core; more threads
+/// would only compete with the renderer).
+pub fn default_threads() -> usize {
+    std::thread::available_parallelism()
+        .map_or(1, |n| n.get().saturating_sub(1))
+        .clamp(1, 4)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requests_come_out_most_urgent_first_then_lowest_page() {
+        let mut heap = BinaryHeap::new();
+        for (priority, page) in [(1.0, 5), (3.0, 2), (3.0, 1), (0.5, 0)] {
+            heap.push(Request { priority, page });
+        }
+        let order: Vec<u32> = std::iter::from_fn(|| heap.pop().map(|r| r.page)).collect();
+        assert_eq!(order, [1, 2, 5, 0]);
+    }
+}

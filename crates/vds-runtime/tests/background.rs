@@ -1,0 +1,231 @@
+//! Background page loading: no adjust reads a page itself; a node whose children are not
+//! resident stays folded and unfolds after they arrive; once loading settles the cut meets
+//! the same screen-space bound as with synchronous loading; a page the loader cannot read is
+//! reported once and its nodes stay folded while the runtime goes on.
+
+mod common;
+
+use std::sync::{Arc, Mutex};
+use std::thread::ThreadId;
+
+use common::*;
+use vds_format::{Header, Page, PageEntry, VdtError, VdtFile};
+use vds_runtime::{
+    CornerTracking, Criteria, Goal, Loading, NodeState, PageSource, Runtime, Viewpoint, measure,
+};
+
+/// A page source that records which thread read each page (shared with the test).
+struct Recording {
+    file: VdtFile<Vec<u8>>,
+    reads: Arc<Mutex<Vec<(u32, ThreadId)>>>,
+}
+
+impl PageSource for Recording {
+    fn header(&self) -> &Header {
+        self.file.header()
+    }
+    fn directory(&self) -> &[PageEntry] {
+        self.file.directory()
+    }
+    fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError> {
+        self.reads
+            .lock()
+            .unwrap()
+            .push((index, std::thread::current().id()));
+        self.file.read_page_into(index, page)
+    }
+}
+
+fn background(bytes: &[u8], threads: usize) -> Runtime {
+    Runtime::with_loading(
+        Box::new(VdtFile::from_bytes(bytes.to_vec()).unwrap()),
+        CornerTracking::Incidence,
+        Loading::Background { threads },
+    )
+    .unwrap()
+}
+
+/// Adjusts for `camera` until no unfold waits for a page, letting loading settle between
+/// adjusts; returns how many adjusts that took.
+fn settle(runtime: &mut Runtime, viewpoint: &Viewpoint, criteria: &Criteria, goal: Goal) -> u32 {
+    for round in 1..=200 {
+        let frame = runtime.adjust(viewpoint, criteria, goal).unwrap();
+        if frame.stats.deferred_unfolds == 0 && runtime.pending_pages() == 0 {
+            return round;
+        }
+        runtime.wait_for_pages();
+    }
+    panic!("loading never settled");
+}
+
+fn no_backface() -> Criteria {
+    Criteria {
+        backface: false,
+        ..Criteria::default()
+    }
+}
+
+#[test]
+fn settled_background_cuts_meet_the_threshold_and_match_synchronous_ones() {
+    for name in ["bunny.obj", "as1_assembly.obj"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let mut synchronous = runtime(&bytes, CornerTracking::Incidence);
+        let positions = synchronous.leaf_positions().unwrap();
+        let mut synchronous = runtime(&bytes, CornerTracking::Incidence);
+        let mut asynchronous = background(&bytes, 2);
+        let mut rng = Rng(7);
+        let mut deferred_somewhere = false;
+        for step in 0..12 {
+            let camera = random_camera(&mut rng, center, radius);
+            let viewpoint = Viewpoint::Camera(camera);
+            let t = [0.5f32, 1.0, 3.0][step % 3];
+            let goal = Goal::Threshold(t);
+            synchronous
+                .adjust(&viewpoint, &no_backface(), goal)
+                .unwrap();
+            let rounds = settle(&mut asynchronous, &viewpoint, &no_backface(), goal);
+            deferred_somewhere |= rounds > 1;
+            asynchronous.cut_mut().check().unwrap();
+            let deviation =
+                measure::screen_deviation(asynchronous.cut(), &camera.view(), &positions, None);
+            assert!(
+                deviation.max_px <= f64::from(t) * (1.0 + 1e-4) + 1e-4,
+                "{name} step {step}: {} px > {t} px once loading settled",
+                deviation.max_px
+            );
+            assert_eq!(
+                asynchronous.cut().boundary(),
+                synchronous.cut().boundary(),
+                "{name} step {step}: the settled cut differs from the synchronous one"
+            );
+        }
+        assert!(
+            deferred_somewhere,
+            "{name}: no unfold ever waited for a page"
+        );
+    }
+}
+
+#[test]
+fn budget_mode_settles_within_the_budget() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let mut runtime = background(&bytes, 1);
+    let mut rng = Rng(3);
+    for budget in [500u32, 2_000, 8_000] {
+        let viewpoint = Viewpoint::Camera(random_camera(&mut rng, center, radius));
+        let goal = Goal::Budget(budget);
+        let mut frames = 0;
+        loop {
+            let frame = runtime.adjust(&viewpoint, &no_backface(), goal).unwrap();
+            assert!(runtime.cut().active_triangle_count() <= budget);
+            frames += 1;
+            if frame.stats.deferred_unfolds == 0 && runtime.pending_pages() == 0 {
+                break;
+            }
+            assert!(frames < 200, "loading never settled");
+            runtime.wait_for_pages();
+        }
+        // Settled: what is left to unfold would not fit.
+        assert!(runtime.cut().active_triangle_count() > budget / 2);
+    }
+}
+
+#[test]
+fn no_adjust_reads_a_page_on_its_own_thread() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let reads = Arc::new(Mutex::new(Vec::new()));
+    let source = Recording {
+        file: VdtFile::from_bytes(bytes).unwrap(),
+        reads: Arc::clone(&reads),
+    };
+    let mut runtime = Runtime::with_loading(
+        Box::new(source),
+        CornerTracking::Incidence,
+        Loading::Background { threads: 2 },
+    )
+    .unwrap();
+    let me = std::thread::current().id();
+    let count = || {
+        let reads = reads.lock().unwrap();
+        let here = reads.iter().filter(|(_, thread)| *thread == me).count();
+        (here, reads.len() - here)
+    };
+    assert_eq!(
+        count(),
+        (1, 0),
+        "the root's page is read when the runtime opens"
+    );
+    let mut rng = Rng(11);
+    for _ in 0..8 {
+        let viewpoint = Viewpoint::Camera(random_camera(&mut rng, center, radius));
+        for _ in 0..4 {
+            runtime
+                .adjust(&viewpoint, &Criteria::default(), Goal::Threshold(1.0))
+                .unwrap();
+            runtime.wait_for_pages();
+        }
+    }
+    let (here, elsewhere) = count();
+    assert_eq!(here, 1, "an adjust read a page itself");
+    assert!(elsewhere > 10, "the loader read only {elsewhere} pages");
+}
+
+#[test]
+fn a_page_the_loader_cannot_read_is_reported_once_and_its_nodes_stay_folded() {
+    let mut scene = load("bunny.obj");
+    let mut bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    // Corrupt the page holding the root's first child (not the root's own page, which the
+    // runtime reads when it opens).
+    let file = VdtFile::from_bytes(bytes.clone()).unwrap();
+    let directory = file.directory().to_vec();
+    let root_child = {
+        let mut probe = runtime(&bytes, CornerTracking::Incidence);
+        probe.cut_mut().store_mut().load_children(0).unwrap();
+        probe.cut().node(0).first_child
+    };
+    let page_of = |id: u32| {
+        directory
+            .iter()
+            .rposition(|p| p.first_node.get() <= id)
+            .unwrap()
+    };
+    let mut bad = page_of(root_child);
+    if bad == 0 {
+        bad = 1; // The root's children share its page: corrupt the next page instead.
+    }
+    let entry = &directory[bad];
+    let at = entry.offset.get() as usize + entry.compressed_length.get() as usize / 2;
+    bytes[at] ^= 0x5A;
+    let bad_nodes = entry.first_node.get()..entry.first_node.get() + entry.node_count.get();
+
+    let mut runtime = background(&bytes, 2);
+    let mut errors = Vec::new();
+    let mut rng = Rng(5);
+    for _ in 0..10 {
+        let viewpoint = Viewpoint::Camera(random_camera(&mut rng, center, radius * 0.5));
+        for _ in 0..3 {
+            runtime
+                .adjust(&viewpoint, &no_backface(), Goal::Threshold(0.5))
+                .expect("the runtime goes on past a page it cannot read");
+            runtime.wait_for_pages();
+            errors.extend(runtime.take_page_errors());
+        }
+        for id in bad_nodes.clone() {
+            assert_eq!(
+                runtime.cut().state(id),
+                NodeState::Inactive,
+                "node {id} of the unreadable page entered the cut"
+            );
+        }
+    }
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    let message = errors[0].to_string();
+    assert!(message.contains(&format!("page {bad}")), "{message}");
+}
