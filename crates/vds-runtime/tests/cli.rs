@@ -215,3 +215,121 @@ fn cut_names_the_file_that_is_not_a_vdt() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The CSV rows of a replay, header first.
+fn replay(file: &std::path::Path, stats: &std::path::Path, extra: &[&str]) -> Vec<Vec<String>> {
+    let result = vds_cut()
+        .arg(file)
+        .args(["--threshold", "1", "--stats"])
+        .arg(stats)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    assert!(String::from_utf8_lossy(&result.stdout).contains("adjust median"));
+    std::fs::read_to_string(stats)
+        .unwrap()
+        .lines()
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+#[test]
+fn replays_orbits_flights_and_path_files_without_a_gpu() {
+    let dir = temp_dir("replay");
+    let mut scene = load("cow.obj");
+    let file = dir.join("cow.vdt");
+    std::fs::write(&file, vdt_bytes(&mut scene)).unwrap();
+    let stats = dir.join("stats.csv");
+    let header = |rows: &[Vec<String>]| rows[0].join(",");
+    let orbit = replay(&file, &stats, &["--orbit", "--frames", "12"]);
+    assert_eq!(orbit.len(), 13, "a header and one row per frame");
+    assert!(
+        header(&orbit).starts_with("frame,adjust_ms,active_triangles,added,removed,changed"),
+        "{}",
+        header(&orbit)
+    );
+    assert!(header(&orbit).ends_with("pages_resident,pages_delivered,pages_pending"));
+    let triangles = |row: &Vec<String>| row[2].parse::<u32>().unwrap();
+    assert!(orbit[1..].iter().all(|row| triangles(row) > 0));
+    // Synchronous loading never leaves a page pending.
+    assert!(orbit[1..].iter().all(|row| row[12] == "0" && row[9] == "0"));
+
+    // A path file: two cameras; -o writes the last frame's cut.
+    let path = dir.join("path.json");
+    let camera = |z: f32| {
+        format!(
+            r#"{{"eye":[0,0,{z}],"target":[0,0,0],"up":[0,1,0],"fov_y_degrees":45,"width":320,"height":240,"near":0.01}}"#
+        )
+    };
+    std::fs::write(
+        &path,
+        format!(r#"{{"cameras":[{},{}]}}"#, camera(10.0), camera(3.0)),
+    )
+    .unwrap();
+    let last = dir.join("last.obj");
+    let rows = replay(
+        &file,
+        &stats,
+        &[
+            "--camera-path",
+            path.to_str().unwrap(),
+            "-o",
+            last.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(rows.len(), 3);
+    let mesh = vds_import::load_file(&last, &Default::default()).unwrap();
+    assert_eq!(mesh.stats.input_triangles, u64::from(triangles(&rows[2])));
+
+    // Background loading, paced like a display: pages are delivered between frames, and
+    // the flight ends with nothing pending.
+    let fly = replay(
+        &file,
+        &stats,
+        &[
+            "--fly",
+            "--frames",
+            "30",
+            "--loading",
+            "background",
+            "--pace-ms",
+            "20",
+        ],
+    );
+    assert_eq!(fly.len(), 31);
+    let delivered: u32 = fly[1..].iter().map(|r| r[11].parse::<u32>().unwrap()).sum();
+    assert!(delivered > 0, "no page arrived from the loader");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn replay_refuses_an_unusable_camera_path_naming_it() {
+    let dir = temp_dir("replay-bad");
+    let mut scene = load("cow.obj");
+    let file = dir.join("cow.vdt");
+    std::fs::write(&file, vdt_bytes(&mut scene)).unwrap();
+    let path = dir.join("bad-path.json");
+    std::fs::write(
+        &path,
+        r#"{"cameras":[{"eye":[0,0,0],"target":[0,0,0],"up":[0,1,0],"fov_y_degrees":45,"width":320,"height":240,"near":0.01}]}"#,
+    )
+    .unwrap();
+    let result = vds_cut()
+        .arg(&file)
+        .args(["--threshold", "1", "--camera-path"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("bad-path.json") && stderr.contains("camera 0"),
+        "{stderr}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -2,6 +2,9 @@
 //! as an OBJ or PLY mesh, and measures it.
 //!
 //! Without `--eye`, the camera frames the whole model the way `vds-view` does on open.
+//! With `--camera-path`, `--orbit` or `--fly` it replays a camera path instead, with no GPU
+//! (the runtime alone), writing one CSV row per frame to `--stats`; `-o` then writes the
+//! last frame's cut.
 //! Exit codes: 0 success, 1 the file could not be read or written, 2 bad command line (every
 //! number is checked for its range, and NaN or infinity for none, before anything is read).
 
@@ -13,21 +16,54 @@ use clap::{Parser, ValueEnum};
 use serde::Serialize;
 use vds_runtime::export::{Mesh, MeshFormat, write_mesh};
 use vds_runtime::{
-    Camera, CornerTracking, Criteria, FrustumMode, Gaze, Goal, Runtime, Viewpoint, measure,
+    Camera, CameraPath, CornerTracking, Criteria, FrustumMode, Gaze, Goal, Loading, Runtime,
+    Viewpoint, measure,
 };
 
 #[derive(Parser)]
 #[command(
     version,
-    about = "Export the view-dependent cut of a .vdt file as a mesh",
+    about = "Export the view-dependent cut of a .vdt file as a mesh, or replay a camera path",
     group(clap::ArgGroup::new("goal").required(true).args(["threshold", "budget"])),
+    group(clap::ArgGroup::new("replay").multiple(false).args(["camera_path", "orbit", "fly"])),
 )]
 struct Args {
     /// The .vdt file.
     file: PathBuf,
-    /// Output mesh: .obj or .ply (a regular file or a new one, never the input).
-    #[arg(short, long)]
-    output: PathBuf,
+    /// Output mesh: .obj or .ply (a regular file or a new one, never the input). Required
+    /// for a single camera; optional for a path replay (the last frame's cut).
+    #[arg(short, long, required_unless_present_any = ["camera_path", "orbit", "fly"])]
+    output: Option<PathBuf>,
+    /// Replay the cameras of this path file (JSON, as `vds-view --camera-path` reads).
+    #[arg(long, value_name = "PATH.json", conflicts_with_all = ["orbit", "fly", "eye", "target", "view_independent"])]
+    camera_path: Option<PathBuf>,
+    /// Replay an orbit around the model (the same path as `vds-view --orbit`).
+    #[arg(long, conflicts_with_all = ["fly", "eye", "target", "view_independent"])]
+    orbit: bool,
+    /// Replay a fly-through of the model (the same path as `vds-view --fly`).
+    #[arg(long, conflicts_with_all = ["eye", "target", "view_independent"])]
+    fly: bool,
+    /// Frames of a generated orbit or fly-through, or the first frames of a path file, 1 to
+    /// 1000000 (default: 120 for generated paths, the whole file otherwise).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    frames: Option<u32>,
+    /// With a path replay: one CSV row per frame (frame, adjust_ms, active_triangles,
+    /// added, removed, changed, nodes_visited, unfolds, folds, deferred_unfolds,
+    /// pages_resident, pages_delivered, pages_pending).
+    #[arg(long, value_name = "OUT.csv", requires = "replay")]
+    stats: Option<PathBuf>,
+    /// With a path replay: start frames at most this often, in milliseconds (a display's
+    /// pace, e.g. 16.7 for 60 Hz), so that background loading has the time between frames it
+    /// would have in the viewer; 0 (the default) replays as fast as the adjusts run.
+    #[arg(long, default_value_t = 0.0, value_parser = non_negative, requires = "replay")]
+    pace_ms: f32,
+    /// How pages are loaded: on the adjusting thread when first needed, or by background
+    /// threads (an unfold then waits for its page and happens in a later frame).
+    #[arg(long, value_enum, default_value_t = LoadingMode::Synchronous)]
+    loading: LoadingMode,
+    /// Background loading threads, 1 to 64 (default: the cores but one, at most 4).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
+    loading_threads: Option<u32>,
     /// Screen-space error threshold in pixels (scene units with --view-independent); a finite
     /// number, at least 0.
     #[arg(long, value_parser = non_negative)]
@@ -81,6 +117,12 @@ struct Args {
     /// Print figures as JSON.
     #[arg(long)]
     json: bool,
+}
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+enum LoadingMode {
+    Synchronous,
+    Background,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -204,22 +246,33 @@ fn main() {
     }
 }
 
-fn run(args: &Args) -> Result<()> {
-    let Some(format) = MeshFormat::of(&args.output) else {
-        bail!(
-            "{}: the output must end in .obj or .ply",
-            args.output.display()
-        );
-    };
-    // Refused before anything is read: an output that is not a regular file, or that is the
-    // input itself (by device and inode, however either is spelt).
-    vds_format::resolve_output(&args.output)?;
-    if vds_format::same_file(&args.file, &args.output).unwrap_or(false) {
+/// Refuses, before anything is read, an output that is not a regular file or that is the
+/// input itself (by device and inode, however either is spelt).
+fn check_output(output: &Path, input: &Path) -> Result<()> {
+    vds_format::resolve_output(output)?;
+    if vds_format::same_file(input, output).unwrap_or(false) {
         bail!(
             "{}: is the input {}; refusing to overwrite it",
-            args.output.display(),
-            args.file.display()
+            output.display(),
+            input.display()
         );
+    }
+    Ok(())
+}
+
+fn run(args: &Args) -> Result<()> {
+    let format = match &args.output {
+        Some(output) => {
+            let Some(format) = MeshFormat::of(output) else {
+                bail!("{}: the output must end in .obj or .ply", output.display());
+            };
+            check_output(output, &args.file)?;
+            Some((output.as_path(), format))
+        }
+        None => None,
+    };
+    if let Some(stats) = &args.stats {
+        check_output(stats, &args.file)?;
     }
     let start = Instant::now();
     let file = vds_format::VdtFile::open(&args.file).map_err(naming(&args.file))?;
@@ -229,7 +282,15 @@ fn run(args: &Args) -> Result<()> {
     } else {
         CornerTracking::Incidence
     };
-    let mut runtime = Runtime::new(Box::new(file), tracking)
+    let loading = match args.loading {
+        LoadingMode::Synchronous => Loading::Synchronous,
+        LoadingMode::Background => Loading::Background {
+            threads: args
+                .loading_threads
+                .map_or_else(vds_runtime::default_loading_threads, |n| n as usize),
+        },
+    };
+    let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
         .with_context(|| format!("{}", args.file.display()))?;
     let open_ms = start.elapsed().as_secs_f64() * 1e3;
 
@@ -273,6 +334,10 @@ fn run(args: &Args) -> Result<()> {
         (None, Some(n)) => Goal::Budget(n),
         (None, None) => bail!("give --threshold or --budget"),
     };
+    if args.camera_path.is_some() || args.orbit || args.fly {
+        return replay(args, runtime, &criteria, goal, format, &part_names);
+    }
+    let (output, format) = format.expect("clap requires -o without a path replay");
 
     let start = Instant::now();
     let frame = runtime
@@ -310,13 +375,13 @@ fn run(args: &Args) -> Result<()> {
 
     let start = Instant::now();
     let mesh = Mesh::from_cut(runtime.cut_mut());
-    write_mesh(&args.output, &mesh, format, &part_names).context("cannot write the cut")?;
+    write_mesh(output, &mesh, format, &part_names).context("cannot write the cut")?;
     let write_ms = start.elapsed().as_secs_f64() * 1e3;
 
     let cut = runtime.cut();
     let report = Report {
         file: args.file.display().to_string(),
-        output: args.output.display().to_string(),
+        output: output.display().to_string(),
         triangles: cut.active_triangle_count(),
         vertices: mesh.positions.len(),
         active_nodes: cut.active_node_count(),
@@ -357,4 +422,134 @@ fn run(args: &Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--camera-path`, `--orbit`, `--fly`: adjusts the cut for each camera in turn, as the
+/// viewer would, timing each adjust; writes the per-frame CSV and, with `-o`, the last cut.
+fn replay(
+    args: &Args,
+    mut runtime: Runtime,
+    criteria: &Criteria,
+    goal: Goal,
+    output: Option<(&Path, MeshFormat)>,
+    part_names: &[String],
+) -> Result<()> {
+    let root = runtime.cut().node(0);
+    let (width, height) = args.size;
+    let loop_frames = args.frames.unwrap_or(120);
+    let mut path = match &args.camera_path {
+        Some(file) => {
+            let text = read_small_text(file)?;
+            CameraPath::from_json(&text).map_err(|why| {
+                anyhow::anyhow!("{}: not a usable camera path: {why}", file.display())
+            })?
+        }
+        None if args.fly => CameraPath::fly_through(
+            root.sphere_center,
+            root.sphere_radius,
+            loop_frames,
+            width,
+            height,
+        ),
+        None => CameraPath::orbit(
+            root.sphere_center,
+            root.sphere_radius,
+            loop_frames,
+            width,
+            height,
+        ),
+    };
+    if let Some(frames) = args.frames {
+        path.cameras.truncate(frames as usize);
+    }
+    let mut rows = String::from(
+        "frame,adjust_ms,active_triangles,added,removed,changed,nodes_visited,unfolds,folds,\
+         deferred_unfolds,pages_resident,pages_delivered,pages_pending\n",
+    );
+    let mut adjust_ms = Vec::with_capacity(path.cameras.len());
+    let mut errors = 0usize;
+    let pace = std::time::Duration::from_secs_f64(f64::from(args.pace_ms) / 1e3);
+    let replay_start = Instant::now();
+    for (i, camera) in path.cameras.iter().enumerate() {
+        if let Some(wait) = (pace * i as u32).checked_sub(replay_start.elapsed()) {
+            std::thread::sleep(wait);
+        }
+        let resident_before = runtime.cut().store().pages_resident().0;
+        let start = Instant::now();
+        let frame = runtime
+            .adjust(&Viewpoint::Camera(*camera), criteria, goal)
+            .with_context(|| format!("{}: frame {i}", args.file.display()))?;
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        adjust_ms.push(ms);
+        for error in runtime.take_page_errors() {
+            errors += 1;
+            eprintln!("vds-cut: {}: {error}", args.file.display());
+        }
+        let resident = runtime.cut().store().pages_resident().0;
+        // Pages taken in by this adjust: from the background loader, or read synchronously.
+        let delivered = resident - resident_before;
+        let (stats, changes) = (&frame.stats, &frame.changes);
+        rows += &format!(
+            "{i},{ms:.4},{},{},{},{},{},{},{},{},{resident},{delivered},{}\n",
+            runtime.cut().active_triangle_count(),
+            changes.added,
+            changes.removed,
+            changes.changed,
+            stats.visited,
+            stats.unfolds,
+            stats.folds,
+            stats.deferred_unfolds,
+            runtime.pending_pages(),
+        );
+    }
+    if let Some(stats) = &args.stats {
+        vds_format::write_atomically(stats, |w| w.write_all(rows.as_bytes()))
+            .context("cannot write the statistics")?;
+    }
+    if let Some((output, format)) = output {
+        let mesh = Mesh::from_cut(runtime.cut_mut());
+        write_mesh(output, &mesh, format, part_names).context("cannot write the cut")?;
+    }
+    adjust_ms.sort_by(f64::total_cmp);
+    let at = |q: f64| adjust_ms[((adjust_ms.len() - 1) as f64 * q).round() as usize];
+    let (pages, total) = runtime.cut().store().pages_resident();
+    println!(
+        "{} frames: adjust median {:.3} ms, p99 {:.3} ms, max {:.3} ms; {} triangles at the end; \
+         pages {pages}/{total}, {} pending{}",
+        adjust_ms.len(),
+        at(0.5),
+        at(0.99),
+        at(1.0),
+        runtime.cut().active_triangle_count(),
+        runtime.pending_pages(),
+        if errors > 0 {
+            format!(", {errors} unreadable")
+        } else {
+            String::new()
+        }
+    );
+    Ok(())
+}
+
+/// The most bytes a camera-path file may hold: 64 MiB is over 300,000 cameras.
+const MAX_PATH_BYTES: u64 = 64 << 20;
+
+/// Reads a small text file the user names: a regular file (a FIFO would block), at most
+/// [`MAX_PATH_BYTES`].
+fn read_small_text(path: &Path) -> Result<String> {
+    use std::io::Read;
+    let metadata = std::fs::metadata(path).with_context(|| format!("{}", path.display()))?;
+    if !metadata.is_file() {
+        bail!("{}: not a regular file", path.display());
+    }
+    let mut text = String::new();
+    std::fs::File::open(path)
+        .with_context(|| format!("{}", path.display()))?
+        .take(MAX_PATH_BYTES + 1)
+        .read_to_string(&mut text)
+        .with_context(|| format!("{}: not UTF-8 text", path.display()))?;
+    if text.len() as u64 > MAX_PATH_BYTES {
+        bail!("{}: longer than {MAX_PATH_BYTES} bytes", path.display());
+    }
+    Ok(text)
 }
