@@ -54,12 +54,12 @@ pub struct FrameRow {
     pub batches: usize,
 }
 
-const CSV_HEADER: &str = "frame,adjust_ms,upload_bytes,gpu_ms,cpu_frame_ms,active_triangles,added,removed,changed,drawn_slots,batches";
+const CSV_HEADER: &str = "frame,adjust_ms,upload_bytes,gpu_ms,cpu_frame_ms,active_triangles,added,removed,changed,drawn_slots,batches,pages_resident,pages_pending";
 
 impl FrameRow {
     fn csv(&self) -> String {
         format!(
-            "{},{:.4},{},{},{:.4},{},{},{},{},{},{}",
+            "{},{:.4},{},{},{:.4},{},{},{},{},{},{},{},{}",
             self.frame,
             self.adjust.adjust_ms,
             self.upload_bytes,
@@ -70,7 +70,9 @@ impl FrameRow {
             self.adjust.removed,
             self.adjust.changed,
             self.drawn_slots,
-            self.batches
+            self.batches,
+            self.adjust.pages_resident,
+            self.adjust.pages_pending
         )
     }
 }

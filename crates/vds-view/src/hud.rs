@@ -156,7 +156,17 @@ fn contents(ui: &mut egui::Ui, model: &mut PanelModel) {
             format!("+{} −{} ~{}", a.added, a.removed, a.changed),
         );
         row("upload", format!("{} B", model.upload_bytes));
-        row("pages", format!("{} / {}", a.pages_resident, model.pages));
+        row(
+            "pages",
+            if a.pages_pending > 0 {
+                format!(
+                    "{} / {} ({} loading)",
+                    a.pages_resident, model.pages, a.pages_pending
+                )
+            } else {
+                format!("{} / {}", a.pages_resident, model.pages)
+            },
+        );
     });
     ui.separator();
     let settings = &mut model.settings;

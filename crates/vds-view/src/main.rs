@@ -103,6 +103,29 @@ struct Args {
     /// brute force, and print both and their ratio.
     #[arg(long, conflicts_with = "brute_force")]
     compare: bool,
+    /// How pages are loaded: by background threads (no frame waits for a page; a region
+    /// refines a frame or so after its page arrives) or on the simplifying thread when first
+    /// needed (every adjust settles the cut). Default: background in a window, synchronous
+    /// headless (so runs are repeatable).
+    #[arg(long, value_enum)]
+    loading: Option<LoadingArg>,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum LoadingArg {
+    Synchronous,
+    Background,
+}
+
+impl LoadingArg {
+    fn loading(self) -> vds_runtime::Loading {
+        match self {
+            LoadingArg::Synchronous => vds_runtime::Loading::Synchronous,
+            LoadingArg::Background => vds_runtime::Loading::Background {
+                threads: vds_runtime::default_loading_threads(),
+            },
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -218,7 +241,8 @@ fn run(args: &Args) -> Result<()> {
                     .map_or(String::new(), |f| format!("{} ", f.display()))
             );
         }
-        let model = model::open(args.file.as_deref(), false)?;
+        let loading = args.loading.unwrap_or(LoadingArg::Background).loading();
+        let model = model::open(args.file.as_deref(), false, loading)?;
         return window::run(
             model,
             args.settings(),
@@ -227,7 +251,8 @@ fn run(args: &Args) -> Result<()> {
             args.asynchronous,
         );
     }
-    let model = model::open(args.file.as_deref(), args.brute_force)?;
+    let loading = args.loading.unwrap_or(LoadingArg::Synchronous).loading();
+    let model = model::open(args.file.as_deref(), args.brute_force, loading)?;
     let (width, height) = args.size;
     let root = model.runtime.cut().node(0);
     let loop_frames = args.path_frames.or(args.frames).unwrap_or(120) as u32;
@@ -287,7 +312,7 @@ fn run(args: &Args) -> Result<()> {
     // Same cameras, same process: first the cut, then the whole model.
     let vds = Summary::run(model, &headless)?;
     println!("{vds}");
-    let model = model::open(args.file.as_deref(), true)?;
+    let model = model::open(args.file.as_deref(), true, loading)?;
     let brute_force = Headless {
         brute_force: true,
         out: None,

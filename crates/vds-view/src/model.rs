@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use vds_format::VdtFile;
-use vds_runtime::{CornerTracking, Runtime};
+use vds_runtime::{CornerTracking, Loading, Runtime};
 
 /// The bundled demo: the CAx-IF AS1 assembly (18 solids), see `testdata/README.md`.
 const DEMO_OBJ: &[u8] = include_bytes!("../../../testdata/as1_assembly.obj");
@@ -25,7 +25,8 @@ pub struct Model {
 
 /// Opens `path` (or the demo when `None`). `keep_mesh` keeps the original triangles for
 /// brute-force draws (only possible for mesh inputs: a `.vdt` file is decoded fully for it).
-pub fn open(path: Option<&Path>, keep_mesh: bool) -> Result<Model> {
+/// Pages are loaded as `loading` says.
+pub fn open(path: Option<&Path>, keep_mesh: bool, loading: Loading) -> Result<Model> {
     let tracking = CornerTracking::Incidence;
     let (scene, name) = match path {
         Some(path)
@@ -40,7 +41,7 @@ pub fn open(path: Option<&Path>, keep_mesh: bool) -> Result<Model> {
                 error => anyhow::Error::new(error).context(path.display().to_string()),
             })?;
             let triangles = file.header().triangle_count.get();
-            let mut runtime = Runtime::new(Box::new(file), tracking)
+            let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
                 .with_context(|| path.display().to_string())?;
             let mesh = keep_mesh
                 .then(|| mesh_of(&mut runtime))
@@ -75,8 +76,8 @@ pub fn open(path: Option<&Path>, keep_mesh: bool) -> Result<Model> {
     )
     .with_context(|| format!("building the tree of {name}"))?;
     let file = VdtFile::from_bytes(bytes).with_context(|| format!("the tree of {name}"))?;
-    let runtime =
-        Runtime::new(Box::new(file), tracking).with_context(|| format!("the tree of {name}"))?;
+    let runtime = Runtime::with_loading(Box::new(file), tracking, loading)
+        .with_context(|| format!("the tree of {name}"))?;
     Ok(Model {
         runtime,
         name,

@@ -44,6 +44,8 @@ pub struct AdjustFigures {
     pub changed: u32,
     /// Pages resident.
     pub pages_resident: u32,
+    /// Pages asked of the background loader and not yet arrived.
+    pub pages_pending: u32,
 }
 
 /// One adjust's worth of GPU updates.
@@ -102,6 +104,10 @@ impl Simplifier {
             &settings.criteria,
             settings.goal,
         )?;
+        // A page the loader could not read is said once; its nodes stay folded.
+        for error in self.runtime.take_page_errors() {
+            eprintln!("vds-view: {error}");
+        }
         let update = self.pool.collect(self.runtime.cut_mut(), &frame.changes);
         let adjust_ms = start.elapsed().as_secs_f64() * 1e3;
         let fingerprint = if self.verify {
@@ -133,6 +139,7 @@ impl Simplifier {
                 removed: frame.changes.removed,
                 changed: frame.changes.changed,
                 pages_resident: cut.store().pages_resident().0,
+                pages_pending: self.runtime.pending_pages(),
             },
             fingerprint,
         })

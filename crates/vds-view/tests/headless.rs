@@ -194,3 +194,53 @@ fn view_names_the_file_that_is_not_a_vdt() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn headless_background_loading_reports_pages_and_keeps_every_frame_a_whole_cut() {
+    let dir = temp_dir("background");
+    // The bunny in small pages, so that the flight needs many.
+    let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bunny.obj");
+    let mut scene = vds_import::load_file(&shared, &Default::default()).unwrap();
+    let options = vds_format::WriteOptions {
+        zstd_level: 1,
+        page_bytes: 4096,
+    };
+    let bytes = vds_build::encode_scene(&mut scene, "test", &options).unwrap();
+    let file = dir.join("bunny.vdt");
+    std::fs::write(&file, bytes).unwrap();
+    let pages = vds_format::VdtFile::open(&file).unwrap().directory().len();
+    let result = vds_view()
+        .arg(&file)
+        .args([
+            "--headless",
+            "--fly",
+            "--frames",
+            "20",
+            "--size",
+            "160x120",
+            "--loading",
+            "background",
+            "--verify",
+        ])
+        .arg("--stats")
+        .arg(dir.join("stats.csv"))
+        .output()
+        .unwrap();
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let csv = std::fs::read_to_string(dir.join("stats.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 21);
+    let column = |name: &str| rows[0].iter().position(|c| *c == name).unwrap();
+    let (resident, pending) = (column("pages_resident"), column("pages_pending"));
+    let last: u32 = rows[20][resident].parse().unwrap();
+    assert!(
+        last > 1 && last as usize <= pages,
+        "{last} of {pages} pages resident"
+    );
+    assert!(rows[1..].iter().all(|r| r[pending].parse::<u32>().is_ok()));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
