@@ -4,8 +4,10 @@
 //! Before `tobj` sees the text, [`prepare`] skips a UTF-8 byte-order mark, turns old Mac
 //! CR-only line endings into LF, and refuses any line longer than [`MAX_LINE_BYTES`] (`tobj`
 //! holds a line and everything parsed from it at once: one 100 MB face line took 2.9 GB).
-//! [`ObjReader`] then hands `tobj` one line at a time and drops `l` (polyline) statements,
-//! which `tobj` would otherwise triangulate as faces when they have three or more corners.
+//! [`ObjReader`] then hands `tobj` one line at a time, drops `l` (polyline) statements, which
+//! `tobj` would otherwise triangulate as faces when they have three or more corners, and
+//! strips texture and normal indices from faces (the tree needs none, and `tobj` panics on
+//! some out-of-range relative ones).
 //!
 //! `tobj` reports what went wrong but not where, so the reader knows how far `tobj` got
 //! and, on the rare error path, rescans the text to name the exact line of a non-finite
@@ -57,30 +59,84 @@ fn prepare(data: &[u8]) -> Result<Cow<'_, [u8]>, FormatError> {
     Ok(data)
 }
 
-/// Whether a line is an `l` (polyline) statement.
-fn is_polyline(line: &[u8]) -> bool {
+/// The first word of a line.
+fn keyword(line: &[u8]) -> &[u8] {
     let line = line.trim_ascii_start();
-    line.first() == Some(&b'l') && line.get(1).is_none_or(|b| b.is_ascii_whitespace())
+    let end = line
+        .iter()
+        .position(|b| b.is_ascii_whitespace())
+        .unwrap_or(line.len());
+    &line[..end]
 }
 
-/// A `BufRead` over the prepared text that hands out one line at a time, skips polylines,
-/// and knows how far the consumer got, so a parse error can be given a line number.
+/// A `BufRead` over the prepared text that hands `tobj` one line at a time, as `tobj` should
+/// see it, and knows how far it got, so a parse error can be given a line number:
+/// - `l` (polyline) statements are dropped;
+/// - face corners lose their texture and normal indices (`f 1/2/3 4//5` becomes `f 1 4`):
+///   the tree needs positions only, and `tobj` 4.0 panics on a relative texture or normal
+///   index that points before the first one (`f 1/-5`) instead of reporting it.
 struct ObjReader<'a> {
     data: &'a [u8],
+    /// Where the line after the one being handed out starts.
     position: usize,
-    /// The end of the line being handed out (just past its newline).
-    line_end: usize,
+    /// The line being handed out, as `tobj` sees it (buffer reused from line to line).
+    line: Vec<u8>,
+    /// How much of `line` `tobj` has consumed.
+    consumed: usize,
 }
 
-impl ObjReader<'_> {
+impl<'a> ObjReader<'a> {
+    fn new(data: &'a [u8]) -> Self {
+        ObjReader {
+            data,
+            position: 0,
+            line: Vec::new(),
+            consumed: 0,
+        }
+    }
+
     /// The 1-based number of the line that was read last.
     fn current_line(&self) -> u64 {
         let consumed = &self.data[..self.position];
         let newlines = memchr::memchr_iter(b'\n', consumed).count() as u64;
-        // A consumed line ends with its newline, so the line being parsed is the last
+        // A handed-out line ends with its newline, so the line being parsed is the last
         // newline-terminated one; a final line without a newline adds one.
         let partial = u64::from(consumed.last().is_some_and(|&b| b != b'\n'));
         (newlines + partial).max(1)
+    }
+
+    /// Moves to the next line worth handing out; false at the end of the text.
+    fn next_line(&mut self) -> bool {
+        while self.position < self.data.len() {
+            let rest = &self.data[self.position..];
+            let end = memchr::memchr(b'\n', rest).map_or(rest.len(), |at| at + 1);
+            let raw = &rest[..end];
+            self.position += end;
+            self.line.clear();
+            self.consumed = 0;
+            match keyword(raw) {
+                b"l" => continue,
+                b"f" if raw.contains(&b'/') => {
+                    self.line.push(b'f');
+                    for corner in raw
+                        .split(|b| b.is_ascii_whitespace())
+                        .skip_while(|w| w.is_empty())
+                        .skip(1)
+                    {
+                        if corner.is_empty() {
+                            continue;
+                        }
+                        self.line.push(b' ');
+                        let vertex = corner.split(|&b| b == b'/').next().unwrap_or(corner);
+                        self.line.extend_from_slice(vertex);
+                    }
+                    self.line.push(b'\n');
+                }
+                _ => self.line.extend_from_slice(raw),
+            }
+            return true;
+        }
+        false
     }
 }
 
@@ -94,19 +150,13 @@ impl Read for ObjReader<'_> {
 
 impl BufRead for ObjReader<'_> {
     fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
-        while self.position >= self.line_end && self.position < self.data.len() {
-            let rest = &self.data[self.position..];
-            let end = memchr::memchr(b'\n', rest).map_or(rest.len(), |at| at + 1);
-            if is_polyline(&rest[..end]) {
-                self.position += end;
-            } else {
-                self.line_end = self.position + end;
-            }
+        if self.consumed >= self.line.len() && !self.next_line() {
+            return Ok(&[]);
         }
-        Ok(&self.data[self.position..self.line_end.max(self.position)])
+        Ok(&self.line[self.consumed..])
     }
     fn consume(&mut self, amount: usize) {
-        self.position = (self.position + amount).min(self.line_end);
+        self.consumed = (self.consumed + amount).min(self.line.len());
     }
 }
 
@@ -119,11 +169,7 @@ pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<
         ignore_lines: true,
     };
     let data = &*prepare(data)?;
-    let mut reader = ObjReader {
-        data,
-        position: 0,
-        line_end: 0,
-    };
+    let mut reader = ObjReader::new(data);
     let loaded = tobj::load_obj_buf(&mut reader, &options, |_| {
         // Materials carry nothing the vertex tree needs; never touch the file system.
         Err(tobj::LoadError::OpenFileFailed)

@@ -579,3 +579,26 @@ fn gltf_buffers_naming_one_file_share_one_read() {
     let scene = load_file(&model, &ImportOptions::default()).unwrap();
     assert_eq!(scene.triangles.len(), 1);
 }
+
+#[test]
+fn obj_texture_and_normal_indices_are_not_read_even_out_of_range() {
+    // tobj 4.0 panics (with overflow checks) on a relative texture or normal index before
+    // the first one; the tree needs positions only, so corners are read as their vertex.
+    let text = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1/-5 2/1/1 3//-9\n";
+    let scene = load_obj_text("texcoords", text).unwrap();
+    assert_eq!(scene.triangles.len(), 1);
+    // A bad vertex index in such a face is still named with its line.
+    let text = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 9/1\n";
+    let error = load_obj_text("texcoords-bad", text).unwrap_err();
+    assert!(
+        matches!(
+            error,
+            ImportError::Malformed {
+                location: vds_import::Location::Line(5),
+                problem: Problem::IndexOutOfRange { index: 9, .. },
+                ..
+            }
+        ),
+        "{error}"
+    );
+}
