@@ -635,21 +635,27 @@ impl NodeStore {
         let (parent, parent_hot) = (&self.shape[id as usize], &self.hot[id as usize]);
         let parent_center = glam::Vec3::from(parent.center);
         let parent_proxy = glam::Vec3::from(parent_hot.proxy);
-        let first = parent_hot.first_child;
-        for c in first..first + parent_hot.child_count {
-            let (shape, hot) = (&self.shape[c as usize], &self.hot[c as usize]);
+        // Room for f32 rounding: a few ulps of the coordinates and radii compared. A child
+        // that passes lies within the parent's sphere (ball), so the parent's magnitudes
+        // bound its own; one that fails by this little is far past any slack anyway.
+        let sphere_rounding =
+            32.0 * f32::EPSILON * (parent_center.abs().max_element() + parent.radius);
+        let error_rounding =
+            32.0 * f32::EPSILON * (parent_proxy.abs().max_element() + parent_hot.error_radius);
+        let first = parent_hot.first_child as usize;
+        let children = first..first + parent_hot.child_count as usize;
+        let shapes = &self.shape[children.clone()];
+        for (k, (shape, hot)) in shapes.iter().zip(&self.hot[children]).enumerate() {
+            let c = (first + k) as u32;
             let center = glam::Vec3::from(shape.center);
-            // Room for f32 rounding of coordinates of this magnitude.
-            let scale = parent_center.abs().max_element() + center.abs().max_element();
-            let rounding = 16.0 * f32::EPSILON * (scale + parent.radius);
             let by = center.distance(parent_center) + shape.radius - parent.radius;
-            if by > nesting_slack(hot.error_radius, step) + rounding {
+            if by > nesting_slack(hot.error_radius, step) + sphere_rounding {
                 return Err(self.bound_error(c, SphereOutsideParent { parent: id, by }));
             }
             if hot.child_count == 0 {
                 let by =
                     glam::Vec3::from(hot.proxy).distance(parent_proxy) - parent_hot.error_radius;
-                if by > rounding + 16.0 * f32::EPSILON * parent_hot.error_radius {
+                if by > error_rounding {
                     return Err(self.bound_error(c, LeafOutsideErrorRadius { parent: id, by }));
                 }
             }
