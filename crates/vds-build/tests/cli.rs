@@ -186,3 +186,19 @@ fn info_verify_refuses_a_false_header_depth() {
     );
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `--verify` with `-o` reads the written file back and verifies it as `vds-info --verify`
+/// does: a file it lets through verifies there too.
+#[test]
+fn build_verify_checks_the_written_file() {
+    let dir = temp_dir("build-verify");
+    let out = dir.join("as1.vdt");
+    let run = build(&[path(&demo_model()), "-o", path(&out), "--verify", "-q"]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(info(&[path(&out), "--verify"]).status.success());
+    std::fs::remove_dir_all(dir).unwrap();
+}

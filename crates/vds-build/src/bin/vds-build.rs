@@ -83,7 +83,8 @@ struct Args {
     /// Print nothing but errors.
     #[arg(long, short)]
     quiet: bool,
-    /// Check every tree invariant after building (slow on large scenes).
+    /// Check every tree invariant after building and, with -o, the written file as
+    /// `vds-info --verify` does (slow on large scenes).
     #[arg(long)]
     verify: bool,
     /// Refuse inputs holding more triangles than this, all together; glTF instance trees are
@@ -424,6 +425,23 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
             };
             let written = vds_format::write_file(path, &content, &write_options)
                 .with_context(|| format!("cannot write {}", path.display()))?;
+            if args.verify {
+                // The file read back and checked as `vds-info --verify` does, so a header or
+                // metadata figure the writer got wrong cannot pass; one that fails is removed.
+                drop(content);
+                drop(tree);
+                if let Some(bar) = &bar {
+                    bar.set_message("verifying the file");
+                }
+                let verified = vds_format::VdtFile::open(path)
+                    .map_err(vds_build::VerifyError::from)
+                    .and_then(|file| vds_build::verify_file(&file));
+                if let Err(error) = verified {
+                    let _ = std::fs::remove_file(path);
+                    return Err(error)
+                        .with_context(|| format!("{}: does not verify", path.display()));
+                }
+            }
             Some(FileReport {
                 path: path.display().to_string(),
                 bytes: written.file_bytes,
