@@ -35,6 +35,8 @@ pub struct GltfOptions<'a> {
     pub allow_external_uris: bool,
     /// The most triangles the file's instance tree may expand to.
     pub max_triangles: u64,
+    /// The most bytes the external buffer files may hold together.
+    pub max_buffer_bytes: u64,
 }
 
 /// Reads a glTF or GLB file's bytes into `soup`.
@@ -45,6 +47,19 @@ pub fn read_gltf(
 ) -> Result<(), FormatError> {
     let invalid =
         |e: gltf::Error| FormatError::syntax(Location::File, format!("invalid glTF: {e}"));
+    // gltf 1.4's GLB reader subtracts the 12-byte header from the header's length field
+    // unchecked (binary.rs, `Glb::from_slice`): a smaller field would overflow.
+    if let Some(length) = data
+        .strip_prefix(b"glTF")
+        .and_then(|rest| rest.get(4..8))
+        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        && length < 12
+    {
+        return Err(FormatError::syntax(
+            Location::Byte(8),
+            format!("GLB length {length} is shorter than the 12-byte header"),
+        ));
+    }
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(data).map_err(invalid)?;
     let json = document.into_json();
@@ -111,6 +126,9 @@ struct Expansion {
     triangles: u64,
     vertices: u64,
     instances: u64,
+    /// Memory the part names of the instances take (each instance of a mesh with triangles
+    /// is a part): a 1 MB name instanced a million times is a terabyte of names.
+    name_bytes: u64,
 }
 
 impl Expansion {
@@ -118,7 +136,20 @@ impl Expansion {
         self.triangles = self.triangles.saturating_add(other.triangles);
         self.vertices = self.vertices.saturating_add(other.vertices);
         self.instances = self.instances.saturating_add(other.instances);
+        self.name_bytes = self.name_bytes.saturating_add(other.name_bytes);
     }
+}
+
+/// The most bytes all part names may take together, counted with a `String`'s own 24 bytes
+/// each: 256 MiB, far beyond any real assembly's names (a million parts of 200 characters).
+const MAX_NAME_BYTES: u64 = 1 << 28;
+
+/// The name of the part a mesh node's instance becomes: the node's name, else the mesh's,
+/// else `node N`.
+fn part_name(node: &gltf::Node, mesh: &gltf::Mesh) -> String {
+    node.name()
+        .or(mesh.name())
+        .map_or_else(|| format!("node {}", node.index()), str::to_string)
 }
 
 /// Refuses an instance tree that would expand past `max_triangles` before anything is
@@ -155,6 +186,8 @@ fn check_expansion(
                 max_triangles.max(MIN_INSTANCE_LIMIT),
                 |e| e.instances,
             )
+        } else if total.name_bytes > MAX_NAME_BYTES {
+            ("bytes of part names", MAX_NAME_BYTES, |e| e.name_bytes)
         } else {
             return Ok(());
         };
@@ -216,7 +249,7 @@ fn mesh_expansion(mesh: &gltf::Mesh) -> Expansion {
         out.add(Expansion {
             triangles,
             vertices,
-            instances: 0,
+            ..Expansion::default()
         });
     }
     out
@@ -248,6 +281,11 @@ fn node_expansion(
             .mesh()
             .map_or_else(Expansion::default, |m| meshes[m.index()])
     };
+    if let Some(mesh) = node.mesh()
+        && out.triangles > 0
+    {
+        out.name_bytes = 24 + part_name(node, &mesh).len() as u64;
+    }
     for child in node.children() {
         out.add(node_expansion(&child, depth + 1, meshes, memo, on_path)?);
     }
@@ -320,7 +358,10 @@ fn load_buffers(
                                 },
                             )
                         })?;
-                    let file = uri::open_buffer_file(&path).map_err(|e| {
+                    let inside = (!options.allow_external_uris)
+                        .then_some(options.folder)
+                        .flatten();
+                    let file = uri::open_buffer_file(&path, inside).map_err(|e| {
                         FormatError::syntax(at(), format!("cannot read {}: {e}", path.display()))
                     })?;
                     let need = buffer.length() as u64;
@@ -341,6 +382,23 @@ fn load_buffers(
             }
         };
         origins.push(origin);
+    }
+    // External buffers are read into memory: together they may hold at most what a `.gz`
+    // input may decompress to (a sparse file of a terabyte costs nothing on disk).
+    let external: u64 = files
+        .iter()
+        .map(|(file, need, _)| (*need).min(file.size))
+        .fold(0, u64::saturating_add);
+    if external > options.max_buffer_bytes {
+        return Err(FormatError::new(
+            Location::File,
+            Problem::LimitExceeded {
+                what: "the external buffers hold".into(),
+                amount: external,
+                limit: options.max_buffer_bytes,
+                option: "--max-decompressed-bytes",
+            },
+        ));
     }
     let mut shared: Vec<Rc<[u8]>> = Vec::with_capacity(files.len());
     for (file, need, path) in files {
@@ -398,13 +456,15 @@ fn walk(
     let local = node.transform().matrix().map(|c| c.map(f64::from));
     let world = parent * DMat4::from_cols_array_2d(&local);
     if let Some(mesh) = node.mesh() {
-        let name = node
-            .name()
-            .or(mesh.name())
-            .map_or_else(|| format!("node {}", node.index()), str::to_string);
-        let part = soup.begin_part(name);
+        // The part is named only once it has triangles: a mesh of empty primitives
+        // instanced many times must not leave a name per instance.
+        let part = soup.part_names.len() as u32;
+        let before = soup.triangles.len();
         for primitive in mesh.primitives() {
             read_primitive(&mesh, &primitive, &world, buffers, part, soup)?;
+        }
+        if soup.triangles.len() > before {
+            soup.begin_part(part_name(node, &mesh));
         }
     }
     for child in node.children() {
@@ -595,6 +655,7 @@ mod tests {
             folder: Some(&dir),
             allow_external_uris: false,
             max_triangles: 1,
+            max_buffer_bytes: 1 << 20,
         };
         let buffers = load_buffers(&gltf.document, None, &options).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();

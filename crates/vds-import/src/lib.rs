@@ -79,7 +79,8 @@ pub struct ImportOptions {
     /// this, more than three vertices per allowed triangle, or more node instances than this
     /// or 2²⁶, whichever is larger.
     pub max_triangles: u64,
-    /// The most bytes a `.gz` input may decompress to (it is decompressed into memory).
+    /// The most bytes an input may add to memory beyond its own mapped file: what a `.gz`
+    /// input decompresses to, and what a glTF's external buffer files hold together.
     pub max_decompressed_bytes: u64,
     /// Whether glTF URIs may name files outside the model's folder (absolute paths, `..`
     /// leaving the folder, symbolic links out of it). Off by default: a model handed to a
@@ -136,6 +137,7 @@ pub fn read_file(
                 ),
                 allow_external_uris: options.allow_external_uris,
                 max_triangles: budget,
+                max_buffer_bytes: options.max_decompressed_bytes,
             };
             gltf_scene::read_gltf(&bytes, &gltf_options, &mut file_soup)
         }
@@ -186,6 +188,7 @@ pub fn read_bytes(
                 folder: None,
                 allow_external_uris: false,
                 max_triangles: ImportOptions::DEFAULT_MAX_TRIANGLES,
+                max_buffer_bytes: 0,
             };
             gltf_scene::read_gltf(bytes, &options, soup)
         }

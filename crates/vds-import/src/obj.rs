@@ -32,11 +32,16 @@ fn prepare(data: &[u8]) -> Result<Cow<'_, [u8]>, FormatError> {
     let cr_only = memchr::memchr2(b'\r', b'\n', data)
         .is_some_and(|at| data[at] == b'\r' && data.get(at + 1) != Some(&b'\n'));
     let data: Cow<[u8]> = if cr_only {
-        Cow::Owned(
-            data.iter()
-                .map(|&b| if b == b'\r' { b'\n' } else { b })
-                .collect(),
-        )
+        // Every CR ends a line; a CR LF pair later in the file ends one, not two.
+        let mut text = Vec::with_capacity(data.len());
+        for (i, &b) in data.iter().enumerate() {
+            match b {
+                b'\r' => text.push(b'\n'),
+                b'\n' if i > 0 && data[i - 1] == b'\r' => {}
+                _ => text.push(b),
+            }
+        }
+        Cow::Owned(text)
     } else {
         Cow::Borrowed(data)
     };
@@ -57,16 +62,6 @@ fn prepare(data: &[u8]) -> Result<Cow<'_, [u8]>, FormatError> {
         line_start = end + 1;
     }
     Ok(data)
-}
-
-/// The first word of a line.
-fn keyword(line: &[u8]) -> &[u8] {
-    let line = line.trim_ascii_start();
-    let end = line
-        .iter()
-        .position(|b| b.is_ascii_whitespace())
-        .unwrap_or(line.len());
-    &line[..end]
 }
 
 /// A `BufRead` over the prepared text that hands `tobj` one line at a time, as `tobj` should
@@ -114,21 +109,18 @@ impl<'a> ObjReader<'a> {
             self.position += end;
             self.line.clear();
             self.consumed = 0;
-            match keyword(raw) {
-                b"l" => continue,
-                b"f" if raw.contains(&b'/') => {
+            // Words as tobj splits them (`str::split_whitespace`: Unicode whitespace, so a
+            // vertical tab or a no-break space separates words for it as for this). A line
+            // that is not UTF-8 goes to tobj as it is, which refuses it.
+            let mut words = std::str::from_utf8(raw).ok().map(str::split_whitespace);
+            match words.as_mut().and_then(Iterator::next) {
+                Some("l") => continue,
+                Some("f") if raw.contains(&b'/') => {
                     self.line.push(b'f');
-                    for corner in raw
-                        .split(|b| b.is_ascii_whitespace())
-                        .skip_while(|w| w.is_empty())
-                        .skip(1)
-                    {
-                        if corner.is_empty() {
-                            continue;
-                        }
+                    for corner in words.into_iter().flatten() {
                         self.line.push(b' ');
-                        let vertex = corner.split(|&b| b == b'/').next().unwrap_or(corner);
-                        self.line.extend_from_slice(vertex);
+                        let vertex = corner.split('/').next().unwrap_or(corner);
+                        self.line.extend_from_slice(vertex.as_bytes());
                     }
                     self.line.push(b'\n');
                 }

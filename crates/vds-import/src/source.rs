@@ -68,6 +68,15 @@ pub fn open_regular_file(path: &Path) -> Result<std::fs::File, ImportError> {
         path: path.to_path_buf(),
         cause,
     };
+    // `stat` first, so that a device is never opened at all (opening some has side
+    // effects, a tape rewinding); `fstat` after, for what may have been swapped in.
+    let kind = std::fs::metadata(path).map_err(io_error)?.file_type();
+    if !kind.is_file() {
+        return Err(ImportError::NotAFile {
+            path: path.to_path_buf(),
+            kind: describe(kind),
+        });
+    }
     let mut options = std::fs::OpenOptions::new();
     options.read(true);
     #[cfg(unix)]

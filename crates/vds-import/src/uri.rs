@@ -65,14 +65,17 @@ pub fn resolve(uri: &str, folder: Option<&Path>, allow_external: bool) -> Result
         return Err("the URI names the model's folder itself, not a file".into());
     }
     let file = folder.join(&inside);
-    // A symbolic link inside the folder may still point out of it. A file that does not
-    // exist resolves to itself here and fails to open later, with the OS's error.
+    // A symbolic link inside the folder may still point out of it (checked again on the
+    // opened file, see `open_buffer_file`, so a link swapped in between is caught).
     let real_folder = folder
         .canonicalize()
         .map_err(|e| format!("the model's folder cannot be resolved: {e}"))?;
-    if let Ok(real_file) = file.canonicalize()
-        && !real_file.starts_with(&real_folder)
-    {
+    // Fail closed: a path that cannot be resolved (missing, a dangling link, a magic link
+    // into /proc) is refused rather than opened.
+    let real_file = file
+        .canonicalize()
+        .map_err(|e| format!("{} cannot be resolved: {e}", file.display()))?;
+    if !real_file.starts_with(&real_folder) {
         return Err(format!(
             "it leads outside the model's folder, to {}",
             real_file.display()
@@ -130,8 +133,11 @@ pub struct BufferFile {
     pub size: u64,
 }
 
-/// Opens the regular file at `path` (see [`crate::source::open_regular_file`]).
-pub fn open_buffer_file(path: &Path) -> Result<BufferFile, String> {
+/// Opens the regular file at `path` (see [`crate::source::open_regular_file`]). With
+/// `inside`, the file opened must be the one `path` resolves to inside that folder, checked
+/// after opening (device and inode of the open file against those of the canonical path):
+/// a link swapped between [`resolve`]'s check and the open is refused, not followed.
+pub fn open_buffer_file(path: &Path, inside: Option<&Path>) -> Result<BufferFile, String> {
     let file = crate::source::open_regular_file(path).map_err(|e| match e {
         crate::ImportError::Io { cause, .. } => cause.to_string(),
         other => other.to_string(),
@@ -144,6 +150,25 @@ pub fn open_buffer_file(path: &Path) -> Result<BufferFile, String> {
     };
     #[cfg(not(unix))]
     let identity = (0, 0, path.canonicalize().map_err(|e| e.to_string())?);
+    if let Some(folder) = inside {
+        let moved = || format!("{} changed while it was opened", path.display());
+        let real_folder = folder.canonicalize().map_err(|_| moved())?;
+        let real = path.canonicalize().map_err(|_| moved())?;
+        if !real.starts_with(&real_folder) {
+            return Err(format!(
+                "it leads outside the model's folder, to {}",
+                real.display()
+            ));
+        }
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let now = std::fs::metadata(&real).map_err(|_| moved())?;
+            if (now.dev(), now.ino()) != (identity.0, identity.1) {
+                return Err(moved());
+            }
+        }
+    }
     Ok(BufferFile {
         file,
         identity,
@@ -155,7 +180,11 @@ impl BufferFile {
     /// Reads at most `length` bytes from the start of the file: a buffer needs no more than
     /// its `byteLength`, and the allocation is never larger than the file.
     pub fn read_prefix(self, length: u64) -> Result<Vec<u8>, String> {
-        let mut out = Vec::with_capacity(length.min(self.size) as usize);
+        let mut out = Vec::new();
+        // The file's size bounds the allocation; a sparse file of a terabyte is refused by
+        // the caller's limit before this, and an allocation that still fails is an error.
+        out.try_reserve_exact(length.min(self.size) as usize)
+            .map_err(|e| e.to_string())?;
         self.file
             .take(length)
             .read_to_end(&mut out)
@@ -175,11 +204,25 @@ mod tests {
 
     #[test]
     fn relative_paths_resolve_inside_the_folder() {
-        let folder = std::env::temp_dir();
-        let at = |uri| resolve(uri, Some(&folder), false).unwrap();
-        assert_eq!(at("hull.bin"), folder.join("hull.bin"));
-        assert_eq!(at("parts/../hull%20a.bin"), folder.join("hull a.bin"));
-        assert_eq!(at("./a/b.bin"), folder.join("a/b.bin"));
+        let folder = std::env::temp_dir().join(format!("vds-uri-{}", std::process::id()));
+        std::fs::create_dir_all(folder.join("a")).unwrap();
+        for name in ["hull.bin", "hull a.bin", "a/b.bin"] {
+            std::fs::write(folder.join(name), b"x").unwrap();
+        }
+        let at = |uri| resolve(uri, Some(&folder), false);
+        assert_eq!(at("hull.bin").unwrap(), folder.join("hull.bin"));
+        assert_eq!(
+            at("parts/../hull%20a.bin").unwrap(),
+            folder.join("hull a.bin")
+        );
+        assert_eq!(at("./a/b.bin").unwrap(), folder.join("a/b.bin"));
+        // A file that is not there is refused here, not opened later (fail closed).
+        assert!(
+            at("missing.bin")
+                .unwrap_err()
+                .contains("cannot be resolved")
+        );
+        std::fs::remove_dir_all(&folder).unwrap();
     }
 
     #[test]

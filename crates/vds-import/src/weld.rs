@@ -283,7 +283,23 @@ fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
 
 /// For each vertex, the lowest index of its group of vertices chained within `tolerance`.
 fn tolerance_representatives(positions: &[[f32; 3]], tolerance: f64) -> Vec<u32> {
-    let cell_of = |p: &[f32; 3]| p.map(|c| (f64::from(c) / tolerance).floor() as i64);
+    // Cells count from the bounding box's corner, so a cell index is at most the extent over
+    // the tolerance (1 / the relative tolerance), not a coordinate over it: a small part far
+    // from the origin would otherwise overflow `i64`. Neighbour offsets saturate for
+    // tolerances below 2⁻⁶³ of the extent, where the distance test still decides.
+    let mut low = [f64::INFINITY; 3];
+    for p in positions {
+        for k in 0..3 {
+            low[k] = low[k].min(f64::from(p[k]));
+        }
+    }
+    let cell_of = |p: &[f32; 3]| {
+        let mut cell = [0i64; 3];
+        for k in 0..3 {
+            cell[k] = ((f64::from(p[k]) - low[k]) / tolerance).floor() as i64;
+        }
+        cell
+    };
     let mut parent: Vec<u32> = (0..positions.len() as u32).collect();
     fn root(parent: &mut [u32], mut v: u32) -> u32 {
         while parent[v as usize] != v {
@@ -300,7 +316,12 @@ fn tolerance_representatives(positions: &[[f32; 3]], tolerance: f64) -> Vec<u32>
         for dx in -1..=1 {
             for dy in -1..=1 {
                 for dz in -1..=1 {
-                    let Some(others) = grid.get(&[cell[0] + dx, cell[1] + dy, cell[2] + dz]) else {
+                    let neighbour = [
+                        cell[0].saturating_add(dx),
+                        cell[1].saturating_add(dy),
+                        cell[2].saturating_add(dz),
+                    ];
+                    let Some(others) = grid.get(&neighbour) else {
                         continue;
                     };
                     for &j in others {

@@ -602,3 +602,91 @@ fn obj_texture_and_normal_indices_are_not_read_even_out_of_range() {
         "{error}"
     );
 }
+
+#[test]
+fn obj_statements_split_on_unicode_whitespace_as_tobj_does() {
+    // A vertical tab separates words for tobj: the polyline is still a polyline, and the
+    // face's texture indices are still not read.
+    let text = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nl\x0B1 2 3\nf\x0B1/-5 2/-5 3/-5\n";
+    let scene = load_obj_text("unicode-space", text).unwrap();
+    assert_eq!(scene.triangles.len(), 1);
+}
+
+#[test]
+fn obj_with_cr_endings_and_a_later_cr_lf_counts_lines_once() {
+    let text = b"v 0 0 0\rv 1 0 0\r\nv 0 1 0\rf 1 2 9\r";
+    let error = load_obj_text("cr-crlf", text).unwrap_err();
+    assert!(
+        matches!(
+            error,
+            ImportError::Malformed {
+                location: vds_import::Location::Line(4),
+                ..
+            }
+        ),
+        "{error}"
+    );
+}
+
+#[test]
+fn glb_whose_header_length_is_below_its_header_is_refused() {
+    let dir = TempDir::new("glb-header");
+    let path = dir.join("short.glb");
+    let mut bytes = b"glTF".to_vec();
+    bytes.extend(2u32.to_le_bytes());
+    bytes.extend(0u32.to_le_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+    let error = load_file(&path, &ImportOptions::default()).unwrap_err();
+    assert!(
+        error
+            .to_string()
+            .contains("shorter than the 12-byte header"),
+        "{error}"
+    );
+}
+
+#[test]
+fn gltf_external_buffers_count_against_the_memory_limit() {
+    let dir = TempDir::new("buffer-limit");
+    std::fs::write(dir.join("data.bin"), triangle_buffer()).unwrap();
+    let options = ImportOptions {
+        max_decompressed_bytes: 40,
+        ..Default::default()
+    };
+    let error = load_gltf_with_uri(&dir, "data.bin", &options).unwrap_err();
+    assert!(
+        matches!(
+            error.problem(),
+            Some(Problem::LimitExceeded {
+                amount: 48,
+                limit: 40,
+                ..
+            })
+        ),
+        "{error}"
+    );
+}
+
+#[test]
+fn gltf_part_names_are_not_multiplied_by_empty_instances() {
+    // A mesh without triangles instanced 20,000 times leaves no part name per instance.
+    let dir = TempDir::new("empty-instances");
+    let children: Vec<String> = (2..20_002).map(|i| i.to_string()).collect();
+    let nodes = format!(
+        r#"[{{"name":"root","children":[1,{}]}},{{"name":"part","mesh":0}}{}]"#,
+        children.join(","),
+        r#",{"mesh":1}"#.repeat(20_000)
+    );
+    let model = write_gltf_nodes(&dir, &nodes);
+    // Put an empty mesh first: the triangle mesh becomes mesh 1, "part" is pointed at it,
+    // and the 20,000 instances (replaced in pairs) at the empty mesh 0.
+    let text = std::fs::read_to_string(&model)
+        .unwrap()
+        .replace(r#""meshes":["#, r#""meshes":[{"primitives":[]},"#)
+        .replace(r#""mesh":0}"#, r#""mesh":1}"#)
+        .replace(r#"{"mesh":1},{"mesh":1}"#, r#"{"mesh":0},{"mesh":0}"#);
+    std::fs::write(&model, text).unwrap();
+    let scene = load_file(&model, &ImportOptions::default()).unwrap();
+    assert_eq!(scene.triangles.len(), 1);
+    assert_eq!(scene.part_names, vec!["part"]);
+}
