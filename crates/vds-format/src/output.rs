@@ -226,12 +226,33 @@ fn try_lock(_: &File) -> Lock {
     Lock::Unsupported
 }
 
+/// Opens `path` for reading with `O_NONBLOCK` (no effect on a regular file).
+fn open_nonblocking(path: &Path) -> std::io::Result<File> {
+    let mut options = File::options();
+    options.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32);
+    }
+    options.open(path)
+}
+
 /// Takes the lock a writer holds while it writes, waiting for a cleaner that holds it for an
-/// instant. Where locks do not work the write goes on without one.
+/// instant: a second at most, since anyone who can read the directory can open the partial
+/// and hold a lock on it. Without the lock the write goes on: a cleaner still keeps a partial
+/// whose writer's PID is alive. Where locks do not work the write goes on without one.
 #[cfg(unix)]
 fn lock_for_writing(file: &File) {
     use rustix::fs::{FlockOperation, flock};
-    let _ = flock(file, FlockOperation::LockExclusive);
+    for _ in 0..200 {
+        match flock(file, FlockOperation::NonBlockingLockExclusive) {
+            Err(e) if e == rustix::io::Errno::WOULDBLOCK => {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+            _ => return,
+        }
+    }
 }
 
 #[cfg(not(unix))]
@@ -276,9 +297,13 @@ pub fn remove_stale_partials(target: &Path) -> std::io::Result<usize> {
             continue;
         }
         let path = entry.path();
-        let Ok(file) = File::open(&path) else {
+        // Non-blocking, so that a FIFO swapped in after the type check cannot block it.
+        let Ok(file) = open_nonblocking(&path) else {
             continue;
         };
+        if !file.metadata().is_ok_and(|m| m.is_file()) {
+            continue;
+        }
         let stale = match try_lock(&file) {
             Lock::Held => false,
             // No writer holds it. Only a live other process (a writer that takes no lock, or
