@@ -389,8 +389,9 @@ impl Adjuster {
                 break;
             }
             // A node whose children are not resident is passed over (its pages asked for)
-            // before anything is folded to make room for it.
-            if !cut.children_available(u)? {
+            // before anything is folded to make room for it. (With synchronous loading they
+            // always count as resident: the unfold below reads them, as it always did.)
+            if !cut.children_resident(u) {
                 self.unfold_queue.pop();
                 cut.request_children(u, worst);
                 self.stats.deferred_unfolds += 1;

@@ -16,7 +16,39 @@ pub struct CameraPath {
     pub cameras: Vec<Camera>,
 }
 
+/// The most bytes a camera-path file may hold: 64 MiB is over 300,000 cameras.
+const MAX_FILE_BYTES: u64 = 64 << 20;
+
+/// The largest camera coordinate accepted: 2⁶², a factor 4 beyond the largest model
+/// coordinate import accepts, where every distance the criteria square stays finite.
+const MAX_CAMERA_COORDINATE: f32 = (1u64 << 62) as f32;
+
 impl CameraPath {
+    /// Reads and checks a path file ([`CameraPath::from_json`]): a regular file (a FIFO
+    /// would block; it is opened non-blocking and checked), at most 64 MiB.
+    pub fn read(path: &std::path::Path) -> Result<CameraPath, String> {
+        use std::io::Read;
+        let mut options = std::fs::File::options();
+        options.read(true);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::OpenOptionsExt;
+            options.custom_flags(libc::O_NONBLOCK);
+        }
+        let file = options.open(path).map_err(|e| e.to_string())?;
+        if !file.metadata().map_err(|e| e.to_string())?.is_file() {
+            return Err("not a regular file".into());
+        }
+        let mut text = String::new();
+        file.take(MAX_FILE_BYTES + 1)
+            .read_to_string(&mut text)
+            .map_err(|e| format!("not UTF-8 text: {e}"))?;
+        if text.len() as u64 > MAX_FILE_BYTES {
+            return Err(format!("longer than {MAX_FILE_BYTES} bytes"));
+        }
+        CameraPath::from_json(&text)
+    }
+
     /// Parses a path file's JSON and checks every camera: coordinates finite, the eye off
     /// the target, `up` not along the view direction, a field of view strictly between 0 and
     /// 180 degrees, a viewport of 1 to 16384 pixels a side, a near distance finite and
@@ -98,15 +130,18 @@ impl CameraPath {
 
 /// What [`CameraPath::from_json`] requires of one camera.
 fn check_camera(c: &Camera) -> Result<(), String> {
-    let finite = |v: [f32; 3]| v.iter().all(|x| x.is_finite());
-    if !(finite(c.eye) && finite(c.target) && finite(c.up)) {
-        return Err("eye, target and up must be finite".into());
+    let within = |v: [f32; 3]| v.iter().all(|x| x.abs() <= MAX_CAMERA_COORDINATE);
+    if !(within(c.eye) && within(c.target) && c.up.iter().all(|x| x.is_finite())) {
+        return Err(format!(
+            "eye and target must be finite and within ±{MAX_CAMERA_COORDINATE:e}, up finite"
+        ));
     }
-    let forward = Vec3::from(c.target) - Vec3::from(c.eye);
-    if forward.length_squared() == 0.0 {
+    // The same normalisations `Camera::view` makes, which would otherwise fall back to
+    // defaults silently.
+    let Some(forward) = (Vec3::from(c.target) - Vec3::from(c.eye)).try_normalize() else {
         return Err("the eye is on the target".into());
-    }
-    if forward.cross(Vec3::from(c.up)).length_squared() == 0.0 {
+    };
+    if forward.cross(Vec3::from(c.up)).try_normalize().is_none() {
         return Err("up is zero or along the view direction".into());
     }
     if !(c.fov_y_degrees > 0.0 && c.fov_y_degrees < 180.0) {
@@ -155,6 +190,7 @@ mod tests {
             (r#""near":0.01"#, r#""near":0"#, "near"),
             (r#""near":0.01"#, r#""near":-1"#, "near"),
             (r#""eye":[0,0,5]"#, r#""eye":[0,0,1e39]"#, ""),
+            (r#""eye":[0,0,5]"#, r#""eye":[0,0,1e30]"#, "within"),
         ] {
             let bad = GOOD.replace(from, to);
             let error = one(&format!("{GOOD},{bad}")).unwrap_err();

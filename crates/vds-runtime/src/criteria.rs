@@ -488,15 +488,18 @@ impl Judge {
 #[inline]
 fn screen_test_sides(focal_sq: f32, r: f32, c: Vec3) -> (f64, f64, f32) {
     let d = c.z - r;
-    if d <= 0.0 {
+    // A NaN distance unfolds, as a ball reaching the eye plane does.
+    if d.is_nan() || d <= 0.0 {
         return (f64::INFINITY, 0.0, 0.0);
     }
-    let rho = (c.x * c.x + c.y * c.y).sqrt();
-    let (r64, d, reach) = (f64::from(r), f64::from(d), f64::from(rho + r));
+    // Squares of f32 values cannot overflow f64.
+    let (x, y) = (f64::from(c.x), f64::from(c.y));
+    let rho = (x * x + y * y).sqrt();
+    let (r64, d, reach) = (f64::from(r), f64::from(d), rho + f64::from(r));
     (
         f64::from(focal_sq) * r64 * r64 * (d * d + reach * reach),
         (d * d) * (d * d),
-        rho,
+        rho as f32,
     )
 }
 

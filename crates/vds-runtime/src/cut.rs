@@ -445,6 +445,12 @@ impl Cut {
         self.store.children_available(id)
     }
 
+    /// Whether `id`'s children's pages are resident ([`NodeStore::children_resident`]; always
+    /// with synchronous loading). Reads nothing.
+    pub fn children_resident(&self, id: u32) -> bool {
+        self.store.children_resident(id)
+    }
+
     /// Asks for `id`'s children's pages ([`NodeStore::request_children`]).
     pub fn request_children(&mut self, id: u32, priority: f32) {
         self.store.request_children(id, priority);

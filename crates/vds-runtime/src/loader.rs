@@ -164,7 +164,18 @@ fn work(shared: &Shared, source: &dyn PageSource, results: &Sender<Loaded>) {
             nodes: Vec::new(),
             triangles: Vec::new(),
         };
-        let result = source.read_page_into(page, &mut decoded).map(|()| decoded);
+        // A page source that panics must not leave the page awaited forever (the store would
+        // wait for it): the panic becomes that page's error.
+        let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            source.read_page_into(page, &mut decoded)
+        }));
+        let result = match read {
+            Ok(result) => result.map(|()| decoded),
+            Err(_) => Err(VdtError::invalid(
+                format!("page {page}"),
+                "the page source panicked while reading it",
+            )),
+        };
         if results.send((page, result)).is_err() {
             return; // The store is gone.
         }

@@ -207,7 +207,7 @@ pub enum Loading {
     /// What tests, `vds-cut` and batch exports want: every adjust settles the cut fully.
     #[default]
     Synchronous,
-    /// On `threads` background threads ([`crate::loader`]): an adjust never reads a page. A
+    /// On `threads` background threads (the `loader` module): an adjust never reads a page. A
     /// node whose children are not resident stays folded and asks for their page, most
     /// urgent first; it unfolds in an adjust after the page arrives (the scene is briefly
     /// coarser, the frame time does not move).
@@ -398,6 +398,24 @@ impl NodeStore {
         }
         self.load_children(id)?;
         Ok(true)
+    }
+
+    /// Whether `id`'s children's pages are resident, without reading any: always true with
+    /// synchronous loading (an unfold reads them itself).
+    pub fn children_resident(&self, id: u32) -> bool {
+        let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
+        if self.loader.is_none() || self.children_ready[word] & bit != 0 {
+            return true;
+        }
+        let hot = &self.hot[id as usize];
+        if hot.child_count == 0 {
+            return true;
+        }
+        let last = hot.first_child + hot.child_count - 1;
+        [hot.first_child, last].into_iter().all(|node| {
+            self.page_of(node)
+                .is_some_and(|p| self.page_state[p as usize] == PageState::Resident)
+        })
     }
 
     /// Asks the background loader for the pages of `id`'s children that are not resident,

@@ -15,7 +15,7 @@ mod window;
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::{Parser, ValueEnum};
 use vds_render::{Colouring, Shading, Style};
 use vds_runtime::{CameraPath, Criteria, FrustumMode, Gaze, Goal};
@@ -257,13 +257,9 @@ fn run(args: &Args) -> Result<()> {
     let root = model.runtime.cut().node(0);
     let loop_frames = args.path_frames.or(args.frames).unwrap_or(120) as u32;
     let mut path = match &args.camera_path {
-        Some(file) => {
-            let text = std::fs::read_to_string(file)
-                .with_context(|| format!("reading {}", file.display()))?;
-            CameraPath::from_json(&text).map_err(|why| {
-                anyhow::anyhow!("{}: not a usable camera path: {why}", file.display())
-            })?
-        }
+        Some(file) => CameraPath::read(file).map_err(|why| {
+            anyhow::anyhow!("{}: not a usable camera path: {why}", file.display())
+        })?,
         None if args.fly => CameraPath::fly_through(
             root.sphere_center,
             root.sphere_radius,

@@ -55,7 +55,7 @@ struct Args {
     /// With a path replay: start frames at most this often, in milliseconds (a display's
     /// pace, e.g. 16.7 for 60 Hz), so that background loading has the time between frames it
     /// would have in the viewer; 0 (the default) replays as fast as the adjusts run.
-    #[arg(long, default_value_t = 0.0, value_parser = non_negative, requires = "replay")]
+    #[arg(long, default_value_t = 0.0, value_parser = pace, requires = "replay")]
     pace_ms: f32,
     /// How pages are loaded: on the adjusting thread when first needed, or by background
     /// threads (an unfold then waits for its page and happens in a later frame).
@@ -191,6 +191,14 @@ fn fraction(text: &str) -> Result<f32, String> {
     match finite(text)? {
         v if (0.0..=1.0).contains(&v) => Ok(v),
         v => Err(format!("expected a number from 0 to 1, got {v}")),
+    }
+}
+
+/// A frame pace in milliseconds, from 0 to 10,000.
+fn pace(text: &str) -> Result<f32, String> {
+    match finite(text)? {
+        v if (0.0..=10_000.0).contains(&v) => Ok(v),
+        v => Err(format!("expected milliseconds from 0 to 10000, got {v}")),
     }
 }
 
@@ -438,12 +446,9 @@ fn replay(
     let (width, height) = args.size;
     let loop_frames = args.frames.unwrap_or(120);
     let mut path = match &args.camera_path {
-        Some(file) => {
-            let text = read_small_text(file)?;
-            CameraPath::from_json(&text).map_err(|why| {
-                anyhow::anyhow!("{}: not a usable camera path: {why}", file.display())
-            })?
-        }
+        Some(file) => CameraPath::read(file).map_err(|why| {
+            anyhow::anyhow!("{}: not a usable camera path: {why}", file.display())
+        })?,
         None if args.fly => CameraPath::fly_through(
             root.sphere_center,
             root.sphere_radius,
@@ -529,27 +534,4 @@ fn replay(
         }
     );
     Ok(())
-}
-
-/// The most bytes a camera-path file may hold: 64 MiB is over 300,000 cameras.
-const MAX_PATH_BYTES: u64 = 64 << 20;
-
-/// Reads a small text file the user names: a regular file (a FIFO would block), at most
-/// [`MAX_PATH_BYTES`].
-fn read_small_text(path: &Path) -> Result<String> {
-    use std::io::Read;
-    let metadata = std::fs::metadata(path).with_context(|| format!("{}", path.display()))?;
-    if !metadata.is_file() {
-        bail!("{}: not a regular file", path.display());
-    }
-    let mut text = String::new();
-    std::fs::File::open(path)
-        .with_context(|| format!("{}", path.display()))?
-        .take(MAX_PATH_BYTES + 1)
-        .read_to_string(&mut text)
-        .with_context(|| format!("{}: not UTF-8 text", path.display()))?;
-    if text.len() as u64 > MAX_PATH_BYTES {
-        bail!("{}: longer than {MAX_PATH_BYTES} bytes", path.display());
-    }
-    Ok(text)
 }
