@@ -23,7 +23,37 @@ const MAX_FILE_BYTES: u64 = 64 << 20;
 /// coordinate import accepts, where every distance the criteria square stays finite.
 const MAX_CAMERA_COORDINATE: f32 = (1u64 << 62) as f32;
 
+/// Where the cameras of a played path come from (what `vds-view` and `vds-cut` take).
+#[derive(Debug, Clone, Copy)]
+pub enum PathSource<'a> {
+    /// A path file ([`CameraPath::read`]).
+    File(&'a std::path::Path),
+    /// [`CameraPath::orbit`].
+    Orbit,
+    /// [`CameraPath::fly_through`].
+    FlyThrough,
+}
+
 impl CameraPath {
+    /// The path `source` names, generated paths around the sphere (`center`, `radius`) in
+    /// `frames` steps at `width`×`height`. The error names the file.
+    pub fn from_source(
+        source: PathSource<'_>,
+        center: [f32; 3],
+        radius: f32,
+        frames: u32,
+        (width, height): (u32, u32),
+    ) -> Result<CameraPath, String> {
+        match source {
+            PathSource::File(file) => CameraPath::read(file)
+                .map_err(|why| format!("{}: not a usable camera path: {why}", file.display())),
+            PathSource::Orbit => Ok(CameraPath::orbit(center, radius, frames, width, height)),
+            PathSource::FlyThrough => Ok(CameraPath::fly_through(
+                center, radius, frames, width, height,
+            )),
+        }
+    }
+
     /// Reads and checks a path file ([`CameraPath::from_json`]): a regular file (a FIFO
     /// would block; it is opened non-blocking and checked), at most 64 MiB.
     pub fn read(path: &std::path::Path) -> Result<CameraPath, String> {

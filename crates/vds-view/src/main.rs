@@ -18,7 +18,7 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use clap::{Parser, ValueEnum};
 use vds_render::{Colouring, Shading, Style};
-use vds_runtime::{CameraPath, Criteria, FrustumMode, Gaze, Goal};
+use vds_runtime::{CameraPath, Criteria, FrustumMode, Gaze, Goal, PathSource};
 
 use crate::headless::Headless;
 use crate::simplify::Settings;
@@ -253,28 +253,21 @@ fn run(args: &Args) -> Result<()> {
     }
     let loading = args.loading.unwrap_or(LoadingArg::Synchronous).loading();
     let model = model::open(args.file.as_deref(), args.brute_force, loading)?;
-    let (width, height) = args.size;
     let root = model.runtime.cut().node(0);
     let loop_frames = args.path_frames.or(args.frames).unwrap_or(120) as u32;
-    let mut path = match &args.camera_path {
-        Some(file) => CameraPath::read(file).map_err(|why| {
-            anyhow::anyhow!("{}: not a usable camera path: {why}", file.display())
-        })?,
-        None if args.fly => CameraPath::fly_through(
-            root.sphere_center,
-            root.sphere_radius,
-            loop_frames,
-            width,
-            height,
-        ),
-        None => CameraPath::orbit(
-            root.sphere_center,
-            root.sphere_radius,
-            loop_frames,
-            width,
-            height,
-        ),
+    let source = match &args.camera_path {
+        Some(file) => PathSource::File(file),
+        None if args.fly => PathSource::FlyThrough,
+        None => PathSource::Orbit,
     };
+    let mut path = CameraPath::from_source(
+        source,
+        root.sphere_center,
+        root.sphere_radius,
+        loop_frames,
+        args.size,
+    )
+    .map_err(anyhow::Error::msg)?;
     if let Some(frames) = args.frames {
         path.cameras.truncate(frames);
     }

@@ -16,8 +16,8 @@ use clap::{Parser, ValueEnum};
 use serde::Serialize;
 use vds_runtime::export::{Mesh, MeshFormat, write_mesh};
 use vds_runtime::{
-    Camera, CameraPath, CornerTracking, Criteria, FrustumMode, Gaze, Goal, Loading, Runtime,
-    Viewpoint, measure,
+    Camera, CameraPath, CornerTracking, Criteria, FrustumMode, Gaze, Goal, Loading, PathSource,
+    Runtime, Viewpoint, measure,
 };
 
 #[derive(Parser)]
@@ -443,27 +443,19 @@ fn replay(
     part_names: &[String],
 ) -> Result<()> {
     let root = runtime.cut().node(0);
-    let (width, height) = args.size;
-    let loop_frames = args.frames.unwrap_or(120);
-    let mut path = match &args.camera_path {
-        Some(file) => CameraPath::read(file).map_err(|why| {
-            anyhow::anyhow!("{}: not a usable camera path: {why}", file.display())
-        })?,
-        None if args.fly => CameraPath::fly_through(
-            root.sphere_center,
-            root.sphere_radius,
-            loop_frames,
-            width,
-            height,
-        ),
-        None => CameraPath::orbit(
-            root.sphere_center,
-            root.sphere_radius,
-            loop_frames,
-            width,
-            height,
-        ),
+    let source = match &args.camera_path {
+        Some(file) => PathSource::File(file),
+        None if args.fly => PathSource::FlyThrough,
+        None => PathSource::Orbit,
     };
+    let mut path = CameraPath::from_source(
+        source,
+        root.sphere_center,
+        root.sphere_radius,
+        args.frames.unwrap_or(120),
+        args.size,
+    )
+    .map_err(anyhow::Error::msg)?;
     if let Some(frames) = args.frames {
         path.cameras.truncate(frames as usize);
     }
