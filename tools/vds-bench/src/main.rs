@@ -12,6 +12,7 @@ mod cut;
 mod distance;
 mod first_touch;
 mod latency;
+mod refine;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -65,6 +66,24 @@ enum Commands {
     /// Decode every page of a `.vdt` file on one core, reusing one page buffer (as a page
     /// cache would); prints the median of `--runs` passes.
     Decode { file: PathBuf },
+    /// Background page loading on a `.vdt` file: open to first frame, time to full
+    /// refinement at a fly-through's start and after a 180° turn, pages per second, and
+    /// adjust percentiles along the fly-through against the same path fully resident.
+    Refine {
+        file: PathBuf,
+        /// Screen-space threshold in pixels.
+        #[arg(long, default_value_t = 1.0)]
+        threshold: f32,
+        /// Loading threads (default: the cores but one, 1 to 4).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Milliseconds between frames (a display's pace).
+        #[arg(long, default_value_t = 1000.0 / 60.0)]
+        pace_ms: f64,
+        /// Frames of the fly-through.
+        #[arg(long, default_value_t = 600)]
+        frames: u32,
+    },
     /// The runtime: adjust time along camera paths (bunny orbit, generated CAD scene
     /// fly-through) at t = 1 and 5 px, and view-independent fidelity vs simplify_sloppy.
     Cut {
@@ -150,6 +169,18 @@ fn main() -> Result<()> {
         Some(Commands::One { file }) => return one(&file),
         Some(Commands::Vdt { file }) => return vdt(&file),
         Some(Commands::Decode { file }) => return decode(&file, args.runs),
+        Some(Commands::Refine {
+            file,
+            threshold,
+            threads,
+            pace_ms,
+            frames,
+        }) => {
+            let threads = threads
+                .unwrap_or_else(vds_runtime::default_loading_threads)
+                .clamp(1, 64);
+            return refine::run(&file, threshold, threads, pace_ms, frames.max(2));
+        }
         Some(Commands::Latency) => {
             latency::run();
             return Ok(());

@@ -1,0 +1,164 @@
+//! `vds-bench refine`: what a user of background loading feels — how soon the first frame
+//! shows after opening a `.vdt` file, how long until the view is fully refined, how long a
+//! 180° turn takes to refine, how fast the loader delivers pages, and what the adjusts cost
+//! along a fly-through with pages loading, against the same path fully resident.
+//!
+//! Frames are paced like a display (`--pace-ms`, 60 Hz by default): the loader works between
+//! frames as it would in the viewer. "Fully refined" is the first frame that puts off no
+//! unfold and leaves no page pending: the cut a synchronous adjust would give. On Linux the
+//! file is evicted from the page cache first, so pages come from the disk.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use vds_runtime::{
+    Camera, CameraPath, CornerTracking, Criteria, Goal, Loading, Runtime, Viewpoint,
+};
+
+/// What one refinement took.
+struct Settling {
+    /// From the start of the first adjust to the end of the frame that settled.
+    elapsed: Duration,
+    frames: u32,
+    pages: u32,
+}
+
+/// Adjusts for `camera` at `pace` until a frame defers nothing and nothing is pending.
+fn settle(runtime: &mut Runtime, camera: &Camera, goal: Goal, pace: Duration) -> Result<Settling> {
+    let criteria = Criteria::default();
+    let (pages_before, _) = runtime.cut().store().pages_resident();
+    let start = Instant::now();
+    for frame in 1..=100_000u32 {
+        let stats = runtime
+            .adjust(&Viewpoint::Camera(*camera), &criteria, goal)?
+            .stats;
+        if stats.deferred_unfolds == 0 && runtime.pending_pages() == 0 {
+            return Ok(Settling {
+                elapsed: start.elapsed(),
+                frames: frame,
+                pages: runtime.cut().store().pages_resident().0 - pages_before,
+            });
+        }
+        if let Some(wait) = (pace * frame).checked_sub(start.elapsed()) {
+            std::thread::sleep(wait);
+        }
+    }
+    anyhow::bail!("the view did not settle in 100,000 frames")
+}
+
+/// Adjust times along `path`, paced.
+fn play(runtime: &mut Runtime, path: &CameraPath, goal: Goal, pace: Duration) -> Result<Vec<f64>> {
+    let criteria = Criteria::default();
+    let mut times = Vec::with_capacity(path.cameras.len());
+    let start = Instant::now();
+    for (i, camera) in path.cameras.iter().enumerate() {
+        if let Some(wait) = (pace * i as u32).checked_sub(start.elapsed()) {
+            std::thread::sleep(wait);
+        }
+        let t = Instant::now();
+        runtime.adjust(&Viewpoint::Camera(*camera), &criteria, goal)?;
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(times)
+}
+
+fn percentile(values: &[f64], p: f64) -> f64 {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+}
+
+/// Drops `file`'s pages from the page cache where the system allows (Linux).
+fn evict(file: &Path) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        std::fs::File::open(file)
+            .is_ok_and(|f| rustix::fs::fadvise(&f, 0, None, rustix::fs::Advice::DontNeed).is_ok())
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = file;
+        false
+    }
+}
+
+/// Runs the measurements on `file` at threshold `t` with `threads` loading threads.
+pub fn run(file: &Path, t: f32, threads: usize, pace_ms: f64, frames: u32) -> Result<()> {
+    let pace = Duration::from_secs_f64(pace_ms / 1e3);
+    let goal = Goal::Threshold(t);
+    let cold = evict(file);
+    let open_start = Instant::now();
+    let vdt = vds_format::VdtFile::open(file).with_context(|| file.display().to_string())?;
+    let pages = vdt.directory().len();
+    let mut runtime = Runtime::with_loading(
+        Box::new(vdt),
+        CornerTracking::Incidence,
+        Loading::Background { threads },
+    )
+    .with_context(|| file.display().to_string())?;
+    let root = runtime.cut().node(0);
+    let (center, radius) = (root.sphere_center, root.sphere_radius);
+    let path = CameraPath::fly_through(center, radius, frames, 1920, 1080);
+    let start_camera = path.cameras[0];
+    let first = Instant::now();
+    runtime.adjust(&Viewpoint::Camera(start_camera), &Criteria::default(), goal)?;
+    let first_frame_ms = open_start.elapsed().as_secs_f64() * 1e3;
+    let first_adjust_ms = first.elapsed().as_secs_f64() * 1e3;
+    let refined = settle(&mut runtime, &start_camera, goal, pace)?;
+    // The same eye, looking the other way.
+    let mut turned = start_camera;
+    turned.target = [0, 1, 2].map(|k| 2.0 * start_camera.eye[k] - start_camera.target[k]);
+    let turn = settle(&mut runtime, &turned, goal, pace)?;
+
+    println!(
+        "{}: {pages} pages, t = {t} px, {threads} loading thread(s), frames every {pace_ms:.1} ms, \
+         page cache {}",
+        file.display(),
+        if cold { "evicted first" } else { "as it was" }
+    );
+    println!("  open to first frame {first_frame_ms:.1} ms (first adjust {first_adjust_ms:.2} ms)");
+    for (what, s) in [
+        ("at the start position", &refined),
+        ("after a 180° turn", &turn),
+    ] {
+        let seconds = s.elapsed.as_secs_f64();
+        println!(
+            "  fully refined {what}: {:.0} ms, {} frames, {} pages ({:.0} pages/s, \
+             {:.0} per loading thread)",
+            seconds * 1e3,
+            s.frames,
+            s.pages,
+            f64::from(s.pages) / seconds.max(1e-9),
+            f64::from(s.pages) / seconds.max(1e-9) / threads as f64,
+        );
+    }
+
+    // The fly-through with pages loading in the background, from a fresh runtime...
+    evict(file);
+    let vdt = vds_format::VdtFile::open(file)?;
+    let mut loading = Runtime::with_loading(
+        Box::new(vdt),
+        CornerTracking::Incidence,
+        Loading::Background { threads },
+    )?;
+    let background = play(&mut loading, &path, goal, pace)?;
+    // ...and the same path with every page decoded first.
+    let vdt = vds_format::VdtFile::open(file)?;
+    let mut resident = Runtime::new(Box::new(vdt), CornerTracking::Incidence)?;
+    resident.leaf_positions()?;
+    let synchronous = play(&mut resident, &path, goal, pace)?;
+    for (what, times) in [
+        ("background loading", &background),
+        ("every page resident", &synchronous),
+    ] {
+        println!(
+            "  fly-through, {} frames, {what}: adjust median {:.3} ms, p99 {:.3} ms, max {:.3} ms",
+            times.len(),
+            percentile(times, 0.5),
+            percentile(times, 0.99),
+            percentile(times, 1.0),
+        );
+    }
+    Ok(())
+}
