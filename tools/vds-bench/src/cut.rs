@@ -66,6 +66,9 @@ fn play(
     let (mut ms, mut visited, mut added, mut removed, mut changed, mut active) =
         (vec![], vec![], vec![], vec![], vec![], vec![]);
     let (mut groups, mut failed, mut reused) = (vec![], vec![], vec![]);
+    // What a frame costs per active triangle, and per node folded or unfolded (frames with
+    // changes only): the two costs the per-frame-work issue sets out to separate.
+    let (mut ns_per_active, mut ns_per_change) = (vec![], vec![]);
     let mut first_ms = 0.0;
     // Folds and unfolds of the timed adjusts: none when each first adjust settled its cut.
     let mut settled_changes = 0u64;
@@ -82,7 +85,12 @@ fn play(
             continue;
         }
         ms.push(elapsed);
-        settled_changes += u64::from(frame.stats.folds + frame.stats.unfolds);
+        let changes = frame.stats.folds + frame.stats.unfolds;
+        settled_changes += u64::from(changes);
+        ns_per_active.push(elapsed * 1e6 / n);
+        if changes > 0 {
+            ns_per_change.push(elapsed * 1e6 / f64::from(changes));
+        }
         visited.push(f64::from(frame.stats.visited));
         groups.push(f64::from(frame.stats.groups));
         failed.push(f64::from(frame.stats.groups_failed));
@@ -136,6 +144,19 @@ fn play(
                 .collect::<Vec<_>>(),
             0.99
         ),
+    );
+    println!(
+        "  {:<28} per frame: {:6.1} ns per active triangle, {:7.0} ns per node folded or \
+         unfolded (medians; {} of {} frames changed)",
+        "",
+        median(&ns_per_active),
+        if ns_per_change.is_empty() {
+            0.0
+        } else {
+            median(&ns_per_change)
+        },
+        ns_per_change.len(),
+        ms.len(),
     );
     Ok(())
 }
