@@ -89,7 +89,7 @@ pub enum Problem {
         amount: u64,
         /// The limit.
         limit: u64,
-        /// The command-line option that raises the limit.
+        /// The command-line option that raises the limit (empty for a fixed limit).
         option: &'static str,
     },
     /// A glTF URI names something outside the model's folder, or a scheme other than `data:`.
@@ -138,6 +138,15 @@ impl fmt::Display for Problem {
             Problem::LineTooLong { bytes, limit } => write!(
                 f,
                 "line is {bytes} bytes long (at most {limit} are accepted)"
+            ),
+            Problem::LimitExceeded {
+                what,
+                amount,
+                limit,
+                option: "",
+            } => write!(
+                f,
+                "{what} {amount}, more than the limit of {limit} (a fixed limit)"
             ),
             Problem::LimitExceeded {
                 what,

@@ -228,7 +228,12 @@ fn check_expansion(
             what: whose,
             amount,
             limit,
-            option: "--max-triangles",
+            // The part-name limit is fixed; the others follow --max-triangles.
+            option: if limit == MAX_NAME_BYTES && what == "bytes of part names" {
+                ""
+            } else {
+                "--max-triangles"
+            },
         },
     ))
 }

@@ -185,8 +185,9 @@ impl BufferFile {
         // the caller's limit before this, and an allocation that still fails is an error.
         out.try_reserve_exact(length.min(self.size) as usize)
             .map_err(|e| e.to_string())?;
+        // No further than the size the limits were checked against, even if the file grew.
         self.file
-            .take(length)
+            .take(length.min(self.size))
             .read_to_end(&mut out)
             .map_err(|e| e.to_string())?;
         Ok(out)

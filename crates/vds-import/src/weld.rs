@@ -39,8 +39,11 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
     let representative = match weld {
         Weld::Exact => exact_representatives(&positions),
         Weld::Relative(fraction) => {
-            let tolerance = f64::from(fraction) * diagonal(&positions);
-            if tolerance > 0.0 {
+            let diagonal = diagonal(&positions);
+            let tolerance = f64::from(fraction) * diagonal;
+            // A tolerance below 2⁻⁴⁰ of the diagonal is exact welding in effect (f32 positions
+            // hold 24 bits), and it would make grid cell indices overflow.
+            if tolerance > 0.0 && diagonal / tolerance <= (1u64 << 40) as f64 {
                 tolerance_representatives(&positions, tolerance)
             } else {
                 exact_representatives(&positions)

@@ -66,7 +66,8 @@ pub struct AdjustStats {
     /// adjust and refused again counts again).
     pub refused_folds: u32,
     /// Unfolds put off because the node's children were not resident yet (background
-    /// loading only): their pages were asked for.
+    /// loading only): their pages are asked for. Nodes whose pages failed to load are not
+    /// counted: they stay folded for good.
     pub deferred_unfolds: u32,
 }
 
@@ -280,8 +281,9 @@ impl Adjuster {
     ) -> Result<bool, VdtError> {
         if !cut.children_available(id)? {
             let urgency = judge.screen_error(cut.store().tested(id));
-            cut.request_children(id, urgency);
-            self.stats.deferred_unfolds += 1;
+            if cut.request_children(id, urgency) {
+                self.stats.deferred_unfolds += 1;
+            }
             return Ok(false);
         }
         cut.unfold_node(id)?;
@@ -393,8 +395,9 @@ impl Adjuster {
             // always count as resident: the unfold below reads them, as it always did.)
             if !cut.children_resident(u) {
                 self.unfold_queue.pop();
-                cut.request_children(u, worst);
-                self.stats.deferred_unfolds += 1;
+                if cut.request_children(u, worst) {
+                    self.stats.deferred_unfolds += 1;
+                }
                 continue;
             }
             let cost = cut.node(u).subtri_count;

@@ -202,6 +202,22 @@ mod tests {
 
     const GOOD: &str = r#"{"eye":[0,0,5],"target":[0,0,0],"up":[0,1,0],"fov_y_degrees":45,"width":64,"height":48,"near":0.01}"#;
 
+    #[cfg(unix)]
+    #[test]
+    fn reading_a_fifo_is_refused_without_blocking() {
+        let dir = std::env::temp_dir().join(format!("vds-path-fifo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("path.json");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let error = CameraPath::read(&fifo).unwrap_err();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(error.contains("not a regular file"), "{error}");
+    }
+
     #[test]
     fn a_sound_path_parses() {
         assert_eq!(one(GOOD).unwrap().cameras.len(), 1);

@@ -366,8 +366,7 @@ impl Judge {
         let error = if d <= 0.0 {
             f32::MAX
         } else {
-            let rho = (c.x * c.x + c.y * c.y).sqrt();
-            screen_bound(view.focal_px, r, d, rho)
+            screen_bound(view.focal_px, r, d, c)
         };
         let mut scale = self.gaze_factor(view, n);
         if let (Some(s), Facing::Silhouette) = (self.criteria.silhouette_factor, facing) {
@@ -388,8 +387,7 @@ impl Judge {
         if d <= 0.0 {
             return if r == 0.0 { 0.0 } else { f32::INFINITY };
         }
-        let rho = (c.x * c.x + c.y * c.y).sqrt();
-        screen_bound(view.focal_px, r, d, rho)
+        screen_bound(view.focal_px, r, d, c)
     }
 
     #[inline]
@@ -504,10 +502,16 @@ fn screen_test_sides(focal_sq: f32, r: f32, c: Vec3) -> (f64, f64, f32) {
 }
 
 /// The screen-space error bound in pixels of an error radius `r` whose ball is `d` in front
-/// of the eye plane and `rho` off the view axis: `focal·r·√(d² + (ρ + r)²) / d²`, formed in
-/// f64 so that squares of large distances cannot overflow, saturating at `f32::MAX`.
-fn screen_bound(focal: f32, r: f32, d: f32, rho: f32) -> f32 {
-    let (r, d, reach) = (f64::from(r), f64::from(d), f64::from(rho + r));
+/// of the eye plane, its proxy at camera-space `c`: `focal·r·√(d² + (ρ + r)²) / d²` with `ρ`
+/// the distance from the view axis, all formed in f64 (as in [`screen_test_sides`]) so that
+/// squares of large distances cannot overflow; saturating at `f32::MAX`.
+fn screen_bound(focal: f32, r: f32, d: f32, c: Vec3) -> f32 {
+    let (x, y) = (f64::from(c.x), f64::from(c.y));
+    let (r, d, reach) = (
+        f64::from(r),
+        f64::from(d),
+        (x * x + y * y).sqrt() + f64::from(r),
+    );
     (f64::from(focal) * r * (d * d + reach * reach).sqrt() / (d * d)).min(f64::from(f32::MAX))
         as f32
 }

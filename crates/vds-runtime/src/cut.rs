@@ -451,9 +451,10 @@ impl Cut {
         self.store.children_resident(id)
     }
 
-    /// Asks for `id`'s children's pages ([`NodeStore::request_children`]).
-    pub fn request_children(&mut self, id: u32, priority: f32) {
-        self.store.request_children(id, priority);
+    /// Asks for `id`'s children's pages ([`NodeStore::request_children`]); false when they
+    /// cannot arrive.
+    pub fn request_children(&mut self, id: u32, priority: f32) -> bool {
+        self.store.request_children(id, priority)
     }
 
     /// Unfolds every node: the cut becomes the original mesh.

@@ -64,8 +64,9 @@ impl Ord for Request {
 }
 
 impl Loader {
-    /// Starts `threads` workers (at least one) reading pages of `source`.
-    pub(crate) fn start(source: Arc<dyn PageSource>, threads: usize) -> Loader {
+    /// Starts `threads` workers (at least one) reading pages of `source`; fails when the
+    /// system cannot start a thread.
+    pub(crate) fn start(source: Arc<dyn PageSource>, threads: usize) -> Result<Loader, VdtError> {
         let page_count = source.directory().len();
         let shared = Arc::new(Shared {
             queue: Mutex::new(Queue {
@@ -76,21 +77,26 @@ impl Loader {
             wake: Condvar::new(),
         });
         let (sender, results) = channel();
-        let workers = (0..threads.max(1))
-            .map(|k| {
-                let (shared, source, sender) =
-                    (Arc::clone(&shared), Arc::clone(&source), sender.clone());
-                std::thread::Builder::new()
-                    .name(format!("vds-pages-{k}"))
-                    .spawn(move || work(&shared, source.as_ref(), &sender))
-                    .expect("the system can start a page-loading thread")
-            })
-            .collect();
-        Loader {
+        let mut loader = Loader {
             shared,
             results,
-            workers,
+            workers: Vec::new(),
+        };
+        for k in 0..threads.max(1) {
+            let (shared, source, sender) = (
+                Arc::clone(&loader.shared),
+                Arc::clone(&source),
+                sender.clone(),
+            );
+            let worker = std::thread::Builder::new()
+                .name(format!("vds-pages-{k}"))
+                .spawn(move || work(&shared, source.as_ref(), &sender))
+                .map_err(|e| {
+                    VdtError::invalid("page loader", format!("cannot start a thread: {e}"))
+                })?;
+            loader.workers.push(worker);
         }
+        Ok(loader)
     }
 
     /// Asks for page `page` with `priority` (higher first).

@@ -293,7 +293,7 @@ impl NodeStore {
             Loading::Background { threads } => Some(crate::loader::Loader::start(
                 std::sync::Arc::clone(&source),
                 threads,
-            )),
+            )?),
         };
         let mut store = NodeStore {
             source,
@@ -421,28 +421,45 @@ impl NodeStore {
     /// Asks the background loader for the pages of `id`'s children that are not resident,
     /// with `priority` (higher is more urgent: the node's error in pixels past its
     /// threshold, say). Pages already asked for keep the higher of their priorities; pages
-    /// that failed are not asked for again. Nothing happens with synchronous loading.
-    pub fn request_children(&mut self, id: u32, priority: f32) {
+    /// that failed are not asked for again. Returns whether the children can still arrive:
+    /// false when a page they need failed (the node stays folded for good) or when loading
+    /// is synchronous.
+    ///
+    /// A page already asked for is queued again only when its priority at least doubles, so
+    /// a node waiting many frames does not grow the loader's queue by a request each frame.
+    pub fn request_children(&mut self, id: u32, priority: f32) -> bool {
         let Some(loader) = &self.loader else {
-            return;
+            return false;
         };
         let hot = self.hot[id as usize];
         if hot.child_count == 0 {
-            return;
+            return false;
         }
+        let priority = priority.max(0.0);
         let last = hot.first_child + hot.child_count - 1;
         let pages = [self.page_of(hot.first_child), self.page_of(last)];
+        let mut arriving = true;
         for page in pages.into_iter().flatten() {
             let p = page as usize;
-            if self.page_state[p] != PageState::Absent || self.awaited[p] >= priority.max(0.0) {
+            match self.page_state[p] {
+                PageState::Resident => continue,
+                PageState::Failed => {
+                    arriving = false;
+                    continue;
+                }
+                PageState::Absent => {}
+            }
+            let awaited = self.awaited[p];
+            if awaited >= 0.0 && priority < 2.0 * awaited.max(f32::MIN_POSITIVE) {
                 continue;
             }
-            if self.awaited[p] < 0.0 {
+            if awaited < 0.0 {
                 self.pending_pages += 1;
             }
-            self.awaited[p] = priority.max(0.0);
-            loader.request(page, priority.max(0.0));
+            self.awaited[p] = priority;
+            loader.request(page, priority);
         }
+        arriving
     }
 
     /// Takes in the pages the background loader has delivered since the last call, without

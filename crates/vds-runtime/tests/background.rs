@@ -115,6 +115,7 @@ fn budget_mode_settles_within_the_budget() {
     let (center, radius) = bounds(&scene.positions);
     let mut runtime = background(&bytes, 1);
     let mut rng = Rng(3);
+    let mut deferred = 0;
     for budget in [500u32, 2_000, 8_000] {
         let viewpoint = Viewpoint::Camera(random_camera(&mut rng, center, radius));
         let goal = Goal::Budget(budget);
@@ -122,6 +123,7 @@ fn budget_mode_settles_within_the_budget() {
         loop {
             let frame = runtime.adjust(&viewpoint, &no_backface(), goal).unwrap();
             assert!(runtime.cut().active_triangle_count() <= budget);
+            deferred += frame.stats.deferred_unfolds;
             frames += 1;
             if frame.stats.deferred_unfolds == 0 && runtime.pending_pages() == 0 {
                 break;
@@ -132,6 +134,58 @@ fn budget_mode_settles_within_the_budget() {
         // Settled: what is left to unfold would not fit.
         assert!(runtime.cut().active_triangle_count() > budget / 2);
     }
+    assert!(deferred > 0, "no budget unfold ever waited for a page");
+}
+
+/// A page source that panics on one page.
+struct Panicking {
+    file: VdtFile<Vec<u8>>,
+    page: u32,
+}
+
+impl PageSource for Panicking {
+    fn header(&self) -> &Header {
+        self.file.header()
+    }
+    fn directory(&self) -> &[PageEntry] {
+        self.file.directory()
+    }
+    fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError> {
+        assert_ne!(index, self.page, "a page source with a bug");
+        self.file.read_page_into(index, page)
+    }
+}
+
+#[test]
+fn a_page_source_that_panics_becomes_that_pages_error_not_a_hang() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let source = Panicking {
+        file: VdtFile::from_bytes(bytes).unwrap(),
+        page: 1,
+    };
+    let mut runtime = Runtime::with_loading(
+        Box::new(source),
+        CornerTracking::Incidence,
+        Loading::Background { threads: 1 },
+    )
+    .unwrap();
+    let mut errors = Vec::new();
+    let mut rng = Rng(9);
+    for _ in 0..10 {
+        let viewpoint = Viewpoint::Camera(random_camera(&mut rng, center, radius * 0.5));
+        for _ in 0..3 {
+            runtime
+                .adjust(&viewpoint, &no_backface(), Goal::Threshold(0.5))
+                .unwrap();
+            // Returns: the panicking page is delivered as an error, not left awaited.
+            runtime.wait_for_pages();
+            errors.extend(runtime.take_page_errors());
+        }
+    }
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    assert!(errors[0].to_string().contains("panicked"), "{}", errors[0]);
 }
 
 #[test]

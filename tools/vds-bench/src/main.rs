@@ -179,6 +179,9 @@ fn main() -> Result<()> {
             let threads = threads
                 .unwrap_or_else(vds_runtime::default_loading_threads)
                 .clamp(1, 64);
+            if !(0.0..=10_000.0).contains(&pace_ms) {
+                bail!("--pace-ms must be from 0 to 10000, got {pace_ms}");
+            }
             return refine::run(&file, threshold, threads, pace_ms, frames.max(2));
         }
         Some(Commands::Latency) => {

@@ -92,8 +92,9 @@ struct Args {
     #[arg(long, value_name = "N", default_value_t = vds_import::ImportOptions::DEFAULT_MAX_TRIANGLES,
           value_parser = clap::value_parser!(u64).range(1..))]
     max_triangles: u64,
-    /// Refuse a .gz input that decompresses to more than this (bytes, or with a suffix:
-    /// 512MiB, 8GiB; default 4GiB). Gzipped inputs are decompressed into memory.
+    /// Refuse a .gz input that decompresses to more than this, and a glTF whose external
+    /// buffer files hold more than this together (bytes, or with a suffix: 512MiB, 8GiB;
+    /// default 4GiB): both are read into memory.
     #[arg(long, value_name = "SIZE", default_value = "4GiB", value_parser = parse_size)]
     max_decompressed_bytes: u64,
     /// Let glTF buffer URIs name files outside the model's folder (absolute paths, `..`,

@@ -58,7 +58,9 @@ struct Args {
     #[arg(long, default_value_t = 0.0, value_parser = pace, requires = "replay")]
     pace_ms: f32,
     /// How pages are loaded: on the adjusting thread when first needed, or by background
-    /// threads (an unfold then waits for its page and happens in a later frame).
+    /// threads (an unfold then waits for its page and happens in a later frame; a single
+    /// camera's cut is adjusted again as pages arrive until it settles, a replay's frames
+    /// are not).
     #[arg(long, value_enum, default_value_t = LoadingMode::Synchronous)]
     loading: LoadingMode,
     /// Background loading threads, 1 to 64 (default: the cores but one, at most 4).
@@ -348,9 +350,21 @@ fn run(args: &Args) -> Result<()> {
     let (output, format) = format.expect("clap requires -o without a path replay");
 
     let start = Instant::now();
-    let frame = runtime
+    let mut frame = runtime
         .adjust(&viewpoint, &criteria, goal)
         .with_context(|| format!("{}", args.file.display()))?;
+    // With background loading one adjust leaves unfolds waiting for pages: the exported cut
+    // is the settled one, so adjust again as pages arrive until nothing waits (a page that
+    // cannot be read fails the export).
+    while frame.stats.deferred_unfolds > 0 || runtime.pending_pages() > 0 {
+        runtime.wait_for_pages();
+        if let Some(error) = runtime.take_page_errors().into_iter().next() {
+            return Err(anyhow::Error::new(error).context(args.file.display().to_string()));
+        }
+        frame = runtime
+            .adjust(&viewpoint, &criteria, goal)
+            .with_context(|| format!("{}", args.file.display()))?;
+    }
     let adjust_ms = start.elapsed().as_secs_f64() * 1e3;
     let pages = runtime.cut().store().pages_resident();
 
