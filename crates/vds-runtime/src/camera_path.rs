@@ -34,6 +34,18 @@ pub enum PathSource<'a> {
     FlyThrough,
 }
 
+impl<'a> PathSource<'a> {
+    /// What the command lines' `--camera-path FILE`, `--fly` and (the default) `--orbit` ask
+    /// for: a file when one is given, else a fly-through or an orbit.
+    pub fn from_flags(camera_path: Option<&'a std::path::Path>, fly: bool) -> Self {
+        match camera_path {
+            Some(file) => PathSource::File(file),
+            None if fly => PathSource::FlyThrough,
+            None => PathSource::Orbit,
+        }
+    }
+}
+
 impl CameraPath {
     /// The path `source` names, generated paths around the sphere (`center`, `radius`) in
     /// `frames` steps at `width`×`height`. The error names the file.

@@ -255,11 +255,7 @@ fn run(args: &Args) -> Result<()> {
     let model = model::open(args.file.as_deref(), args.brute_force, loading)?;
     let root = model.runtime.cut().node(0);
     let loop_frames = args.path_frames.or(args.frames).unwrap_or(120) as u32;
-    let source = match &args.camera_path {
-        Some(file) => PathSource::File(file),
-        None if args.fly => PathSource::FlyThrough,
-        None => PathSource::Orbit,
-    };
+    let source = PathSource::from_flags(args.camera_path.as_deref(), args.fly);
     let mut path = CameraPath::from_source(
         source,
         root.sphere_center,

@@ -457,11 +457,7 @@ fn replay(
     part_names: &[String],
 ) -> Result<()> {
     let root = runtime.cut().node(0);
-    let source = match &args.camera_path {
-        Some(file) => PathSource::File(file),
-        None if args.fly => PathSource::FlyThrough,
-        None => PathSource::Orbit,
-    };
+    let source = PathSource::from_flags(args.camera_path.as_deref(), args.fly);
     let mut path = CameraPath::from_source(
         source,
         root.sphere_center,
