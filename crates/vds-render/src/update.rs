@@ -138,8 +138,8 @@ const JOIN_GAP: u32 = 8;
 /// [`VertexPool::collect`] turns the runtime's changes into one [`CutUpdate`].
 #[derive(Debug, Clone, Default)]
 pub struct VertexPool {
-    /// Per node id: its vertex, or [`NO_VERTEX`].
-    vertex_of: Vec<u32>,
+    /// The vertex of each node that has one (the current mesh's vertices, not the model's).
+    vertex_of: rustc_hash::FxHashMap<u32, u32>,
     /// Per vertex: the node it holds.
     node_of: Vec<u32>,
     /// Per vertex: slot corners using it (0: free).
@@ -181,10 +181,6 @@ impl VertexPool {
     }
 
     fn update(&mut self, cut: &mut Cut, dirty: &[u32]) -> CutUpdate {
-        let node_count = cut.store().node_count() as usize;
-        if self.vertex_of.len() < node_count {
-            self.vertex_of.resize(node_count, NO_VERTEX);
-        }
         let slot_count = cut.slot_count() as usize;
         if self.slot_vertices.len() < slot_count {
             self.slot_vertices.resize(slot_count, [NO_VERTEX; 3]);
@@ -202,6 +198,16 @@ impl VertexPool {
                 self.release(v);
             }
         }
+        // Slots past the end, where the cut compacted its slot array, are no longer drawn:
+        // their vertices go.
+        for before in self
+            .slot_vertices
+            .split_off(slot_count.min(self.slot_vertices.len()))
+        {
+            for v in before {
+                self.release(v);
+            }
+        }
         let mut update = CutUpdate {
             slot_count: cut.slot_count(),
             ..Default::default()
@@ -213,8 +219,7 @@ impl VertexPool {
     }
 
     fn acquire(&mut self, node: u32) -> u32 {
-        let existing = self.vertex_of[node as usize];
-        if existing != NO_VERTEX {
+        if let Some(&existing) = self.vertex_of.get(&node) {
             self.uses[existing as usize] += 1;
             return existing;
         }
@@ -226,7 +231,7 @@ impl VertexPool {
                 self.node_of.len() as u32 - 1
             }
         };
-        self.vertex_of[node as usize] = v;
+        self.vertex_of.insert(node, v);
         self.node_of[v as usize] = node;
         self.uses[v as usize] = 1;
         self.fresh.push(v);
@@ -240,7 +245,7 @@ impl VertexPool {
         let uses = &mut self.uses[v as usize];
         *uses -= 1;
         if *uses == 0 {
-            self.vertex_of[self.node_of[v as usize] as usize] = NO_VERTEX;
+            self.vertex_of.remove(&self.node_of[v as usize]);
             self.node_of[v as usize] = NO_VERTEX;
             self.free.push(v);
         }

@@ -98,11 +98,11 @@ impl Ord for Priority {
 /// Scratch state of the adjust traversals, reused from frame to frame.
 #[derive(Default)]
 pub struct Adjuster {
-    frame: u32,
-    /// Per node: the frame its priority was computed in, and the priority.
-    priorities: Vec<(u32, f32)>,
-    /// Per node: the frame it was last queued as a fold candidate.
-    queued: Vec<u32>,
+    /// Nodes whose priority this frame computed, and the priority (budget mode; cleared
+    /// every frame, so it holds the nodes one exchange touched, not the model).
+    priorities: rustc_hash::FxHashMap<u32, f32>,
+    /// Nodes queued as fold candidates this frame.
+    queued: rustc_hash::FxHashSet<u32>,
     work: Vec<u32>,
     stack: Vec<u32>,
     /// Nodes whose fold mesh-fold prevention refused this frame, to try again.
@@ -114,13 +114,9 @@ pub struct Adjuster {
 }
 
 impl Adjuster {
-    fn begin(&mut self, nodes: usize) {
-        self.frame = self.frame.wrapping_add(1);
-        if self.frame == 0 || self.priorities.len() != nodes {
-            self.frame = 1;
-            self.priorities = vec![(0, 0.0); nodes];
-            self.queued = vec![0; nodes];
-        }
+    fn begin(&mut self) {
+        self.priorities.clear();
+        self.queued.clear();
         self.stats = AdjustStats::default();
         self.refused.clear();
     }
@@ -141,7 +137,7 @@ impl Adjuster {
         t: f32,
         prevent_flips: bool,
     ) -> Result<AdjustStats, VdtError> {
-        self.begin(cut.store().node_count() as usize);
+        self.begin();
         if cut.state(0) == NodeState::Boundary {
             if self.decision(cut, judge, t, 0) == Decision::Unfold {
                 self.refine(cut, judge, t, 0)?;
@@ -191,12 +187,12 @@ impl Adjuster {
                         self.stats.groups_failed += 1;
                         let mut least = f32::INFINITY;
                         for c in hot.first_child..hot.first_child + hot.child_count {
-                            if cut.state(c) != NodeState::Boundary {
+                            let (label, tested) = cut.store().labelled(c);
+                            if label.state != NodeState::Boundary {
                                 continue;
                             }
                             self.stats.visited += 1;
-                            let (decision, child_margin) =
-                                judge.decide_with_margin(cut.store().tested(c), t);
+                            let (decision, child_margin) = judge.decide_with_margin(tested, t);
                             if decision == Decision::Unfold {
                                 least = 0.0;
                                 self.refine(cut, judge, t, c)?;
@@ -317,8 +313,7 @@ impl Adjuster {
         let mut n = id;
         let mut above = f32::MAX;
         while n != NIL {
-            let (frame, value) = self.priorities[n as usize];
-            if frame == self.frame {
+            if let Some(&value) = self.priorities.get(&n) {
                 above = value;
                 break;
             }
@@ -328,7 +323,7 @@ impl Adjuster {
         while let Some(n) = self.stack.pop() {
             self.stats.visited += 1;
             above = judge.priority(cut.store().tested(n)).min(above);
-            self.priorities[n as usize] = (self.frame, above);
+            self.priorities.insert(n, above);
         }
         above
     }
@@ -341,7 +336,7 @@ impl Adjuster {
         budget: u32,
         prevent_flips: bool,
     ) -> Result<AdjustStats, VdtError> {
-        self.begin(cut.store().node_count() as usize);
+        self.begin();
         self.unfold_queue.clear();
         self.fold_queue.clear();
         self.work.clear();
@@ -392,8 +387,8 @@ impl Adjuster {
             }
             // A node whose children are not resident is passed over (its pages asked for)
             // before anything is folded to make room for it. (With synchronous loading they
-            // always count as resident: the unfold below reads them, as it always did.)
-            if !cut.children_resident(u) {
+            // are read here, and passed over only when they do not fit in the memory budget.)
+            if !cut.children_available(u)? {
                 self.unfold_queue.pop();
                 if cut.request_children(u, worst) {
                     self.stats.deferred_unfolds += 1;
@@ -441,8 +436,7 @@ impl Adjuster {
     }
 
     fn queue_fold(&mut self, cut: &Cut, judge: &Judge, id: u32) {
-        if id != NIL && cut.can_fold(id) && self.queued[id as usize] != self.frame {
-            self.queued[id as usize] = self.frame;
+        if id != NIL && cut.can_fold(id) && self.queued.insert(id) {
             let p = self.priority(cut, judge, id);
             self.fold_queue.push(Reverse((Priority(p), id)));
         }
@@ -464,7 +458,7 @@ impl Adjuster {
                 break;
             }
             // A node that stops being a candidate may become one again this frame.
-            self.queued[f as usize] = 0;
+            self.queued.remove(&f);
             self.fold_queue.pop();
         }
         self.fold_queue.peek()
@@ -473,7 +467,7 @@ impl Adjuster {
     fn pop_fold(&mut self, cut: &Cut) -> Option<u32> {
         let f = self.peek_fold(cut)?.0.1;
         self.fold_queue.pop();
-        self.queued[f as usize] = 0;
+        self.queued.remove(&f);
         Some(f)
     }
 }

@@ -73,6 +73,8 @@ pub struct ActiveTriangle {
 struct Slot {
     /// The triangle held, or [`NIL`] for a free slot.
     triangle: u32,
+    /// The node it is a subtri of.
+    owner: u32,
     /// Leaf ranks of its original corners.
     leaves: [u32; 3],
     /// Current corners (boundary node ids).
@@ -87,6 +89,7 @@ struct Slot {
 
 const FREE_SLOT: Slot = Slot {
     triangle: NIL,
+    owner: NIL,
     leaves: [NIL; 3],
     corners: [NIL; 3],
     next: [NIL; 3],
@@ -129,26 +132,15 @@ const _: () = assert!(size_of::<ActiveEntry>() == 56);
 pub struct Cut {
     pub(crate) store: NodeStore,
     tracking: CornerTracking,
-    state: Vec<NodeState>,
-    /// Per node: how many of its children are active. A node may fold when this is zero.
-    active_children: Vec<u8>,
     /// The active nodes, densely: the per-frame traversal streams through this array (and
     /// `active_shapes` beside it) instead of chasing node ids across the store.
     active_list: Vec<ActiveEntry>,
     active_shapes: Vec<Shape>,
-    /// Per node: its index in `active_list`, or [`NIL`].
-    active_index: Vec<u32>,
     active_node_count: u32,
     boundary_count: u32,
     slots: Vec<Slot>,
     free_slots: Vec<u32>,
     active_triangle_count: u32,
-    slot_of_triangle: Vec<u32>,
-    /// Incidence lists: `head[node]` is the first corner entry (`slot * 3 + k`) the node is
-    /// the current proxy of; the slots link the entries.
-    head: Vec<u32>,
-    /// Per triangle: the epoch in which `take_changes` last saw it active before the frame.
-    seen_before: Vec<u32>,
     /// Journal of slots touched since the last `take_changes`: their contents before.
     journal: Vec<(u32, u32, [u32; 3])>,
     /// One bit per slot, set for the dirty ones while changes are collected, so they come out
@@ -156,39 +148,31 @@ pub struct Cut {
     dirty_bits: Vec<u64>,
     epoch: u32,
     lazy_dirty: bool,
+    /// Scratch of `take_changes`: triangles in touched slots now, by slot, and before.
+    now_in_slot: rustc_hash::FxHashMap<u32, u32>,
+    before: rustc_hash::FxHashSet<u32>,
 }
 
 impl Cut {
     /// The coarsest cut over `store`: the root alone, folded.
     pub fn new(store: NodeStore, tracking: CornerTracking) -> Cut {
-        let nodes = store.node_count() as usize;
-        let triangles = store.triangle_count() as usize;
-        let mut cut = Cut {
+        Cut {
             store,
             tracking,
-            state: vec![NodeState::Inactive; nodes],
-            active_children: vec![0; nodes],
             active_list: Vec::new(),
             active_shapes: Vec::new(),
-            active_index: vec![NIL; nodes],
             active_node_count: 0,
             boundary_count: 1,
             slots: Vec::new(),
             free_slots: Vec::new(),
             active_triangle_count: 0,
-            slot_of_triangle: vec![NIL; triangles],
-            head: match tracking {
-                CornerTracking::Incidence => vec![NIL; nodes],
-                CornerTracking::Lazy => Vec::new(),
-            },
-            seen_before: vec![0; triangles],
             journal: Vec::new(),
             dirty_bits: Vec::new(),
             epoch: 1,
             lazy_dirty: false,
-        };
-        cut.state[0] = NodeState::Boundary;
-        cut
+            now_in_slot: Default::default(),
+            before: Default::default(),
+        }
     }
 
     /// The node store, for taking the log of loaded pages ([`NodeStore::take_loaded`]).
@@ -216,21 +200,21 @@ impl Cut {
     /// Node `id`'s label.
     #[inline]
     pub fn state(&self, id: u32) -> NodeState {
-        self.state[id as usize]
+        self.store.state(id)
     }
 
     /// The boundary nodes (the current vertices), in ascending id order. Computed from the
     /// active nodes' children.
     pub fn boundary(&self) -> Vec<u32> {
         let mut boundary = Vec::with_capacity(self.boundary_count as usize);
-        if self.state[0] == NodeState::Boundary {
+        if self.store.state(0) == NodeState::Boundary {
             boundary.push(0);
         }
         for entry in &self.active_list {
             let h = &entry.hot;
             boundary.extend(
                 (h.first_child..h.first_child + h.child_count)
-                    .filter(|&c| self.state[c as usize] == NodeState::Boundary),
+                    .filter(|&c| self.store.state(c) == NodeState::Boundary),
             );
         }
         boundary.sort_unstable();
@@ -255,10 +239,6 @@ impl Cut {
     pub(crate) fn prefetch_children(&self, index: usize) {
         if let Some(entry) = self.active_list.get(index) {
             let (first, count) = (entry.hot.first_child, entry.hot.child_count);
-            crate::prefetch::prefetch_range(
-                &self.state,
-                first as usize..first as usize + count as usize,
-            );
             self.store.prefetch_tested(first, count);
         }
     }
@@ -299,7 +279,7 @@ impl Cut {
     /// Number of active children of node `id`.
     #[inline]
     pub fn active_children(&self, id: u32) -> u8 {
-        self.active_children[id as usize]
+        self.store.label(id).active_children
     }
 
     /// Number of active (unfolded) nodes.
@@ -342,28 +322,36 @@ impl Cut {
     /// The boundary node above original vertex `rank`: the node whose proxy stands in for it.
     pub fn current_proxy_node(&self, rank: u32) -> u32 {
         self.store
-            .descend(0, rank, |id| self.state[id as usize] == NodeState::Active)
+            .descend(0, rank, |id| self.store.state(id) == NodeState::Active)
     }
 
     /// True when `id` may be unfolded: on the boundary and not a leaf.
     pub fn can_unfold(&self, id: u32) -> bool {
-        self.state[id as usize] == NodeState::Boundary && !self.store.node(id).is_leaf()
+        let label = self.store.label(id);
+        label.state == NodeState::Boundary && self.store.hot(id).child_count > 0
     }
 
     /// True when `id` may be folded: active with every child on the boundary.
     pub fn can_fold(&self, id: u32) -> bool {
-        self.state[id as usize] == NodeState::Active && self.active_children[id as usize] == 0
+        let label = self.store.label(id);
+        label.state == NodeState::Active && label.active_children == 0
     }
 
     /// Unfolds boundary node `id`: its children join the boundary, its subtris become
     /// active and its corners move to the children. Loads the children's page first; on a
-    /// load error nothing changes.
+    /// load error, or when the page does not fit in the memory budget, nothing changes.
     ///
     /// # Panics
     /// If `id` cannot unfold ([`Cut::can_unfold`]).
     pub fn unfold_node(&mut self, id: u32) -> Result<(), VdtError> {
         assert!(self.can_unfold(id), "node {id} cannot unfold");
-        self.store.load_children(id)?;
+        self.store.load_children(id).map_err(|e| match e {
+            crate::store::LoadError::File(e) => e,
+            crate::store::LoadError::OverBudget => VdtError::invalid(
+                format!("node {id}"),
+                "its children's pages do not fit in the memory budget",
+            ),
+        })?;
         let node = self.store.node(id);
         self.set_state(id, NodeState::Active);
         for c in node.children() {
@@ -373,7 +361,7 @@ impl Cut {
         self.count_active_child(node.parent, 1);
         self.active_node_count += 1;
         if self.tracking == CornerTracking::Incidence {
-            let mut entry = std::mem::replace(&mut self.head[id as usize], NIL);
+            let mut entry = std::mem::replace(&mut self.store.label_mut(id).head, NIL);
             while entry != NIL {
                 let following = self.next_of(entry);
                 let (slot, k) = (entry / 3, (entry % 3) as usize);
@@ -388,10 +376,10 @@ impl Cut {
         } else {
             self.lazy_dirty = true;
         }
-        for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
-            let leaves = self.store.triangle_corners(t);
+        for (k, t) in (node.subtri_begin..node.subtri_begin + node.subtri_count).enumerate() {
+            let leaves = self.store.subtri_corners(id)[k];
             let corners = leaves.map(|rank| self.boundary_node_of(rank, id));
-            self.insert_triangle(t, leaves, corners);
+            self.insert_triangle(id, t, leaves, corners);
         }
         Ok(())
     }
@@ -410,14 +398,14 @@ impl Cut {
         }
         let node = self.store.node(id);
         for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
-            let slot = self.slot_of_triangle[t as usize];
+            let slot = self.store.triangle_slot(id, t);
             if slot != NIL {
                 self.remove_slot(slot);
             }
         }
         for c in node.children() {
             if self.tracking == CornerTracking::Incidence {
-                let mut entry = std::mem::replace(&mut self.head[c as usize], NIL);
+                let mut entry = std::mem::replace(&mut self.store.label_mut(c).head, NIL);
                 while entry != NIL {
                     let following = self.next_of(entry);
                     let (slot, k) = (entry / 3, (entry % 3) as usize);
@@ -440,9 +428,34 @@ impl Cut {
     }
 
     /// Whether boundary node `id`'s children are loaded, so it can unfold without reading a
-    /// page ([`NodeStore::children_available`]: with synchronous loading this loads them).
+    /// page ([`NodeStore::children_available`]: with synchronous loading this loads them),
+    /// and whether the cut's own arrays have room for its unfold within the memory budget
+    /// (they grow in steps, each asked of the store first; a step that does not fit leaves
+    /// the node folded, as a page that does not fit does).
     pub fn children_available(&mut self, id: u32) -> Result<bool, VdtError> {
-        self.store.children_available(id)
+        Ok(self.store.children_available(id)? && self.reserve_for_unfold(id))
+    }
+
+    /// Makes room in the slot array and the active list for unfolding `id`, within the
+    /// memory budget; false when the budget cannot give it.
+    fn reserve_for_unfold(&mut self, id: u32) -> bool {
+        let subtris = self.store.subtris(id).len();
+        let needed_slots = self.slots.len() + subtris.saturating_sub(self.free_slots.len());
+        let slot_growth = grown_capacity(self.slots.capacity(), needed_slots);
+        let entry_growth = grown_capacity(self.active_list.capacity(), self.active_list.len() + 1);
+        let bytes = slot_growth * size_of::<Slot>()
+            + entry_growth * (size_of::<ActiveEntry>() + size_of::<Shape>());
+        if bytes == 0 {
+            return true;
+        }
+        if !self.store.make_room_for_cut(bytes as u64) {
+            return false;
+        }
+        self.slots.reserve_exact(slot_growth);
+        self.active_list.reserve_exact(entry_growth);
+        self.active_shapes.reserve_exact(entry_growth);
+        self.store.set_cut_bytes(self.own_bytes());
+        true
     }
 
     /// Whether `id`'s children's pages are resident ([`NodeStore::children_resident`]; always
@@ -491,27 +504,41 @@ impl Cut {
     /// The changes to the active triangle list since the last call, and a fresh journal.
     pub fn take_changes(&mut self) -> Changes {
         self.refresh_lazy_corners();
+        self.compact_slots();
         let mut changes = Changes::default();
         self.dirty_bits.resize(self.slots.len().div_ceil(64), 0);
-        // Triangles active before the frame can only have left touched slots: mark them.
-        for &(_, triangle, _) in &self.journal {
+        // A triangle active before the frame and after it sits in a touched slot now if it
+        // sat in one before (leaving a slot or changing corners touches it, and so does
+        // entering one), so the touched slots alone say what was added, removed and changed.
+        self.now_in_slot.clear();
+        self.before.clear();
+        for &(slot, triangle, _) in &self.journal {
+            let now = self.slots.get(slot as usize).map_or(NIL, |s| s.triangle);
+            if now != NIL {
+                self.now_in_slot.insert(now, slot);
+            }
             if triangle != NIL {
-                self.seen_before[triangle as usize] = self.epoch;
+                self.before.insert(triangle);
             }
         }
         for &(slot, triangle, corners) in &self.journal {
             if triangle != NIL {
-                match self.slot_of_triangle[triangle as usize] {
-                    NIL => changes.removed += 1,
-                    now if self.slots[now as usize].corners != corners => changes.changed += 1,
+                match self.now_in_slot.get(&triangle) {
+                    None => changes.removed += 1,
+                    Some(&now) if self.slots[now as usize].corners != corners => {
+                        changes.changed += 1
+                    }
                     _ => {}
                 }
             }
-            let now = &self.slots[slot as usize];
+            // A slot past the end was cut off by compaction: it is no longer drawn at all.
+            let Some(now) = self.slots.get(slot as usize) else {
+                continue;
+            };
             if now.triangle != triangle || now.corners != corners {
                 self.dirty_bits[slot as usize / 64] |= 1 << (slot % 64);
             }
-            if now.triangle != NIL && self.seen_before[now.triangle as usize] != self.epoch {
+            if now.triangle != NIL && !self.before.contains(&now.triangle) {
                 changes.added += 1;
             }
         }
@@ -524,16 +551,83 @@ impl Cut {
                 bits &= bits - 1;
             }
         }
+        let touched = self.journal.len();
         self.journal.clear();
+        shrink_if_sparse(&mut self.journal, 2 * touched);
+        shrink_if_sparse(&mut self.active_list, self.active_node_count as usize);
+        shrink_if_sparse(&mut self.active_shapes, self.active_node_count as usize);
+        shrink_if_sparse(&mut self.free_slots, 0);
+        self.dirty_bits.shrink_to(self.slots.len().div_ceil(64));
+        self.store.set_cut_bytes(self.own_bytes());
         self.epoch = self.epoch.wrapping_add(1);
         if self.epoch == 0 {
             for s in &mut self.slots {
                 s.touched = 0;
             }
-            self.seen_before.fill(0);
             self.epoch = 1;
         }
         changes
+    }
+
+    /// Bytes held by the cut's own arrays (by capacity; the hash sets by their entries and
+    /// control bytes): what the memory budget counts beside the store's pages.
+    pub fn own_bytes(&self) -> u64 {
+        fn held<T>(v: &Vec<T>) -> usize {
+            v.capacity() * size_of::<T>()
+        }
+        let hashed = self.now_in_slot.capacity() * (size_of::<(u32, u32)>() + 1)
+            + self.before.capacity() * (size_of::<u32>() + 1);
+        (size_of::<Cut>()
+            + held(&self.active_list)
+            + held(&self.active_shapes)
+            + held(&self.slots)
+            + held(&self.free_slots)
+            + held(&self.journal)
+            + held(&self.dirty_bits)
+            + hashed) as u64
+    }
+
+    /// Moves active triangles out of the tail of the slot array into free slots below, and
+    /// cuts the array short, when more than half of it is free: the array (and a renderer's
+    /// mirror of it) follows the cut as it shrinks instead of keeping its largest size, which
+    /// the memory budget would go on paying for. Moved slots are journalled like any change,
+    /// so the renderer rewrites them; slots past the new end are simply no longer drawn.
+    fn compact_slots(&mut self) {
+        const SMALLEST: usize = 1024;
+        let len = self.slots.len();
+        if len <= SMALLEST || self.free_slots.len() * 2 <= len {
+            return;
+        }
+        let active = self.active_triangle_count as usize;
+        let target = (active + active / 8).max(SMALLEST);
+        if target >= len {
+            return;
+        }
+        let mut holes: Vec<u32> = self
+            .free_slots
+            .iter()
+            .copied()
+            .filter(|&s| (s as usize) < target)
+            .collect();
+        // Lowest holes last, so `pop` fills from the bottom up.
+        holes.sort_unstable_by(|a, b| b.cmp(a));
+        for from in (target..len).rev() {
+            let moved = self.slots[from];
+            if moved.triangle == NIL {
+                continue;
+            }
+            // Holes below `target` number `target − active below`, at least the tail's
+            // `active − active below`.
+            let to = holes.pop().expect("enough free slots below the target");
+            self.remove_slot(from as u32);
+            self.free_slots.pop(); // `remove_slot` freed `from`, which is cut off below.
+            let slot =
+                self.place_triangle(to, moved.owner, moved.triangle, moved.leaves, moved.corners);
+            debug_assert_eq!(slot, to);
+        }
+        self.slots.truncate(target);
+        self.slots.shrink_to(target);
+        self.free_slots = holes;
     }
 
     /// Lazy tracking: re-resolves every active corner whose node left the boundary.
@@ -549,14 +643,14 @@ impl Cut {
             }
             for k in 0..3 {
                 let node = s.corners[k];
-                let resolved = match self.state[node as usize] {
+                let resolved = match self.store.state(node) {
                     NodeState::Boundary => continue,
                     NodeState::Active => self.store.descend(node, s.leaves[k], |id| {
-                        self.state[id as usize] == NodeState::Active
+                        self.store.state(id) == NodeState::Active
                     }),
                     NodeState::Inactive => {
                         let mut up = node;
-                        while self.state[up as usize] != NodeState::Boundary {
+                        while self.store.state(up) != NodeState::Boundary {
                             up = self.store.parent(up);
                         }
                         up
@@ -576,9 +670,8 @@ impl Cut {
         while !self.store.supports_rank(node, rank) {
             node = self.store.parent(node);
         }
-        self.store.descend(node, rank, |id| {
-            self.state[id as usize] == NodeState::Active
-        })
+        self.store
+            .descend(node, rank, |id| self.store.state(id) == NodeState::Active)
     }
 
     fn fold_would_flip(&self, id: u32) -> bool {
@@ -588,7 +681,7 @@ impl Cut {
         let node = self.store.node(id);
         let position = |n: u32| glam::Vec3::from(self.store.node(n).proxy);
         for c in node.children() {
-            let mut entry = self.head[c as usize];
+            let mut entry = self.store.label(c).head;
             while entry != NIL {
                 let (slot, k) = (entry / 3, (entry % 3) as usize);
                 let s = &self.slots[slot as usize];
@@ -608,7 +701,7 @@ impl Cut {
         false
     }
 
-    fn insert_triangle(&mut self, triangle: u32, leaves: [u32; 3], corners: [u32; 3]) {
+    fn insert_triangle(&mut self, owner: u32, triangle: u32, leaves: [u32; 3], corners: [u32; 3]) {
         let slot = match self.free_slots.pop() {
             Some(slot) => slot,
             None => {
@@ -616,18 +709,32 @@ impl Cut {
                 self.slots.len() as u32 - 1
             }
         };
+        self.place_triangle(slot, owner, triangle, leaves, corners);
+    }
+
+    /// Puts a triangle into free slot `slot` (taken off the free list by the caller).
+    fn place_triangle(
+        &mut self,
+        slot: u32,
+        owner: u32,
+        triangle: u32,
+        leaves: [u32; 3],
+        corners: [u32; 3],
+    ) -> u32 {
         self.touch(slot);
         let s = &mut self.slots[slot as usize];
         s.triangle = triangle;
+        s.owner = owner;
         s.leaves = leaves;
         s.corners = corners;
-        self.slot_of_triangle[triangle as usize] = slot;
+        self.store.set_triangle_slot(owner, triangle, slot);
         if self.tracking == CornerTracking::Incidence {
             for k in 0..3 {
                 self.link(corners[k], slot * 3 + k as u32);
             }
         }
         self.active_triangle_count += 1;
+        slot
     }
 
     fn remove_slot(&mut self, slot: u32) {
@@ -638,7 +745,7 @@ impl Cut {
                 self.unlink(s.corners[k], slot * 3 + k as u32);
             }
         }
-        self.slot_of_triangle[s.triangle as usize] = NIL;
+        self.store.set_triangle_slot(s.owner, s.triangle, NIL);
         self.slots[slot as usize] = Slot {
             touched: s.touched,
             ..FREE_SLOT
@@ -679,13 +786,13 @@ impl Cut {
 
     #[inline]
     fn link(&mut self, node: u32, entry: u32) {
-        let first = self.head[node as usize];
+        let first = self.store.label(node).head;
         self.set_next(entry, first);
         self.set_prev(entry, NIL);
         if first != NIL {
             self.set_prev(first, entry);
         }
-        self.head[node as usize] = entry;
+        self.store.label_mut(node).head = entry;
     }
 
     #[inline]
@@ -694,7 +801,7 @@ impl Cut {
         if before != NIL {
             self.set_next(before, after);
         } else {
-            self.head[node as usize] = after;
+            self.store.label_mut(node).head = after;
         }
         if after != NIL {
             self.set_prev(after, before);
@@ -703,32 +810,35 @@ impl Cut {
 
     fn count_active_child(&mut self, parent: u32, change: i32) {
         if parent != NIL {
-            let count = &mut self.active_children[parent as usize];
-            *count = (i32::from(*count) + change) as u8;
-            let index = self.active_index[parent as usize];
+            let label = self.store.label_mut(parent);
+            label.active_children = (i32::from(label.active_children) + change) as u8;
+            let (count, index) = (label.active_children, label.active_index);
             let entry = &mut self.active_list[index as usize];
-            entry.active_children = u32::from(*count);
+            entry.active_children = u32::from(count);
             entry.reuse = Reuse::NONE;
         }
     }
 
     fn set_state(&mut self, id: u32, state: NodeState) {
-        let was = std::mem::replace(&mut self.state[id as usize], state);
+        let was = self.store.set_state(id, state);
         if state == NodeState::Active && was != NodeState::Active {
-            self.active_index[id as usize] = self.active_list.len() as u32;
+            let index = self.active_list.len() as u32;
+            let label = self.store.label_mut(id);
+            label.active_index = index;
+            let active_children = u32::from(label.active_children);
             self.active_list.push(ActiveEntry {
                 hot: *self.store.hot(id),
                 id,
-                active_children: u32::from(self.active_children[id as usize]),
+                active_children,
                 reuse: Reuse::NONE,
             });
             self.active_shapes.push(*self.store.tested(id).shape);
         } else if was == NodeState::Active && state != NodeState::Active {
-            let index = std::mem::replace(&mut self.active_index[id as usize], NIL) as usize;
+            let index = std::mem::replace(&mut self.store.label_mut(id).active_index, NIL) as usize;
             self.active_list.swap_remove(index);
             self.active_shapes.swap_remove(index);
             if let Some(moved) = self.active_list.get(index) {
-                self.active_index[moved.id as usize] = index as u32;
+                self.store.label_mut(moved.id).active_index = index as u32;
             }
         }
     }
@@ -742,25 +852,25 @@ impl Cut {
         let mut expected = Vec::new();
         let mut reached = 0usize;
         let mut stack = vec![0u32];
-        let root_state = self.state[0];
+        let root_state = self.store.state(0);
         if root_state == NodeState::Inactive {
             return Err("the root is inactive".into());
         }
         while let Some(id) = stack.pop() {
             reached += 1;
             let node = self.store.node(id);
-            match self.state[id as usize] {
+            let label = self.store.label(id);
+            match label.state {
                 NodeState::Inactive => {
                     return Err(format!("node {id} is inactive under an active parent"));
                 }
                 NodeState::Boundary => {}
                 NodeState::Active => {
-                    let index = self.active_index[id as usize] as usize;
+                    let index = label.active_index as usize;
                     match self.active_list.get(index) {
                         Some(e)
                             if e.id == id
-                                && e.active_children
-                                    == u32::from(self.active_children[id as usize]) => {}
+                                && e.active_children == u32::from(label.active_children) => {}
                         _ => {
                             return Err(format!(
                                 "active node {id} is missing from the active list"
@@ -769,9 +879,9 @@ impl Cut {
                     }
                     let active = node
                         .children()
-                        .filter(|&c| self.state[c as usize] == NodeState::Active)
+                        .filter(|&c| self.store.state(c) == NodeState::Active)
                         .count();
-                    if active != usize::from(self.active_children[id as usize]) {
+                    if active != usize::from(label.active_children) {
                         return Err(format!("node {id} counts its active children wrong"));
                     }
                     for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
@@ -785,32 +895,20 @@ impl Cut {
                 }
             }
         }
-        let labelled = self
-            .state
-            .iter()
-            .filter(|&&s| s != NodeState::Inactive)
-            .count();
+        self.store.check_pins()?;
+        let [boundary_count, active_count] = self.store.label_counts();
+        let labelled = boundary_count + active_count;
         if labelled != reached {
             return Err(format!(
                 "{labelled} nodes are labelled active or boundary but {reached} are reachable"
             ));
         }
-        let boundary_count = self
-            .state
-            .iter()
-            .filter(|&&s| s == NodeState::Boundary)
-            .count();
         if boundary_count != self.boundary_count as usize {
             return Err("the boundary count is wrong".into());
         }
         if self.active_list.len() != self.active_node_count as usize {
             return Err("the active set holds nodes that are not active".into());
         }
-        let active_count = self
-            .state
-            .iter()
-            .filter(|&&s| s == NodeState::Active)
-            .count();
         if active_count != self.active_node_count as usize {
             return Err("the active node count is wrong".into());
         }
@@ -835,14 +933,14 @@ impl Cut {
             ));
         }
         for (slot, s) in self.slots.iter().enumerate() {
-            if s.triangle != NIL && self.slot_of_triangle[s.triangle as usize] != slot as u32 {
+            if s.triangle != NIL && self.store.triangle_slot(s.owner, s.triangle) != slot as u32 {
                 return Err(format!("triangle {} does not map to its slot", s.triangle));
             }
         }
         if self.tracking == CornerTracking::Incidence {
             let mut listed = 0usize;
             for b in self.boundary() {
-                let mut entry = self.head[b as usize];
+                let mut entry = self.store.label(b).head;
                 let mut previous = NIL;
                 while entry != NIL {
                     let s = &self.slots[(entry / 3) as usize];
@@ -862,5 +960,25 @@ impl Cut {
             }
         }
         Ok(())
+    }
+}
+
+/// How many more entries a vector of `capacity` must reserve to hold `needed`: none if it
+/// holds them, else a quarter more than it has (at least 1024), so growth is in steps the
+/// memory budget can be asked for, and amortised.
+fn grown_capacity(capacity: usize, needed: usize) -> usize {
+    if needed <= capacity {
+        return 0;
+    }
+    needed.max(capacity + (capacity / 4).max(1024)) - capacity
+}
+
+/// Gives back most of `v`'s spare capacity once it holds under a quarter of it (with room
+/// for `expected` entries and a floor of 1024), so a cut that shrinks stops paying for its
+/// largest size.
+fn shrink_if_sparse<T>(v: &mut Vec<T>, expected: usize) {
+    let keep = expected.max(v.len()).max(1024);
+    if v.capacity() > 4 * keep {
+        v.shrink_to(keep);
     }
 }

@@ -21,6 +21,7 @@
 //! - [`camera_path`]: camera paths (orbit, fly-through) and their JSON form.
 //! - [`measure`]: exact screen-space deviation of the original vertices, for checks.
 //! - [`export`]: the cut as an OBJ or PLY mesh (`vds-cut`).
+//! - [`size`]: byte sizes on command lines (`--memory-budget 512MiB`).
 
 #![deny(missing_docs)]
 
@@ -33,6 +34,7 @@ mod loader;
 pub mod measure;
 mod prefetch;
 pub mod reuse;
+pub mod size;
 pub mod store;
 pub mod view;
 
@@ -54,23 +56,44 @@ pub use camera_path::{CameraPath, PathSource};
 pub use criteria::{Criteria, Decision, Facing, FrustumMode, Gaze, Goal, Judge, Viewpoint};
 pub use cut::{ActiveTriangle, Changes, CornerTracking, Cut, NIL, NodeState};
 pub use loader::default_threads as default_loading_threads;
-pub use store::{Loading, Node, NodeStore, PageSource};
+pub use store::{
+    LoadError, Loading, MemoryStats, Node, NodeStore, PageSource, default_memory_budget,
+};
 pub use vds_format::VdtError;
 pub use view::{Camera, View};
 
 /// What one adjust did.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Frame {
     /// The changes to the active triangle list.
     pub changes: Changes,
     /// The work done.
     pub stats: AdjustStats,
+    /// The threshold the adjust used ([`Goal::Threshold`] only): the one asked for, or a
+    /// larger one while the memory budget cannot hold the cut that one needs.
+    pub effective_threshold: Option<f32>,
+    /// Memory and paging after the adjust.
+    pub memory: MemoryStats,
 }
+
+/// How much the effective threshold grows per frame while the cut does not fit.
+const PRESSURE_GROWTH: f32 = 1.25;
+/// How much it shrinks back per frame once the cut's pages take under [`RELIEF_SHARE`] of
+/// the budget. A threshold `s` times smaller asks for about `s²` times the triangles, so the
+/// pinned share after a step back is below `RELIEF_SHARE · 1.1²` = 85 %: the cut still
+/// fits, and the threshold settles instead of oscillating.
+const RELIEF_STEP: f32 = 1.1;
+/// See [`RELIEF_STEP`].
+const RELIEF_SHARE: f64 = 0.7;
+/// The largest factor the threshold is raised by.
+const MAX_THRESHOLD_SCALE: f32 = 1e6;
 
 /// A cut over one `.vdt` file and the scratch state to adjust it.
 pub struct Runtime {
     cut: Cut,
     adjuster: Adjuster,
+    /// Effective threshold over the requested one (1 while the budget holds the cut).
+    threshold_scale: f32,
 }
 
 impl Runtime {
@@ -93,7 +116,27 @@ impl Runtime {
         Ok(Runtime {
             cut: Cut::new(NodeStore::with_loading(source, loading)?, tracking),
             adjuster: Adjuster::default(),
+            threshold_scale: 1.0,
         })
+    }
+
+    /// Sets the memory budget in bytes for the decoded tree and the cut
+    /// ([`default_memory_budget`] until set; [`u64::MAX`] for none). The store never holds
+    /// more: pages below the boundary are evicted, and when the cut itself does not fit, the
+    /// effective threshold rises ([`Frame::effective_threshold`]).
+    pub fn set_memory_budget(&mut self, bytes: u64) {
+        self.cut.store.set_memory_budget(bytes);
+    }
+
+    /// Memory and paging figures now.
+    pub fn memory(&self) -> MemoryStats {
+        self.cut.store.memory()
+    }
+
+    /// The threshold an adjust for `t` uses now: `t`, or more while the budget cannot hold
+    /// the cut.
+    pub fn effective_threshold(&self, t: f32) -> f32 {
+        t * self.threshold_scale
     }
 
     /// Pages asked of the background loader and not yet taken in (0 when loading is
@@ -134,27 +177,60 @@ impl Runtime {
     ) -> Result<Frame, VdtError> {
         // Pages the background loader delivered since the last adjust: their nodes may
         // unfold in this one.
+        self.cut.store.begin_frame();
         self.cut.store.poll();
         let judge = Judge::new(viewpoint, criteria);
         let prevent = criteria.prevent_mesh_folds;
-        let stats = match goal {
+        let (stats, effective_threshold) = match goal {
             Goal::Threshold(t) => {
-                self.adjuster
-                    .adjust_threshold(&mut self.cut, &judge, t, prevent)?
+                let effective = self.effective_threshold(t);
+                let stats =
+                    self.adjuster
+                        .adjust_threshold(&mut self.cut, &judge, effective, prevent)?;
+                (stats, Some(effective))
             }
-            Goal::Budget(n) => self
-                .adjuster
-                .adjust_budget(&mut self.cut, &judge, n, prevent)?,
+            Goal::Budget(n) => (
+                self.adjuster
+                    .adjust_budget(&mut self.cut, &judge, n, prevent)?,
+                None,
+            ),
         };
+        let changes = self.cut.take_changes();
+        self.cut.store.evict_to_budget();
+        self.respond_to_pressure();
         Ok(Frame {
-            changes: self.cut.take_changes(),
+            changes,
             stats,
+            effective_threshold,
+            memory: self.cut.store.memory(),
         })
     }
 
-    /// The original vertex positions by leaf rank (loads every page).
+    /// Raises the effective threshold while pages the cut needed were refused or the
+    /// pinned pages alone are over the budget (Cesium's memory-adjusted screen-space error),
+    /// and lowers it back step by step once the cut takes well under the budget.
+    fn respond_to_pressure(&mut self) {
+        let store = &mut self.cut.store;
+        let refused = store.take_refused();
+        if refused > 0 || store.over_budget_pinned() {
+            self.threshold_scale =
+                (self.threshold_scale * PRESSURE_GROWTH).min(MAX_THRESHOLD_SCALE);
+        } else if self.threshold_scale > 1.0
+            && (store.pinned_total() as f64) < RELIEF_SHARE * store.memory_budget() as f64
+        {
+            self.threshold_scale = (self.threshold_scale / RELIEF_STEP).max(1.0);
+        }
+    }
+
+    /// Makes every page resident ([`NodeStore::load_every_page`]): set a budget that holds
+    /// the model first, or the next adjust evicts what does not fit.
+    pub fn load_every_page(&mut self) -> Result<(), VdtError> {
+        self.cut.store.load_every_page()
+    }
+
+    /// The original vertex positions by leaf rank (reads every page, keeps none).
     pub fn leaf_positions(&mut self) -> Result<Vec<[f32; 3]>, VdtError> {
-        measure::leaf_positions(&mut self.cut.store)
+        measure::leaf_positions(&self.cut.store)
     }
 
     /// The budget-mode priority of node `id` under `judge` (for checking §3.3's stopping

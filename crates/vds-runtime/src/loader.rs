@@ -10,7 +10,7 @@
 //! skipped. Dropping the loader stops the workers after the page each is decoding.
 
 use std::collections::BinaryHeap;
-use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::thread::JoinHandle;
 
@@ -24,7 +24,8 @@ pub(crate) type Loaded = (u32, Result<Page, VdtError>);
 /// The worker threads and the two ends of their queue.
 pub(crate) struct Loader {
     shared: Arc<Shared>,
-    results: Receiver<Loaded>,
+    /// `None` only while dropping: closing it first unblocks a worker waiting to send.
+    results: Option<Receiver<Loaded>>,
     workers: Vec<JoinHandle<()>>,
 }
 
@@ -35,7 +36,8 @@ struct Shared {
 
 struct Queue {
     requests: BinaryHeap<Request>,
-    /// Per page: a worker has taken it (loaded or failed), so later entries are skipped.
+    /// Per page: a worker has taken it (loaded or failed) since it was last asked for
+    /// afresh, so later entries are skipped.
     taken: Vec<bool>,
     stop: bool,
 }
@@ -76,13 +78,17 @@ impl Loader {
             }),
             wake: Condvar::new(),
         });
-        let (sender, results) = channel();
+        // Decoded pages wait here until the store takes them in, at most two per worker: a
+        // store that does not poll (a viewer waiting for input) stops the workers instead of
+        // letting decoded pages pile up outside its memory budget.
+        let threads = threads.max(1);
+        let (sender, results) = sync_channel(2 * threads);
         let mut loader = Loader {
             shared,
-            results,
+            results: Some(results),
             workers: Vec::new(),
         };
-        for k in 0..threads.max(1) {
+        for k in 0..threads {
             let (shared, source, sender) = (
                 Arc::clone(&loader.shared),
                 Arc::clone(&source),
@@ -99,9 +105,14 @@ impl Loader {
         Ok(loader)
     }
 
-    /// Asks for page `page` with `priority` (higher first).
-    pub(crate) fn request(&self, page: u32, priority: f32) {
+    /// Asks for page `page` with `priority` (higher first). `fresh` when the store is not
+    /// awaiting the page already (it was never asked for, or it was delivered and has since
+    /// been evicted or refused): the page is loaded again even if a worker loaded it before.
+    pub(crate) fn request(&self, page: u32, priority: f32, fresh: bool) {
         let mut queue = self.lock();
+        if fresh {
+            queue.taken[page as usize] = false;
+        }
         if !queue.taken[page as usize] {
             queue.requests.push(Request { priority, page });
             drop(queue);
@@ -111,13 +122,13 @@ impl Loader {
 
     /// A page a worker has finished since the last call, if any; never blocks.
     pub(crate) fn try_next(&self) -> Option<Loaded> {
-        self.results.try_recv().ok()
+        self.results.as_ref()?.try_recv().ok()
     }
 
     /// The next page a worker finishes, waiting for it (for callers that want loading to
     /// settle: tests, batch replays). `None` if every worker has stopped.
     pub(crate) fn wait_next(&self) -> Option<Loaded> {
-        self.results.recv().ok()
+        self.results.as_ref()?.recv().ok()
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Queue> {
@@ -134,6 +145,7 @@ impl Drop for Loader {
     fn drop(&mut self) {
         self.lock().stop = true;
         self.shared.wake.notify_all();
+        self.results = None;
         for worker in self.workers.drain(..) {
             let _ = worker.join();
         }
@@ -141,7 +153,7 @@ impl Drop for Loader {
 }
 
 /// A worker: takes the most urgent request not yet taken, decodes it, sends it back.
-fn work(shared: &Shared, source: &dyn PageSource, results: &Sender<Loaded>) {
+fn work(shared: &Shared, source: &dyn PageSource, results: &SyncSender<Loaded>) {
     loop {
         let page = {
             let mut queue = shared.queue.lock().unwrap_or_else(PoisonError::into_inner);

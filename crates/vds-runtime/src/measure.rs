@@ -10,20 +10,26 @@ use crate::store::NodeStore;
 use crate::view::View;
 
 /// The original vertex positions by leaf rank. Loads every page.
-pub fn leaf_positions(store: &mut NodeStore) -> Result<Vec<[f32; 3]>, VdtError> {
+pub fn leaf_positions(store: &NodeStore) -> Result<Vec<[f32; 3]>, VdtError> {
     let mut positions = vec![[0.0; 3]; store.vertex_count() as usize];
-    // Walk the whole tree so each page is loaded through the same checked path the cut uses.
-    let mut stack = vec![0u32];
-    while let Some(id) = stack.pop() {
-        store.load_children(id)?;
-        let node = store.node(id);
-        if node.is_leaf() {
-            positions[node.leaf_begin as usize] = node.proxy;
-        } else {
-            stack.extend(node.children());
+    let mut seen = vec![false; positions.len()];
+    // Page by page, through the reader's checks, keeping none: the model may not fit.
+    store.for_each_page(|page| {
+        for record in page.nodes.iter().filter(|r| r.child_count == 0) {
+            let rank = record.leaf_begin.get() as usize;
+            if let Some(p) = positions.get_mut(rank) {
+                *p = record.proxy.map(|c| c.get());
+                seen[rank] = true;
+            }
         }
+    })?;
+    match seen.iter().position(|&s| !s) {
+        Some(rank) => Err(VdtError::invalid(
+            "tree",
+            format!("no leaf holds vertex {rank}"),
+        )),
+        None => Ok(positions),
     }
-    Ok(positions)
 }
 
 /// The result of [`screen_deviation`].
@@ -80,19 +86,31 @@ pub fn object_deviation(cut: &Cut, positions: &[[f32; 3]]) -> f32 {
 
 /// Per leaf rank: whether the vertex has an incident triangle that faces `eye` or is seen
 /// edge-on — the vertices backface simplification must not fold away. Zero-area triangles
-/// count as facing (they bound no normal, so no cone test folds them). Every page must be
-/// loaded ([`leaf_positions`] does that).
-pub fn facing_vertices(store: &NodeStore, positions: &[[f32; 3]], eye: Vec3) -> Vec<bool> {
+/// count as facing (they bound no normal, so no cone test folds them). Reads every page,
+/// keeps none.
+pub fn facing_vertices(
+    store: &NodeStore,
+    positions: &[[f32; 3]],
+    eye: Vec3,
+) -> Result<Vec<bool>, VdtError> {
     let mut facing = vec![false; positions.len()];
-    for t in 0..store.triangle_count() {
-        let ranks = store.triangle_corners(t);
-        let p = ranks.map(|r| Vec3::from(positions[r as usize]));
-        let normal = (p[1] - p[0]).cross(p[2] - p[0]);
-        if normal.dot(eye - p[0]) >= 0.0 || normal == Vec3::ZERO {
-            for r in ranks {
-                facing[r as usize] = true;
+    store.for_each_page(|page| {
+        for triangle in &page.triangles {
+            let ranks = triangle.corners.map(|c| c.get() as usize);
+            let Some(p) = ranks
+                .iter()
+                .map(|&r| positions.get(r).map(|&p| Vec3::from(p)))
+                .collect::<Option<Vec<_>>>()
+            else {
+                continue; // The reader keeps corners below the vertex count.
+            };
+            let normal = (p[1] - p[0]).cross(p[2] - p[0]);
+            if normal.dot(eye - p[0]) >= 0.0 || normal == Vec3::ZERO {
+                for r in ranks {
+                    facing[r] = true;
+                }
             }
         }
-    }
-    facing
+    })?;
+    Ok(facing)
 }

@@ -220,25 +220,263 @@ pub enum Loading {
 /// Where one page of the file stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum PageState {
-    /// Not loaded, not asked for (or asked for and not arrived: see `awaited`).
+    /// Not resident, not asked for (or asked for and not arrived: see `awaited`).
     Absent,
-    /// Decoded into the store's arrays.
+    /// Decoded into a [`ResidentPage`].
     Resident,
     /// The background loader could not read it; its nodes stay folded.
     Failed,
 }
 
-/// Nodes and triangles of the pages loaded so far.
+/// What the cut keeps of one node while the node's page is resident: its label, its count of
+/// active children, its place in the cut's active list and the head of its incidence list.
+/// Nodes of pages that are not resident read as [`NodeLabel::INACTIVE`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NodeLabel {
+    /// Inactive, boundary or active. Changed only through [`NodeStore::set_state`], which
+    /// keeps the page's pin count.
+    pub(crate) state: crate::cut::NodeState,
+    /// How many of its children are active.
+    pub(crate) active_children: u8,
+    /// Its index in the cut's active list, or [`NIL`].
+    pub(crate) active_index: u32,
+    /// First incidence-list entry it heads, or [`NIL`].
+    pub(crate) head: u32,
+}
+
+impl NodeLabel {
+    /// The label of a node below the boundary.
+    pub(crate) const INACTIVE: NodeLabel = NodeLabel {
+        state: crate::cut::NodeState::Inactive,
+        active_children: 0,
+        active_index: NIL,
+        head: NIL,
+    };
+}
+
+/// "None" for slots, list links and page slots.
+const NIL: u32 = u32::MAX;
+
+/// One decoded page: its nodes' records split by who reads them, its triangles, and the cut's
+/// per-node and per-triangle state, all freed together when the page is evicted.
+struct ResidentPage {
+    /// The page's index in the file.
+    index: u32,
+    first_triangle: u32,
+    hot: Vec<Hot>,
+    shape: Vec<Shape>,
+    /// Per node: its first leaf rank, apart, so finding the child that holds a rank reads one
+    /// small contiguous run.
+    leaf_begin: Vec<u32>,
+    topology: Vec<Topology>,
+    labels: Vec<NodeLabel>,
+    /// One bit per node: its children were checked against it ([`NodeStore::load_children`]).
+    checked: Vec<u64>,
+    corners: Vec<[u32; 3]>,
+    parts: Vec<u32>,
+    /// Per triangle: the cut's slot holding it while it is active, or [`NIL`].
+    triangle_slot: Vec<u32>,
+    /// Nodes of this page on or above the boundary: while any is, the page stays.
+    pins: u32,
+    /// When the page last arrived or was last unpinned ([`NodeStore::tick`]): the eviction
+    /// order among unpinned pages.
+    stamp: u64,
+    /// Every byte this page holds: the record above and its arrays' capacities.
+    bytes: u64,
+}
+
+impl ResidentPage {
+    fn from_page(index: u32, page: &Page) -> ResidentPage {
+        let n = page.nodes.len();
+        let t = page.triangles.len();
+        let mut resident = ResidentPage {
+            index,
+            first_triangle: page.first_triangle,
+            hot: Vec::with_capacity(n),
+            shape: Vec::with_capacity(n),
+            leaf_begin: Vec::with_capacity(n),
+            topology: Vec::with_capacity(n),
+            labels: vec![NodeLabel::INACTIVE; n],
+            checked: vec![0; n.div_ceil(64)],
+            corners: Vec::with_capacity(t),
+            parts: Vec::with_capacity(t),
+            triangle_slot: vec![NIL; t],
+            pins: 0,
+            stamp: 0,
+            bytes: 0,
+        };
+        for record in &page.nodes {
+            let node = Node::from_record(record);
+            resident.hot.push(Hot {
+                proxy: node.proxy,
+                error_radius: node.error_radius,
+                group_radius: 0.0,
+                group_error: 0.0,
+                first_child: node.first_child,
+                child_count: u32::from(node.child_count),
+            });
+            resident.shape.push(Shape {
+                center: node.sphere_center,
+                radius: node.sphere_radius,
+                cone_axis: node.cone_axis,
+                cone_cos: Shape::cone_test(node.cone_half_angle, node.cone_two_sided),
+            });
+            resident.leaf_begin.push(node.leaf_begin);
+            resident.topology.push(Topology {
+                parent: node.parent,
+                leaf_end: node.leaf_end,
+                subtri_begin: node.subtri_begin,
+                subtri_count: node.subtri_count,
+                cone_half_angle: node.cone_half_angle,
+                depth: node.depth,
+                cone_two_sided: node.cone_two_sided,
+            });
+        }
+        for triangle in &page.triangles {
+            resident.corners.push(triangle.corners.map(|c| c.get()));
+            resident.parts.push(triangle.part.get());
+        }
+        resident.bytes = resident.counted_bytes();
+        resident
+    }
+
+    /// The bytes of the record and of every array it owns, by capacity.
+    fn counted_bytes(&self) -> u64 {
+        fn held<T>(v: &Vec<T>) -> usize {
+            v.capacity() * size_of::<T>()
+        }
+        (size_of::<ResidentPage>()
+            + held(&self.hot)
+            + held(&self.shape)
+            + held(&self.leaf_begin)
+            + held(&self.topology)
+            + held(&self.labels)
+            + held(&self.checked)
+            + held(&self.corners)
+            + held(&self.parts)
+            + held(&self.triangle_slot)) as u64
+    }
+
+    /// The bytes a page of `nodes` nodes and `triangles` triangles takes once resident.
+    fn bytes_for(nodes: usize, triangles: usize) -> u64 {
+        (size_of::<ResidentPage>()
+            + nodes
+                * (size_of::<Hot>()
+                    + size_of::<Shape>()
+                    + size_of::<u32>()
+                    + size_of::<Topology>()
+                    + size_of::<NodeLabel>())
+            + nodes.div_ceil(64) * size_of::<u64>()
+            + triangles * (size_of::<[u32; 3]>() + 2 * size_of::<u32>())) as u64
+    }
+}
+
+/// Where a resident node lives: its page's slot in the store and its index in the page.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Place {
+    slot: u32,
+    local: u32,
+}
+
+/// How many node ids share one entry of the node → page look-up table (`2^BLOCK_SHIFT`). A
+/// page holds a few thousand nodes, so an entry is usually the answer and the table costs
+/// about a byte per page.
+const BLOCK_SHIFT: u32 = 10;
+
+/// Memory figures of a store ([`NodeStore::memory`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MemoryStats {
+    /// Bytes held now: resident pages, the per-page tables, and what the cut reports it
+    /// holds ([`NodeStore::set_cut_bytes`]).
+    pub resident_bytes: u64,
+    /// Of those, the bytes of pages that hold boundary or active nodes (never evicted).
+    pub pinned_bytes: u64,
+    /// The budget ([`u64::MAX`] when unlimited).
+    pub budget_bytes: u64,
+    /// Pages resident now.
+    pub pages_resident: u32,
+    /// Pages in the file.
+    pub pages_total: u32,
+    /// Pages decoded into the store since it opened.
+    pub pages_loaded: u64,
+    /// Pages evicted since it opened.
+    pub pages_evicted: u64,
+    /// Pages asked of the background loader and not yet delivered.
+    pub pages_pending: u32,
+    /// Pages, and growth steps of the cut's arrays, that were needed and did not fit in the
+    /// budget, since the store opened.
+    pub refusals: u64,
+}
+
+/// The default memory budget: 1 GiB, or a quarter of physical memory if that is less.
+pub fn default_memory_budget() -> u64 {
+    const GIB: u64 = 1 << 30;
+    physical_memory().map_or(GIB, |bytes| GIB.min(bytes / 4))
+}
+
+/// Physical memory in bytes (`MemTotal` of `/proc/meminfo`), where the system reports it.
+fn physical_memory() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = meminfo.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// Nodes and triangles of the resident pages, and the cut's labels of them.
 ///
-/// A node is kept as four records in four arrays, split by who reads them: [`Hot`] by the
-/// per-frame traversal, [`Shape`] by the full criteria, its first leaf rank by the descent
-/// along a vertex's path, and the rest by fold and unfold. [`NodeStore::node`] assembles
-/// them into a [`Node`].
+/// Nothing here is sized by the model but a few tables with an entry per page of the file
+/// (where a page starts, its slot, its state) and the node → page table of one entry per
+/// [`BLOCK_SHIFT`] node ids. Every per-node and per-triangle record lives in the resident
+/// page that holds it ([`ResidentPage`]), found through those tables.
+///
+/// ## Memory budget and eviction
+/// The store holds at most its budget in bytes ([`NodeStore::set_memory_budget`]): resident
+/// pages (every byte of their records and arrays), the per-page tables, and what the cut
+/// reports of its own arrays. A page holding a boundary or active node is *pinned*: the cut
+/// reads it every frame, so it stays. Every other page is evictable, oldest first by its
+/// stamp: the moment it arrived or its last node left the cut. Pages below the boundary are
+/// reached only through it, so the ones touched last are those nearest the boundary, the
+/// next to be needed; a page deep below has not been touched since the cut left it.
+///
+/// A page that arrived or was unpinned since the start of the previous frame is not evicted
+/// to make room: it has not yet had a frame to be used, and evicting it for another page that
+/// the same cut needs is how a cache thrashes. When a needed page does not fit, it is
+/// refused (its node stays folded, [`MemoryStats::refusals`] counts it), and the runtime
+/// raises its effective threshold until the cut fits ([`crate::Runtime`]). Arrivals and the
+/// cut's growth are held to fifteen sixteenths of the budget; the rest is room for the
+/// journal of a frame's changes.
 pub struct NodeStore {
     source: std::sync::Arc<dyn PageSource>,
+    node_count: u32,
+    triangle_count: u32,
+    vertex_count: u32,
     page_first_node: Vec<u32>,
+    page_first_triangle: Vec<u32>,
+    /// Per block of `2^BLOCK_SHIFT` node ids: the page holding its first id.
+    block_first_page: Vec<u32>,
     page_state: Vec<PageState>,
-    resident_pages: u32,
+    /// Per page: its slot in `pages`, or [`NIL`].
+    page_slot: Vec<u32>,
+    pages: Vec<Option<ResidentPage>>,
+    free_page_slots: Vec<u32>,
+    /// Unpinned resident pages by (stamp, page index): the eviction order.
+    evictable: std::collections::BTreeSet<(u64, u32)>,
+    evictable_bytes: u64,
+    page_bytes: u64,
+    table_bytes: u64,
+    cut_bytes: u64,
+    budget: u64,
+    /// A counter that orders arrivals and unpinnings.
+    tick: u64,
+    /// Pages stamped at or after this tick are not evicted to make room (see the type's
+    /// documentation).
+    protect_from: u64,
+    frame_start: u64,
+    pages_loaded: u64,
+    pages_evicted: u64,
+    refusals: u64,
+    /// Pages refused since the last [`NodeStore::take_refused`].
+    refused_recently: u32,
     /// Background loading, when on.
     loader: Option<crate::loader::Loader>,
     /// Per page: the highest priority it was asked for with and not yet delivered, or
@@ -248,19 +486,18 @@ pub struct NodeStore {
     pending_pages: u32,
     /// Errors of pages the background loader could not read, not yet taken.
     page_errors: Vec<VdtError>,
-    topology: Vec<Topology>,
-    hot: Vec<Hot>,
-    shape: Vec<Shape>,
-    /// Per node: its first leaf rank, apart, so finding the child that holds a rank reads
-    /// one small contiguous run instead of several node records.
-    leaf_begin: Vec<u32>,
-    /// One bit per node: its children are loaded and checked ([`NodeStore::load_children`]).
-    children_ready: Vec<u64>,
-    triangle_corners: Vec<[u32; 3]>,
-    triangle_parts: Vec<u32>,
     /// Node id ranges of the pages loaded since the last [`NodeStore::take_loaded`].
     loaded: Vec<std::ops::Range<u32>>,
     scratch: Page,
+}
+
+fn empty_page() -> Page {
+    Page {
+        first_node: 0,
+        first_triangle: 0,
+        nodes: Vec::new(),
+        triangles: Vec::new(),
+    }
 }
 
 impl NodeStore {
@@ -270,24 +507,42 @@ impl NodeStore {
     }
 
     /// A store over `source` with the root's page loaded (on this thread, whatever the
-    /// loading: nothing can be drawn before it), loading the others as `loading` says.
+    /// loading: nothing can be drawn before it), loading the others as `loading` says, with
+    /// the [`default_memory_budget`].
     pub fn with_loading(
         source: Box<dyn PageSource>,
         loading: Loading,
     ) -> Result<NodeStore, VdtError> {
         let source: std::sync::Arc<dyn PageSource> = source.into();
         let header = source.header();
-        let node_count = header.node_count.get() as usize;
-        let triangle_count = header.triangle_count.get() as usize;
+        let node_count = u32::try_from(header.node_count.get())
+            .map_err(|_| VdtError::invalid("header", "more than 2^32 nodes"))?;
+        let triangle_count = u32::try_from(header.triangle_count.get())
+            .map_err(|_| VdtError::invalid("header", "more than 2^32 triangles"))?;
+        let vertex_count = u32::try_from(header.vertex_count.get())
+            .map_err(|_| VdtError::invalid("header", "more than 2^32 vertices"))?;
         if node_count == 0 {
             return Err(VdtError::invalid("tree", "the file holds no nodes"));
         }
-        let page_first_node = source
-            .directory()
-            .iter()
-            .map(|p| p.first_node.get())
-            .collect::<Vec<_>>();
+        let directory = source.directory();
+        let page_first_node: Vec<u32> = directory.iter().map(|p| p.first_node.get()).collect();
+        let page_first_triangle: Vec<u32> =
+            directory.iter().map(|p| p.first_triangle.get()).collect();
+        if page_first_node.first() != Some(&0) {
+            return Err(VdtError::invalid(
+                "page directory",
+                "page 0 does not start at node 0",
+            ));
+        }
         let page_count = page_first_node.len();
+        // The reader checked that pages start in ascending order; the table takes that as
+        // given only through `partition_point`, which stays in bounds whatever the order.
+        let block_first_page: Vec<u32> = (0..=(node_count >> BLOCK_SHIFT))
+            .map(|b| {
+                let first = b << BLOCK_SHIFT;
+                page_first_node.partition_point(|&f| f <= first) as u32 - 1
+            })
+            .collect();
         let loader = match loading {
             Loading::Synchronous => None,
             Loading::Background { threads } => Some(crate::loader::Loader::start(
@@ -295,58 +550,192 @@ impl NodeStore {
                 threads,
             )?),
         };
+        let table_bytes = (page_count
+            * (2 * size_of::<u32>()
+                + size_of::<PageState>()
+                + size_of::<u32>()
+                + size_of::<f32>()
+                + if loader.is_some() { 1 } else { 0 })
+            + block_first_page.len() * size_of::<u32>()) as u64;
         let mut store = NodeStore {
             source,
+            node_count,
+            triangle_count,
+            vertex_count,
             page_first_node,
+            page_first_triangle,
+            block_first_page,
             page_state: vec![PageState::Absent; page_count],
-            resident_pages: 0,
+            page_slot: vec![NIL; page_count],
+            pages: Vec::new(),
+            free_page_slots: Vec::new(),
+            evictable: Default::default(),
+            evictable_bytes: 0,
+            page_bytes: 0,
+            table_bytes,
+            cut_bytes: 0,
+            budget: default_memory_budget(),
+            tick: 1,
+            protect_from: 0,
+            frame_start: 0,
+            pages_loaded: 0,
+            pages_evicted: 0,
+            refusals: 0,
+            refused_recently: 0,
             loader,
             awaited: vec![-1.0; page_count],
             pending_pages: 0,
             page_errors: Vec::new(),
-            // Zeroed allocations: the operating system provides the pages lazily, so a
-            // store over a huge file costs memory only for the pages actually loaded.
-            topology: bytemuck::zeroed_vec(node_count),
-            hot: bytemuck::zeroed_vec(node_count),
-            shape: bytemuck::zeroed_vec(node_count),
-            leaf_begin: bytemuck::zeroed_vec(node_count),
-            children_ready: vec![0; node_count.div_ceil(64)],
-            triangle_corners: bytemuck::zeroed_vec(triangle_count),
-            triangle_parts: bytemuck::zeroed_vec(triangle_count),
             loaded: Vec::new(),
-            scratch: Page {
-                first_node: 0,
-                first_triangle: 0,
-                nodes: Vec::new(),
-                triangles: Vec::new(),
-            },
+            scratch: empty_page(),
         };
         store.load_node(0)?;
         let root = store.node(0);
-        if root.leaf_begin != 0
-            || u64::from(root.leaf_end) != store.source.header().vertex_count.get()
-        {
+        if root.leaf_begin != 0 || root.leaf_end != store.vertex_count {
             return Err(VdtError::invalid(
                 "node 0",
                 "the root does not cover every vertex",
             ));
         }
+        // The root is always on or above the boundary.
+        store.set_state(0, crate::cut::NodeState::Boundary);
         Ok(store)
+    }
+
+    /// Sets the memory budget in bytes ([`u64::MAX`]: none). Takes effect as pages arrive and
+    /// at the next [`NodeStore::evict_to_budget`].
+    pub fn set_memory_budget(&mut self, bytes: u64) {
+        self.budget = bytes;
+    }
+
+    /// The memory budget in bytes.
+    pub fn memory_budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Tells the store how many bytes the cut's own arrays hold, so that the budget covers
+    /// them too.
+    pub fn set_cut_bytes(&mut self, bytes: u64) {
+        self.cut_bytes = bytes;
+    }
+
+    /// Bytes held now (pages, tables and the cut's arrays).
+    pub fn resident_bytes(&self) -> u64 {
+        self.page_bytes + self.table_bytes + self.cut_bytes
+    }
+
+    /// Memory and paging figures.
+    pub fn memory(&self) -> MemoryStats {
+        MemoryStats {
+            resident_bytes: self.resident_bytes(),
+            pinned_bytes: self.page_bytes - self.evictable_bytes,
+            budget_bytes: self.budget,
+            pages_resident: self.pages.len() as u32 - self.free_page_slots.len() as u32,
+            pages_total: self.page_state.len() as u32,
+            pages_loaded: self.pages_loaded,
+            pages_evicted: self.pages_evicted,
+            pages_pending: self.pending_pages,
+            refusals: self.refusals,
+        }
+    }
+
+    /// Bytes that eviction cannot give back: pinned pages, the tables and the cut's arrays.
+    pub fn pinned_total(&self) -> u64 {
+        self.resident_bytes() - self.evictable_bytes
+    }
+
+    /// Whether [`NodeStore::pinned_total`] is over the budget.
+    pub fn over_budget_pinned(&self) -> bool {
+        self.pinned_total() > self.budget
+    }
+
+    /// Pages refused for the budget since the last call.
+    pub fn take_refused(&mut self) -> u32 {
+        std::mem::take(&mut self.refused_recently)
+    }
+
+    /// Marks the start of a frame: pages that arrived or were unpinned since the start of
+    /// the previous one are kept from eviction through this frame.
+    pub fn begin_frame(&mut self) {
+        self.protect_from = self.frame_start;
+        self.frame_start = self.tick;
+    }
+
+    /// Evicts unpinned pages, oldest first, until the store is within its budget or only
+    /// pinned pages are left. Returns how many it evicted. (Pages kept from eviction to make
+    /// room for others, see the type's documentation, are evicted here too: over the budget,
+    /// nothing else can give.)
+    pub fn evict_to_budget(&mut self) -> u32 {
+        let mut evicted = 0;
+        while self.resident_bytes() > self.budget {
+            let Some(&(_, page)) = self.evictable.iter().next() else {
+                break;
+            };
+            self.evict(page);
+            evicted += 1;
+        }
+        evicted
+    }
+
+    /// Makes room for `bytes` more by evicting unpinned pages stamped before
+    /// `protect_from`, oldest first, never the pages in `keep`. False if it cannot.
+    fn make_room(&mut self, bytes: u64, keep: &[u32]) -> bool {
+        // A sixteenth of the budget stays free for what a frame's changes add to the cut's
+        // journal and change sets before the frame ends (they are counted, but grow by
+        // push, not by asking): the budget then holds at every frame's end.
+        let limit = self.budget - self.budget / 16;
+        while self.resident_bytes() + bytes > limit {
+            let candidate = self
+                .evictable
+                .iter()
+                .find(|(stamp, page)| *stamp < self.protect_from && !keep.contains(page))
+                .map(|&(_, page)| page);
+            match candidate {
+                Some(page) => self.evict(page),
+                None => return false,
+            }
+        }
+        true
+    }
+
+    /// Makes room for `bytes` more of the cut's own arrays, as for a page: by evicting
+    /// unpinned pages that have had their frame. False (and counted as a refusal, so the
+    /// effective threshold rises) when it cannot.
+    pub(crate) fn make_room_for_cut(&mut self, bytes: u64) -> bool {
+        let room = self.make_room(bytes, &[]);
+        if !room {
+            self.refuse();
+        }
+        room
+    }
+
+    fn evict(&mut self, index: u32) {
+        let slot = std::mem::replace(&mut self.page_slot[index as usize], NIL);
+        let page = self.pages[slot as usize]
+            .take()
+            .expect("an evictable page is resident");
+        debug_assert_eq!(page.pins, 0, "page {index} is pinned");
+        self.evictable.remove(&(page.stamp, index));
+        self.evictable_bytes -= page.bytes;
+        self.page_bytes -= page.bytes;
+        self.free_page_slots.push(slot);
+        self.page_state[index as usize] = PageState::Absent;
+        self.pages_evicted += 1;
     }
 
     /// Number of nodes in the tree.
     pub fn node_count(&self) -> u32 {
-        self.hot.len() as u32
+        self.node_count
     }
 
     /// Number of original vertices (leaves).
     pub fn vertex_count(&self) -> u32 {
-        self.source.header().vertex_count.get() as u32
+        self.vertex_count
     }
 
     /// Number of triangles in the tree.
     pub fn triangle_count(&self) -> u32 {
-        self.triangle_corners.len() as u32
+        self.triangle_count
     }
 
     /// The node id ranges of the pages loaded since the last call: what a renderer must upload
@@ -355,9 +744,10 @@ impl NodeStore {
         std::mem::take(&mut self.loaded)
     }
 
-    /// Pages loaded so far, and pages in the file.
+    /// Pages resident now, and pages in the file.
     pub fn pages_resident(&self) -> (u32, u32) {
-        (self.resident_pages, self.page_state.len() as u32)
+        let memory = self.memory();
+        (memory.pages_resident, memory.pages_total)
     }
 
     /// Pages asked of the background loader and not yet delivered (0 when loading is
@@ -372,49 +762,252 @@ impl NodeStore {
         std::mem::take(&mut self.page_errors)
     }
 
-    /// Whether `id`'s children are loaded and checked, so that it may unfold now. With
-    /// synchronous loading this loads them (and is `false` only by an error); with
-    /// background loading it never reads a page: `false` means ask with
-    /// [`NodeStore::request_children`] and try again after they arrive.
-    pub fn children_available(&mut self, id: u32) -> Result<bool, VdtError> {
-        let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
-        if self.children_ready[word] & bit != 0 {
-            return Ok(true);
+    /// The page holding node `id`, if any.
+    #[inline]
+    fn page_of(&self, id: u32) -> Option<u32> {
+        if id >= self.node_count {
+            return None;
         }
-        if self.loader.is_some() {
-            let hot = self.hot[id as usize];
-            if hot.child_count == 0 {
-                return Ok(true);
-            }
-            let last = hot.first_child + hot.child_count - 1;
-            let resident = |store: &NodeStore, node: u32| {
-                store
-                    .page_of(node)
-                    .is_some_and(|p| store.page_state[p as usize] == PageState::Resident)
-            };
-            if !(resident(self, hot.first_child) && resident(self, last)) {
-                return Ok(false);
-            }
-        }
-        self.load_children(id)?;
-        Ok(true)
+        let block = (id >> BLOCK_SHIFT) as usize;
+        let first = self.block_first_page[block] as usize;
+        let last = self
+            .block_first_page
+            .get(block + 1)
+            .map_or(self.page_first_node.len() - 1, |&p| p as usize);
+        let within = &self.page_first_node[first..=last.max(first)];
+        Some((first + within.partition_point(|&f| f <= id) - 1) as u32)
     }
 
-    /// Whether `id`'s children's pages are resident, without reading any: always true with
-    /// synchronous loading (an unfold reads them itself).
-    pub fn children_resident(&self, id: u32) -> bool {
-        let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
-        if self.loader.is_none() || self.children_ready[word] & bit != 0 {
-            return true;
+    /// The page holding triangle `index`, if any.
+    fn page_of_triangle(&self, index: u32) -> Option<u32> {
+        if index >= self.triangle_count {
+            return None;
         }
-        let hot = &self.hot[id as usize];
+        // Pages without triangles share their successor's first triangle: the last page
+        // starting at or before `index` is the one that holds it.
+        let page = self.page_first_triangle.partition_point(|&f| f <= index);
+        page.checked_sub(1).map(|p| p as u32)
+    }
+
+    /// Where resident node `id` lives, or `None` if its page is not resident.
+    #[inline]
+    fn place(&self, id: u32) -> Option<Place> {
+        let page = self.page_of(id)?;
+        let slot = self.page_slot[page as usize];
+        (slot != NIL).then(|| Place {
+            slot,
+            local: id - self.page_first_node[page as usize],
+        })
+    }
+
+    #[inline]
+    fn resident(&self, slot: u32) -> &ResidentPage {
+        // Slots handed out by `place` hold a page until it is evicted, which needs `&mut`.
+        self.pages[slot as usize]
+            .as_ref()
+            .expect("a placed slot is resident")
+    }
+
+    #[inline]
+    fn resident_mut(&mut self, slot: u32) -> &mut ResidentPage {
+        self.pages[slot as usize]
+            .as_mut()
+            .expect("a placed slot is resident")
+    }
+
+    /// The place of node `id`, which must be resident.
+    #[inline]
+    #[track_caller]
+    fn expect_place(&self, id: u32) -> Place {
+        match self.place(id) {
+            Some(place) => place,
+            None => panic!("node {id} was read while its page is not resident"),
+        }
+    }
+
+    /// Whether node `id`'s page is resident.
+    pub fn is_resident(&self, id: u32) -> bool {
+        self.place(id).is_some()
+    }
+
+    /// The cut's label of node `id` ([`NodeLabel::INACTIVE`] if its page is not resident).
+    #[inline]
+    pub(crate) fn label(&self, id: u32) -> NodeLabel {
+        match self.place(id) {
+            Some(p) => self.resident(p.slot).labels[p.local as usize],
+            None => NodeLabel::INACTIVE,
+        }
+    }
+
+    /// The state of node `id` (inactive if its page is not resident).
+    #[inline]
+    pub fn state(&self, id: u32) -> crate::cut::NodeState {
+        self.label(id).state
+    }
+
+    /// The cut's label of resident node `id`, to change anything but its state.
+    #[inline]
+    #[track_caller]
+    pub(crate) fn label_mut(&mut self, id: u32) -> &mut NodeLabel {
+        let p = self.expect_place(id);
+        &mut self.resident_mut(p.slot).labels[p.local as usize]
+    }
+
+    /// Sets resident node `id`'s state, pinning its page while any of its nodes is on or
+    /// above the boundary. Returns the state it had.
+    #[track_caller]
+    pub(crate) fn set_state(
+        &mut self,
+        id: u32,
+        state: crate::cut::NodeState,
+    ) -> crate::cut::NodeState {
+        use crate::cut::NodeState::Inactive;
+        let p = self.expect_place(id);
+        let tick = self.tick;
+        let page = self.resident_mut(p.slot);
+        let was = std::mem::replace(&mut page.labels[p.local as usize].state, state);
+        let (index, stamp, bytes) = (page.index, page.stamp, page.bytes);
+        match (was == Inactive, state == Inactive) {
+            (true, false) => {
+                page.pins += 1;
+                if page.pins == 1 {
+                    self.evictable.remove(&(stamp, index));
+                    self.evictable_bytes -= bytes;
+                }
+            }
+            (false, true) => {
+                page.pins -= 1;
+                if page.pins == 0 {
+                    page.stamp = tick;
+                    self.tick += 1;
+                    self.evictable.insert((tick, index));
+                    self.evictable_bytes += bytes;
+                }
+            }
+            _ => {}
+        }
+        was
+    }
+
+    /// Numbers of boundary and active nodes over the resident pages (for [`crate::Cut::check`]).
+    pub(crate) fn label_counts(&self) -> [usize; 2] {
+        use crate::cut::NodeState::{Active, Boundary};
+        let mut counts = [0, 0];
+        for label in self.pages.iter().flatten().flat_map(|p| &p.labels) {
+            match label.state {
+                Boundary => counts[0] += 1,
+                Active => counts[1] += 1,
+                _ => {}
+            }
+        }
+        counts
+    }
+
+    /// Checks the paging invariants: every page's pin count is its nodes on or above the
+    /// boundary, exactly the unpinned pages are evictable, and the byte counts add up.
+    pub(crate) fn check_pins(&self) -> Result<(), String> {
+        let (mut bytes, mut evictable_bytes, mut evictable) = (0, 0, 0);
+        for (slot, page) in self.pages.iter().enumerate() {
+            let Some(page) = page else { continue };
+            let pinned = page
+                .labels
+                .iter()
+                .filter(|l| l.state != crate::cut::NodeState::Inactive)
+                .count() as u32;
+            if pinned != page.pins {
+                return Err(format!(
+                    "page {} counts {} pins but holds {pinned} nodes of the cut",
+                    page.index, page.pins
+                ));
+            }
+            if self.page_slot[page.index as usize] != slot as u32
+                || self.page_state[page.index as usize] != PageState::Resident
+            {
+                return Err(format!("page {} is resident out of its slot", page.index));
+            }
+            let listed = self.evictable.contains(&(page.stamp, page.index));
+            if listed != (page.pins == 0) {
+                return Err(format!(
+                    "page {} is {}evictable with {} pins",
+                    page.index,
+                    if listed { "" } else { "not " },
+                    page.pins
+                ));
+            }
+            bytes += page.bytes;
+            if listed {
+                evictable_bytes += page.bytes;
+                evictable += 1;
+            }
+        }
+        if bytes != self.page_bytes
+            || evictable_bytes != self.evictable_bytes
+            || evictable != self.evictable.len()
+        {
+            return Err("the store's byte counts are off".into());
+        }
+        Ok(())
+    }
+
+    /// The cut's slot of active triangle `index` of node `owner` (whose page is resident),
+    /// or [`NIL`].
+    #[inline]
+    pub(crate) fn triangle_slot(&self, owner: u32, index: u32) -> u32 {
+        let p = self.expect_place(owner);
+        let page = self.resident(p.slot);
+        page.triangle_slot[(index - page.first_triangle) as usize]
+    }
+
+    /// Records the cut's slot of triangle `index` of node `owner` ([`NIL`]: not active).
+    #[inline]
+    pub(crate) fn set_triangle_slot(&mut self, owner: u32, index: u32, slot: u32) {
+        let p = self.expect_place(owner);
+        let page = self.resident_mut(p.slot);
+        let local = (index - page.first_triangle) as usize;
+        page.triangle_slot[local] = slot;
+    }
+
+    /// Whether `id`'s children are loaded and checked, so that it may unfold now. With
+    /// synchronous loading this loads them (and is `false` when they do not fit in the
+    /// budget); with background loading it never reads a page: `false` means ask with
+    /// [`NodeStore::request_children`] and try again after they arrive.
+    pub fn children_available(&mut self, id: u32) -> Result<bool, VdtError> {
+        if self.children_resident(id) && self.is_checked(id) {
+            return Ok(true);
+        }
+        if self.loader.is_some() && !self.children_resident(id) {
+            return Ok(false);
+        }
+        match self.load_children(id) {
+            Ok(()) => Ok(true),
+            Err(LoadError::OverBudget) => Ok(false),
+            Err(LoadError::File(e)) => Err(e),
+        }
+    }
+
+    fn is_checked(&self, id: u32) -> bool {
+        let p = self.expect_place(id);
+        self.resident(p.slot).checked[(p.local / 64) as usize] & (1 << (p.local % 64)) != 0
+    }
+
+    /// The pages holding `id`'s first and last child (the same page, usually), for a node
+    /// with children.
+    fn children_pages(&self, id: u32) -> Option<[u32; 2]> {
+        let hot = self.hot(id);
         if hot.child_count == 0 {
-            return true;
+            return None;
         }
         let last = hot.first_child + hot.child_count - 1;
-        [hot.first_child, last].into_iter().all(|node| {
-            self.page_of(node)
-                .is_some_and(|p| self.page_state[p as usize] == PageState::Resident)
+        Some([self.page_of(hot.first_child)?, self.page_of(last)?])
+    }
+
+    /// Whether `id`'s children's pages are resident, without reading any. With synchronous
+    /// loading an unfold reads them itself, so this is about residency alone.
+    pub fn children_resident(&self, id: u32) -> bool {
+        self.children_pages(id).is_none_or(|pages| {
+            pages
+                .iter()
+                .all(|&p| self.page_state[p as usize] == PageState::Resident)
         })
     }
 
@@ -428,18 +1021,15 @@ impl NodeStore {
     /// A page already asked for is queued again only when its priority at least doubles, so
     /// a node waiting many frames does not grow the loader's queue by a request each frame.
     pub fn request_children(&mut self, id: u32, priority: f32) -> bool {
-        let Some(loader) = &self.loader else {
-            return false;
-        };
-        let hot = self.hot[id as usize];
-        if hot.child_count == 0 {
+        if self.loader.is_none() {
             return false;
         }
+        let Some(pages) = self.children_pages(id) else {
+            return false;
+        };
         let priority = priority.max(0.0);
-        let last = hot.first_child + hot.child_count - 1;
-        let pages = [self.page_of(hot.first_child), self.page_of(last)];
         let mut arriving = true;
-        for page in pages.into_iter().flatten() {
+        for page in pages {
             let p = page as usize;
             match self.page_state[p] {
                 PageState::Resident => continue,
@@ -453,11 +1043,14 @@ impl NodeStore {
             if awaited >= 0.0 && priority < 2.0 * awaited.max(f32::MIN_POSITIVE) {
                 continue;
             }
-            if awaited < 0.0 {
+            let fresh = awaited < 0.0;
+            if fresh {
                 self.pending_pages += 1;
             }
             self.awaited[p] = priority;
-            loader.request(page, priority);
+            if let Some(loader) = &self.loader {
+                loader.request(page, priority, fresh);
+            }
         }
         arriving
     }
@@ -497,7 +1090,14 @@ impl NodeStore {
             return; // Loaded synchronously meanwhile.
         }
         match result {
-            Ok(page) => self.install(index, &page),
+            Ok(page) => {
+                let bytes = ResidentPage::bytes_for(page.nodes.len(), page.triangles.len());
+                if self.make_room(bytes, &[]) {
+                    self.install(index, &page);
+                } else {
+                    self.refuse();
+                }
+            }
             Err(error) => {
                 self.page_state[p] = PageState::Failed;
                 self.page_errors.push(error);
@@ -505,22 +1105,22 @@ impl NodeStore {
         }
     }
 
-    /// The page holding node `id`, if any.
-    fn page_of(&self, id: u32) -> Option<u32> {
-        let page = self.page_first_node.partition_point(|&first| first <= id);
-        page.checked_sub(1).map(|p| p as u32)
+    fn refuse(&mut self) {
+        self.refusals += 1;
+        self.refused_recently += 1;
     }
 
-    /// Node `id`. Its page must have been loaded ([`NodeStore::load_node`]); nodes of pages
-    /// not yet loaded read as zeros.
+    /// Node `id`, which must be resident ([`NodeStore::load_node`]).
+    ///
+    /// # Panics
+    /// If `id`'s page is not resident.
     #[inline]
+    #[track_caller]
     pub fn node(&self, id: u32) -> Node {
-        let (i, hot, shape) = (
-            id as usize,
-            &self.hot[id as usize],
-            &self.shape[id as usize],
-        );
-        let topology = &self.topology[i];
+        let p = self.expect_place(id);
+        let page = self.resident(p.slot);
+        let i = p.local as usize;
+        let (hot, shape, topology) = (&page.hot[i], &page.shape[i], &page.topology[i]);
         Node {
             proxy: hot.proxy,
             error_radius: hot.error_radius,
@@ -531,7 +1131,7 @@ impl NodeStore {
             cone_two_sided: topology.cone_two_sided,
             parent: topology.parent,
             first_child: hot.first_child,
-            leaf_begin: self.leaf_begin[i],
+            leaf_begin: page.leaf_begin[i],
             leaf_end: topology.leaf_end,
             subtri_begin: topology.subtri_begin,
             subtri_count: topology.subtri_count,
@@ -540,88 +1140,184 @@ impl NodeStore {
         }
     }
 
-    /// Parent of node `id` ([`NO_NODE`] for the root).
+    /// Parent of resident node `id` ([`NO_NODE`] for the root).
     #[inline]
+    #[track_caller]
     pub fn parent(&self, id: u32) -> u32 {
-        self.topology[id as usize].parent
+        let p = self.expect_place(id);
+        self.resident(p.slot).topology[p.local as usize].parent
     }
 
-    /// True when node `id` supports the vertex of leaf rank `rank`.
+    /// True when resident node `id` supports the vertex of leaf rank `rank`.
     #[inline]
+    #[track_caller]
     pub fn supports_rank(&self, id: u32, rank: u32) -> bool {
-        self.leaf_begin[id as usize] <= rank && rank < self.topology[id as usize].leaf_end
+        let p = self.expect_place(id);
+        let page = self.resident(p.slot);
+        let i = p.local as usize;
+        page.leaf_begin[i] <= rank && rank < page.topology[i].leaf_end
     }
 
-    /// The subtris of node `id`, as a range of triangle indices.
+    /// The subtris of resident node `id`, as a range of triangle indices.
     #[inline]
+    #[track_caller]
     pub fn subtris(&self, id: u32) -> std::ops::Range<u32> {
-        let t = &self.topology[id as usize];
+        let p = self.expect_place(id);
+        let t = &self.resident(p.slot).topology[p.local as usize];
         t.subtri_begin..t.subtri_begin + t.subtri_count
     }
 
     /// Hints that the test data of nodes `first..first + count` will be read soon.
     #[inline]
     pub(crate) fn prefetch_tested(&self, first: u32, count: u32) {
-        let range = first as usize..first as usize + count as usize;
-        crate::prefetch::prefetch_range(&self.hot, range.clone());
-        crate::prefetch::prefetch_range(&self.shape, range);
-    }
-
-    /// The per-frame test data of node `id` (loaded, as for [`NodeStore::node`]).
-    #[inline]
-    pub fn hot(&self, id: u32) -> &Hot {
-        &self.hot[id as usize]
-    }
-
-    /// What the criteria read of node `id` (loaded, as for [`NodeStore::node`]).
-    #[inline]
-    pub fn tested(&self, id: u32) -> Tested<'_> {
-        Tested {
-            hot: &self.hot[id as usize],
-            shape: &self.shape[id as usize],
+        if let Some(p) = self.place(first) {
+            let page = self.resident(p.slot);
+            let begin = p.local as usize;
+            let range = begin..(begin + count as usize).min(page.hot.len());
+            crate::prefetch::prefetch_range(&page.hot, range.clone());
+            crate::prefetch::prefetch_range(&page.shape, range.clone());
+            crate::prefetch::prefetch_range(&page.labels, range);
         }
     }
 
-    /// Corners (leaf ranks) of triangle `index`; its owner's page must be loaded.
+    /// The per-frame test data of resident node `id`.
     #[inline]
+    #[track_caller]
+    pub fn hot(&self, id: u32) -> &Hot {
+        let p = self.expect_place(id);
+        &self.resident(p.slot).hot[p.local as usize]
+    }
+
+    /// What the criteria read of resident node `id`.
+    #[inline]
+    #[track_caller]
+    pub fn tested(&self, id: u32) -> Tested<'_> {
+        let p = self.expect_place(id);
+        let page = self.resident(p.slot);
+        Tested {
+            hot: &page.hot[p.local as usize],
+            shape: &page.shape[p.local as usize],
+        }
+    }
+
+    /// Resident node `id`'s label and test data together (one look-up).
+    #[inline]
+    #[track_caller]
+    pub(crate) fn labelled(&self, id: u32) -> (NodeLabel, Tested<'_>) {
+        let p = self.expect_place(id);
+        let page = self.resident(p.slot);
+        let i = p.local as usize;
+        (
+            page.labels[i],
+            Tested {
+                hot: &page.hot[i],
+                shape: &page.shape[i],
+            },
+        )
+    }
+
+    /// The resident page holding triangle `index`, and the triangle's index in it.
+    #[track_caller]
+    fn triangle_place(&self, index: u32) -> (&ResidentPage, usize) {
+        let page = self
+            .page_of_triangle(index)
+            .map(|p| self.page_slot[p as usize])
+            .filter(|&slot| slot != NIL);
+        match page {
+            Some(slot) => {
+                let page = self.resident(slot);
+                (page, (index - page.first_triangle) as usize)
+            }
+            None => panic!("triangle {index} was read while its page is not resident"),
+        }
+    }
+
+    /// Corners (leaf ranks) of triangle `index`; its owner's page must be resident (it is
+    /// while the triangle is active).
+    #[inline]
+    #[track_caller]
     pub fn triangle_corners(&self, index: u32) -> [u32; 3] {
-        self.triangle_corners[index as usize]
+        let (page, local) = self.triangle_place(index);
+        page.corners[local]
     }
 
-    /// Part id of triangle `index`; its owner's page must be loaded.
+    /// Part id of triangle `index`; its owner's page must be resident.
     #[inline]
+    #[track_caller]
     pub fn triangle_part(&self, index: u32) -> u32 {
-        self.triangle_parts[index as usize]
+        let (page, local) = self.triangle_place(index);
+        page.parts[local]
     }
 
-    /// Makes sure node `id` and its subtris are loaded.
-    /// This reads the page on the calling thread if it is not resident, whatever the
-    /// loading (for callers that need the data now: exports, measurements, unfold-all).
+    /// Corners of the subtris of resident node `id`, in triangle order.
+    pub(crate) fn subtri_corners(&self, id: u32) -> &[[u32; 3]] {
+        let p = self.expect_place(id);
+        let page = self.resident(p.slot);
+        let t = &page.topology[p.local as usize];
+        let begin = (t.subtri_begin - page.first_triangle) as usize;
+        &page.corners[begin..begin + t.subtri_count as usize]
+    }
+
+    /// Makes sure node `id` and its subtris are resident, reading its page on the calling
+    /// thread if need be, whatever the loading (for callers that need the data now: exports,
+    /// measurements, unfold-all). A page that does not fit in the budget is read anyway when
+    /// nothing else can give: the caller needs it now. It is evicted again as soon as it is
+    /// not pinned and the budget asks.
     pub fn load_node(&mut self, id: u32) -> Result<(), VdtError> {
         match self.page_of(id) {
             Some(index) if self.page_state[index as usize] == PageState::Resident => Ok(()),
-            Some(index) => self.load_page(index),
+            Some(index) => match self.load_page(index, &[], false) {
+                Err(LoadError::File(e)) => Err(e),
+                _ => Ok(()),
+            },
             None => Err(VdtError::invalid("node id", format!("{id} has no page"))),
         }
     }
 
-    /// Makes sure every child of `id` is loaded (children may straddle a page boundary) and
-    /// that they partition `id`'s leaf range in order, as the traversal assumes, and that
-    /// their bounds nest in `id`'s as far as quantisation allows ([`VdtError::Bounds`]
+    /// Makes sure every child of `id` is resident (children may straddle a page boundary)
+    /// and that they partition `id`'s leaf range in order, as the traversal assumes, and
+    /// that their bounds nest in `id`'s as far as quantisation allows ([`VdtError::Bounds`]
     /// otherwise, naming the child's page). The reader validates each page on its own; this
     /// is the part of the tree that spans pages, checked where it is first relied on.
-    pub fn load_children(&mut self, id: u32) -> Result<(), VdtError> {
-        // Pages never unload in this store, so a node checked once stays checked.
-        let (word, bit) = ((id / 64) as usize, 1u64 << (id % 64));
-        if self.children_ready[word] & bit != 0 {
+    ///
+    /// Fails with [`LoadError::OverBudget`] when the children's pages do not fit in the
+    /// memory budget.
+    pub fn load_children(&mut self, id: u32) -> Result<(), LoadError> {
+        let Some(pages) = self.children_pages(id) else {
+            return Ok(());
+        };
+        let own = self.page_of(id).expect("a resident node has a page");
+        for (k, &page) in pages.iter().enumerate() {
+            if self.page_state[page as usize] != PageState::Resident {
+                self.load_page(page, &[own, pages[1 - k]], true)?;
+            }
+        }
+        if self.is_checked(id) {
             return Ok(());
         }
+        self.check_children(id)?;
         let node = self.node(id);
-        if node.is_leaf() {
-            return Ok(());
+        let center = glam::Vec3::from(node.proxy);
+        let (mut radius, mut error) = (0.0f32, 0.0f32);
+        for c in node.children() {
+            let child = self.hot(c);
+            radius =
+                radius.max(center.distance(glam::Vec3::from(child.proxy)) + child.error_radius);
+            error = error.max(child.error_radius);
         }
-        self.load_node(node.first_child)?;
-        self.load_node(node.first_child + u32::from(node.child_count) - 1)?;
+        // Widened by a few ulps so the ball holds the children's balls despite rounding.
+        let p = self.expect_place(id);
+        let page = self.resident_mut(p.slot);
+        let hot = &mut page.hot[p.local as usize];
+        hot.group_radius = radius * (1.0 + 4.0 * f32::EPSILON);
+        hot.group_error = error;
+        page.checked[(p.local / 64) as usize] |= 1 << (p.local % 64);
+        Ok(())
+    }
+
+    /// The structural checks of [`NodeStore::load_children`], on resident children.
+    fn check_children(&self, id: u32) -> Result<(), VdtError> {
+        let node = self.node(id);
         let mut next_rank = node.leaf_begin;
         for c in node.children() {
             let child = self.node(c);
@@ -640,24 +1336,10 @@ impl NodeStore {
                 "its children do not cover its leaf range",
             ));
         }
-        self.check_child_bounds(id)?;
-        let center = glam::Vec3::from(node.proxy);
-        let (mut radius, mut error) = (0.0f32, 0.0f32);
-        for c in node.children() {
-            let child = &self.hot[c as usize];
-            radius =
-                radius.max(center.distance(glam::Vec3::from(child.proxy)) + child.error_radius);
-            error = error.max(child.error_radius);
-        }
-        // Widened by a few ulps so the ball holds the children's balls despite rounding.
-        let hot = &mut self.hot[id as usize];
-        hot.group_radius = radius * (1.0 + 4.0 * f32::EPSILON);
-        hot.group_error = error;
-        self.children_ready[word] |= bit;
-        Ok(())
+        self.check_child_bounds(id)
     }
 
-    /// Holds the bounds of `id`'s children (loaded) to `id`'s where the file's quantisation
+    /// Holds the bounds of `id`'s children (resident) to `id`'s where the file's quantisation
     /// lets an honest file be held to them: each child's sphere inside the parent's, and
     /// each leaf child within the parent's error radius of its proxy. A few multiplies per
     /// child, once per node (the caller marks it checked).
@@ -667,7 +1349,10 @@ impl NodeStore {
     /// file can do to a cut. Only `vds-info --verify` checks bounds against the geometry.
     fn check_child_bounds(&self, id: u32) -> Result<(), VdtError> {
         let step = self.source.header().grid_step.get();
-        let (parent, parent_hot) = (&self.shape[id as usize], &self.hot[id as usize]);
+        let Tested {
+            hot: parent_hot,
+            shape: parent,
+        } = self.tested(id);
         let parent_center = glam::Vec3::from(parent.center);
         let parent_proxy = glam::Vec3::from(parent_hot.proxy);
         // Room for f32 rounding: a few ulps of the coordinates and radii compared. A child
@@ -677,11 +1362,9 @@ impl NodeStore {
             32.0 * f32::EPSILON * (parent_center.abs().max_element() + parent.radius);
         let error_rounding =
             32.0 * f32::EPSILON * (parent_proxy.abs().max_element() + parent_hot.error_radius);
-        let first = parent_hot.first_child as usize;
-        let children = first..first + parent_hot.child_count as usize;
-        let shapes = &self.shape[children.clone()];
-        for (k, (shape, hot)) in shapes.iter().zip(&self.hot[children]).enumerate() {
-            let c = (first + k) as u32;
+        let first = parent_hot.first_child;
+        for c in first..first + parent_hot.child_count {
+            let Tested { hot, shape } = self.tested(c);
             let center = glam::Vec3::from(shape.center);
             let by = center.distance(parent_center) + shape.radius - parent.radius;
             if by > nesting_slack(hot.error_radius, step) + sphere_rounding {
@@ -700,71 +1383,86 @@ impl NodeStore {
 
     /// A [`VdtError::Bounds`] for node `id`, naming its page.
     fn bound_error(&self, id: u32, violation: BoundViolation) -> VdtError {
-        let page = self.page_first_node.partition_point(|&first| first <= id) as u32 - 1;
         VdtError::Bounds {
-            page,
+            page: self.page_of(id).unwrap_or(0),
             node: id,
             violation,
         }
     }
 
-    fn load_page(&mut self, index: u32) -> Result<(), VdtError> {
-        let mut scratch = std::mem::replace(
-            &mut self.scratch,
-            Page {
-                first_node: 0,
-                first_triangle: 0,
-                nodes: Vec::new(),
-                triangles: Vec::new(),
-            },
-        );
+    /// Reads page `index` on this thread and installs it, evicting unpinned pages (never
+    /// those in `keep`) to make room. When room cannot be made: refused if `refusable`,
+    /// installed over the budget otherwise.
+    fn load_page(&mut self, index: u32, keep: &[u32], refusable: bool) -> Result<(), LoadError> {
+        let mut scratch = std::mem::replace(&mut self.scratch, empty_page());
         let result = self.source.read_page_into(index, &mut scratch);
-        if result.is_ok() {
-            self.install(index, &scratch);
-        }
+        let outcome = match result {
+            Ok(()) => {
+                let bytes = ResidentPage::bytes_for(scratch.nodes.len(), scratch.triangles.len());
+                if self.make_room(bytes, keep) || !refusable {
+                    self.install(index, &scratch);
+                    Ok(())
+                } else {
+                    self.refuse();
+                    Err(LoadError::OverBudget)
+                }
+            }
+            Err(e) => Err(LoadError::File(e)),
+        };
         self.scratch = scratch;
-        result
+        outcome
     }
 
-    /// Copies a decoded page into the arrays and marks it resident.
+    /// Makes a decoded page resident, unpinned.
     fn install(&mut self, index: u32, page: &Page) {
-        let first = page.first_node as usize;
-        for (k, record) in page.nodes.iter().enumerate() {
-            let node = Node::from_record(record);
-            self.hot[first + k] = Hot {
-                proxy: node.proxy,
-                error_radius: node.error_radius,
-                group_radius: 0.0,
-                group_error: 0.0,
-                first_child: node.first_child,
-                child_count: u32::from(node.child_count),
-            };
-            self.shape[first + k] = Shape {
-                center: node.sphere_center,
-                radius: node.sphere_radius,
-                cone_axis: node.cone_axis,
-                cone_cos: Shape::cone_test(node.cone_half_angle, node.cone_two_sided),
-            };
-            self.leaf_begin[first + k] = node.leaf_begin;
-            self.topology[first + k] = Topology {
-                parent: node.parent,
-                leaf_end: node.leaf_end,
-                subtri_begin: node.subtri_begin,
-                subtri_count: node.subtri_count,
-                cone_half_angle: node.cone_half_angle,
-                depth: node.depth,
-                cone_two_sided: node.cone_two_sided,
-            };
-        }
-        let first = page.first_triangle as usize;
-        for (k, t) in page.triangles.iter().enumerate() {
-            self.triangle_corners[first + k] = t.corners.map(|c| c.get());
-            self.triangle_parts[first + k] = t.part.get();
-        }
+        let mut resident = ResidentPage::from_page(index, page);
+        resident.stamp = self.tick;
+        self.tick += 1;
+        let bytes = resident.bytes;
+        self.evictable.insert((resident.stamp, index));
+        self.evictable_bytes += bytes;
+        self.page_bytes += bytes;
+        let slot = match self.free_page_slots.pop() {
+            Some(slot) => {
+                self.pages[slot as usize] = Some(resident);
+                slot
+            }
+            None => {
+                self.pages.push(Some(resident));
+                self.pages.len() as u32 - 1
+            }
+        };
+        self.page_slot[index as usize] = slot;
         self.page_state[index as usize] = PageState::Resident;
-        self.resident_pages += 1;
+        self.pages_loaded += 1;
         self.loaded
             .push(page.first_node..page.first_node + page.nodes.len() as u32);
+    }
+
+    /// Reads every page of the file that is not resident and makes it resident, over the
+    /// budget if need be (for benchmarks of the fully resident case, with the budget set to
+    /// hold the model; otherwise the next adjust evicts what does not fit).
+    pub fn load_every_page(&mut self) -> Result<(), VdtError> {
+        for index in 0..self.page_state.len() as u32 {
+            if self.page_state[index as usize] != PageState::Resident
+                && let Err(LoadError::File(e)) = self.load_page(index, &[], false)
+            {
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+
+    /// Calls `visit` with every page of the file in order, decoded and checked by the
+    /// reader but not made resident (for whole-model measurements and exports, which must
+    /// not hold the model in the store).
+    pub fn for_each_page(&self, mut visit: impl FnMut(&Page)) -> Result<(), VdtError> {
+        let mut page = empty_page();
+        for index in 0..self.page_state.len() as u32 {
+            self.source.read_page_into(index, &mut page)?;
+            visit(&page);
+        }
+        Ok(())
     }
 
     /// The boundary-node test needs the leaf a rank belongs to only through ranges, so no
@@ -778,19 +1476,36 @@ impl NodeStore {
         from
     }
 
-    /// The child of inner node `id` that supports `rank` (which `id` must support).
+    /// The child of resident inner node `id` that supports `rank` (which `id` must support);
+    /// its children must be resident.
     #[inline]
     pub fn child_supporting(&self, id: u32, rank: u32) -> u32 {
-        let hot = &self.hot[id as usize];
+        let hot = self.hot(id);
+        let (first, count) = (hot.first_child, hot.child_count);
+        let p = self.expect_place(first);
+        let page = self.resident(p.slot);
+        let local = p.local as usize;
+        let in_page = (count as usize).min(page.leaf_begin.len() - local);
         // Children cover consecutive leaf ranges in id order, so the last child starting at
         // or before `rank` is the one.
-        let mut child = hot.first_child;
-        for c in hot.first_child + 1..hot.first_child + hot.child_count {
-            if self.leaf_begin[c as usize] <= rank {
-                child = c;
-            } else {
+        let mut child = first;
+        for (k, &begin) in page.leaf_begin[local..local + in_page]
+            .iter()
+            .enumerate()
+            .skip(1)
+        {
+            if begin > rank {
+                return child;
+            }
+            child = first + k as u32;
+        }
+        // Children that straddle into the next page, looked up one by one.
+        for c in first + in_page as u32..first + count {
+            let q = self.expect_place(c);
+            if self.resident(q.slot).leaf_begin[q.local as usize] > rank {
                 break;
             }
+            child = c;
         }
         child
     }
@@ -800,4 +1515,15 @@ impl NodeStore {
 
     /// The parent id of the root.
     pub const NO_PARENT: u32 = NO_NODE;
+}
+
+/// Why [`NodeStore::load_children`] did not load.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    /// A page could not be read or the children are not well formed.
+    #[error(transparent)]
+    File(#[from] VdtError),
+    /// The pages do not fit in the memory budget with what the cut pins.
+    #[error("the children's pages do not fit in the memory budget")]
+    OverBudget,
 }

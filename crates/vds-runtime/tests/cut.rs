@@ -139,7 +139,7 @@ fn assert_threshold_on_random_cameras(name: &str, mut scene: vds_import::Scene) 
         runtime.cut_mut().check().unwrap();
         // With backface folding, vertices whose every triangle faces away may move further.
         let facing = criteria.backface.then(|| {
-            measure::facing_vertices(runtime.cut().store(), &positions, camera.view().eye)
+            measure::facing_vertices(runtime.cut().store(), &positions, camera.view().eye).unwrap()
         });
         let deviation =
             measure::screen_deviation(runtime.cut(), &camera.view(), &positions, facing.as_deref());

@@ -90,7 +90,10 @@ impl Mirror {
         self.slots
             .resize(update.slot_count as usize, vds_render::update::EMPTY_SLOT);
         for (first, contents) in &update.slots {
-            let first = *first as usize;
+            // A merged batch may hold slots that a later one cut off (the cut compacts its
+            // slot array as it shrinks): those are no longer drawn.
+            let first = (*first as usize).min(self.slots.len());
+            let contents = &contents[..contents.len().min(self.slots.len() - first)];
             self.slots[first..first + contents.len()].copy_from_slice(contents);
         }
         self.vertex_nodes

@@ -89,13 +89,13 @@ pub fn open(path: Option<&Path>, keep_mesh: bool, loading: Loading) -> Result<Mo
 /// The original mesh of a `.vdt` file: leaves as vertices, every triangle by leaf rank.
 fn mesh_of(runtime: &mut Runtime) -> Result<vds_import::Scene> {
     let positions = runtime.leaf_positions()?;
-    let store = runtime.cut().store();
-    let triangles: Vec<[u32; 3]> = (0..store.triangle_count())
-        .map(|t| store.triangle_corners(t))
-        .collect();
-    let triangle_parts = (0..store.triangle_count())
-        .map(|t| store.triangle_part(t))
-        .collect();
+    let (mut triangles, mut triangle_parts) = (Vec::new(), Vec::new());
+    runtime.cut().store().for_each_page(|page| {
+        for t in &page.triangles {
+            triangles.push(t.corners.map(|c| c.get()));
+            triangle_parts.push(t.part.get());
+        }
+    })?;
     Ok(vds_import::Scene {
         positions,
         triangles,

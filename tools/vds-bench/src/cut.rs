@@ -60,7 +60,8 @@ fn play(
     let file = VdtFile::from_bytes(bytes.to_vec())?;
     let mut runtime = Runtime::new(Box::new(file), tracking)?;
     if resident {
-        runtime.leaf_positions()?;
+        runtime.set_memory_budget(u64::MAX);
+        runtime.load_every_page()?;
     }
     let criteria = Criteria::default();
     let (mut ms, mut visited, mut added, mut removed, mut changed, mut active) =

@@ -160,7 +160,8 @@ pub fn run(file: &Path, t: f32, threads: usize, pace_ms: f64, frames: u32) -> Re
     // ...and the same path with every page decoded first.
     let vdt = vds_format::VdtFile::open(file)?;
     let mut resident = Runtime::new(Box::new(vdt), CornerTracking::Incidence)?;
-    resident.leaf_positions()?;
+    resident.set_memory_budget(u64::MAX);
+    resident.load_every_page()?;
     let synchronous = play(&mut resident, &path, goal, pace)?;
     for (what, times) in [
         ("background loading", &background),

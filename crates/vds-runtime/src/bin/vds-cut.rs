@@ -49,7 +49,9 @@ struct Args {
     frames: Option<u32>,
     /// With a path replay: one CSV row per frame (frame, adjust_ms, active_triangles,
     /// added, removed, changed, nodes_visited, unfolds, folds, deferred_unfolds,
-    /// pages_resident, pages_delivered, pages_pending).
+    /// resident_bytes, pages_resident, pages_loaded and pages_evicted by the frame,
+    /// pages_pending, effective_threshold, and rss_anon_bytes: the process's anonymous
+    /// resident memory from /proc/self/status, empty where there is none).
     #[arg(long, value_name = "OUT.csv", requires = "replay")]
     stats: Option<PathBuf>,
     /// With a path replay: start frames at most this often, in milliseconds (a display's
@@ -63,6 +65,12 @@ struct Args {
     /// are not).
     #[arg(long, value_enum, default_value_t = LoadingMode::Synchronous)]
     loading: LoadingMode,
+    /// Memory budget for the decoded tree and the cut, e.g. 512MiB or 2GiB (default: 1 GiB,
+    /// or a quarter of physical memory if that is less). Pages below the boundary are
+    /// evicted to stay within it; when the cut itself does not fit, the threshold is raised
+    /// until it does (the effective threshold is reported).
+    #[arg(long, value_name = "SIZE", value_parser = vds_runtime::size::parse_size)]
+    memory_budget: Option<u64>,
     /// Background loading threads, 1 to 64 (default: the cores but one, at most 4).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
     loading_threads: Option<u32>,
@@ -302,6 +310,10 @@ fn run(args: &Args) -> Result<()> {
     };
     let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
         .with_context(|| format!("{}", args.file.display()))?;
+    runtime.set_memory_budget(
+        args.memory_budget
+            .unwrap_or_else(vds_runtime::default_memory_budget),
+    );
     let open_ms = start.elapsed().as_secs_f64() * 1e3;
 
     let root = runtime.cut().node(0);
@@ -356,7 +368,17 @@ fn run(args: &Args) -> Result<()> {
     // With background loading one adjust leaves unfolds waiting for pages: the exported cut
     // is the settled one, so adjust again as pages arrive until nothing waits (a page that
     // cannot be read fails the export).
-    while frame.stats.deferred_unfolds > 0 || runtime.pending_pages() > 0 {
+    // Under a memory budget that cannot hold the cut, pages are refused and the effective
+    // threshold rises each adjust until the cut fits: adjust again until none is refused
+    // (each round raises the threshold by a quarter, so this ends).
+    let mut refused = frame.memory.refusals;
+    let mut rounds = 0;
+    while frame.stats.deferred_unfolds > 0
+        || runtime.pending_pages() > 0
+        || (frame.memory.refusals > std::mem::replace(&mut refused, frame.memory.refusals)
+            && rounds < 1000)
+    {
+        rounds += 1;
         runtime.wait_for_pages();
         if let Some(error) = runtime.take_page_errors().into_iter().next() {
             return Err(anyhow::Error::new(error).context(args.file.display().to_string()));
@@ -382,11 +404,10 @@ fn run(args: &Args) -> Result<()> {
     // With backface simplification on, vertices whose every triangle faces away are hidden
     // and may move further; the deviation is measured over the others.
     let facing = match camera {
-        Some(c) if criteria.backface => Some(measure::facing_vertices(
-            runtime.cut().store(),
-            &positions,
-            c.view().eye,
-        )),
+        Some(c) if criteria.backface => Some(
+            measure::facing_vertices(runtime.cut().store(), &positions, c.view().eye)
+                .with_context(|| format!("{}", args.file.display()))?,
+        ),
         _ => None,
     };
     let deviation = camera.map(|c| {
@@ -471,7 +492,8 @@ fn replay(
     }
     let mut rows = String::from(
         "frame,adjust_ms,active_triangles,added,removed,changed,nodes_visited,unfolds,folds,\
-         deferred_unfolds,pages_resident,pages_delivered,pages_pending\n",
+         deferred_unfolds,resident_bytes,pages_resident,pages_loaded,pages_evicted,pages_pending,\
+         effective_threshold,rss_anon_bytes\n",
     );
     let mut adjust_ms = Vec::with_capacity(path.cameras.len());
     let mut errors = 0usize;
@@ -481,7 +503,7 @@ fn replay(
         if let Some(wait) = (pace * i as u32).checked_sub(replay_start.elapsed()) {
             std::thread::sleep(wait);
         }
-        let resident_before = runtime.cut().store().pages_resident().0;
+        let before = runtime.memory();
         let start = Instant::now();
         let frame = runtime
             .adjust(&Viewpoint::Camera(*camera), criteria, goal)
@@ -492,12 +514,14 @@ fn replay(
             errors += 1;
             eprintln!("vds-cut: {}: {error}", args.file.display());
         }
-        let resident = runtime.cut().store().pages_resident().0;
-        // Pages taken in by this adjust: from the background loader, or read synchronously.
-        let delivered = resident - resident_before;
+        // Pages taken in by this adjust (from the background loader, or read synchronously)
+        // and evicted by it.
+        let memory = &frame.memory;
+        let loaded = memory.pages_loaded - before.pages_loaded;
+        let evicted = memory.pages_evicted - before.pages_evicted;
         let (stats, changes) = (&frame.stats, &frame.changes);
         rows += &format!(
-            "{i},{ms:.4},{},{},{},{},{},{},{},{},{resident},{delivered},{}\n",
+            "{i},{ms:.4},{},{},{},{},{},{},{},{},{},{},{loaded},{evicted},{},{},{}\n",
             runtime.cut().active_triangle_count(),
             changes.added,
             changes.removed,
@@ -506,7 +530,13 @@ fn replay(
             stats.unfolds,
             stats.folds,
             stats.deferred_unfolds,
-            runtime.pending_pages(),
+            memory.resident_bytes,
+            memory.pages_resident,
+            memory.pages_pending,
+            frame
+                .effective_threshold
+                .map_or_else(String::new, |t| format!("{t}")),
+            rss_anon_bytes().map_or_else(String::new, |b| b.to_string()),
         );
     }
     if let Some(stats) = &args.stats {
@@ -536,4 +566,13 @@ fn replay(
         }
     );
     Ok(())
+}
+
+/// The process's anonymous resident memory (`RssAnon` of `/proc/self/status`), where the
+/// system reports it.
+fn rss_anon_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("RssAnon:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }

@@ -1,0 +1,295 @@
+//! The memory budget: the store never holds more than its budget, eviction never removes a
+//! page the cut needs (checked after every frame with a budget that forces constant
+//! eviction), no adjust reads a page under background loading while pages come and go, and
+//! once the budget holds the cut again the screen-space bound holds again. The process-level
+//! bound (anonymous resident memory under a budget, along an orbit and a fly-through) runs
+//! `vds-cut`, so that the test harness's own memory (the scene it built) does not count.
+
+mod common;
+
+use std::process::Command;
+use std::sync::{Arc, Mutex};
+use std::thread::ThreadId;
+
+use common::*;
+use vds_format::{Header, Page, PageEntry, VdtError, VdtFile};
+use vds_runtime::{
+    CameraPath, CornerTracking, Criteria, Goal, Loading, PageSource, Runtime, Viewpoint, measure,
+};
+
+/// A generated CAD-like scene of about `triangles` triangles, built into `.vdt` bytes.
+fn generated(triangles: u64) -> (Vec<u8>, [f32; 3], f32) {
+    let g = vds_gen::generate(triangles);
+    let mut scene = vds_import::Scene {
+        positions: g.positions,
+        triangles: g.triangles,
+        triangle_parts: g.triangle_parts,
+        part_names: (0..g.part_count).map(|p| format!("part{p}")).collect(),
+        stats: Default::default(),
+    };
+    let (center, radius) = bounds(&scene.positions);
+    (vdt_bytes(&mut scene), center, radius)
+}
+
+/// Bytes the store holds with every page of `bytes` resident.
+fn decoded_size(bytes: &[u8]) -> u64 {
+    let mut full = runtime(bytes, CornerTracking::Incidence);
+    full.set_memory_budget(u64::MAX);
+    full.load_every_page().unwrap();
+    full.memory().resident_bytes
+}
+
+fn paths(center: [f32; 3], radius: f32, frames: u32) -> Vec<(&'static str, CameraPath)> {
+    vec![
+        ("orbit", CameraPath::orbit(center, radius, frames, 640, 360)),
+        (
+            "fly",
+            CameraPath::fly_through(center, radius, frames, 640, 360),
+        ),
+    ]
+}
+
+#[test]
+fn a_tiny_budget_evicts_constantly_and_never_a_page_the_cut_needs() {
+    let (bytes, center, radius) = generated(60_000);
+    let decoded = decoded_size(&bytes);
+    let budget = decoded / 8;
+    for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
+        for (name, path) in paths(center, radius, 40) {
+            let mut runtime = runtime(&bytes, tracking);
+            runtime.set_memory_budget(budget);
+            for (i, camera) in path.cameras.iter().enumerate() {
+                let frame = runtime
+                    .adjust(
+                        &Viewpoint::Camera(*camera),
+                        &Criteria::default(),
+                        Goal::Threshold(1.0),
+                    )
+                    .unwrap();
+                runtime
+                    .cut_mut()
+                    .check()
+                    .unwrap_or_else(|e| panic!("{name} frame {i}: {e}"));
+                let memory = frame.memory;
+                assert!(
+                    memory.resident_bytes <= budget || runtime.cut().store().over_budget_pinned(),
+                    "{name} frame {i}: {} bytes held over a budget of {budget}",
+                    memory.resident_bytes
+                );
+                assert!(frame.effective_threshold.unwrap() >= 1.0);
+            }
+            assert!(
+                runtime.memory().pages_evicted > 0,
+                "{name}: a budget of an eighth of the model never evicted"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_budget_is_hard_when_the_cut_fits() {
+    // The cut at 4 px fits in half of the model: the budget is never exceeded, because pages
+    // that do not fit are refused rather than installed and the rest is evicted.
+    let (bytes, center, radius) = generated(60_000);
+    let budget = decoded_size(&bytes) / 2;
+    let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+    runtime.set_memory_budget(budget);
+    let mut most = 0;
+    for camera in &CameraPath::fly_through(center, radius, 60, 640, 360).cameras {
+        let frame = runtime
+            .adjust(
+                &Viewpoint::Camera(*camera),
+                &Criteria::default(),
+                Goal::Threshold(4.0),
+            )
+            .unwrap();
+        most = most.max(frame.memory.resident_bytes);
+    }
+    assert!(
+        most <= budget,
+        "{most} bytes held over a budget of {budget}"
+    );
+}
+
+#[test]
+fn when_the_cut_does_not_fit_the_threshold_rises_and_falls_back_when_it_does() {
+    let (bytes, center, radius) = generated(60_000);
+    let decoded = decoded_size(&bytes);
+    let mut positions_runtime = runtime(&bytes, CornerTracking::Incidence);
+    let positions = positions_runtime.leaf_positions().unwrap();
+    let camera = CameraPath::fly_through(center, radius, 8, 640, 360).cameras[0];
+    let viewpoint = Viewpoint::Camera(camera);
+    let criteria = Criteria {
+        backface: false,
+        ..Criteria::default()
+    };
+    let t = 0.5;
+    let mut runtime = runtime(&bytes, CornerTracking::Incidence);
+    runtime.set_memory_budget(decoded / 20);
+    let mut raised = 1.0f32;
+    for _ in 0..60 {
+        let frame = runtime
+            .adjust(&viewpoint, &criteria, Goal::Threshold(t))
+            .unwrap();
+        raised = raised.max(frame.effective_threshold.unwrap() / t);
+    }
+    assert!(raised > 1.0, "a twentieth of the model held a 0.5 px cut");
+    let squeezed = runtime.cut().active_triangle_count();
+    // A budget that holds the whole model: the threshold comes back down to what was asked.
+    runtime.set_memory_budget(u64::MAX);
+    let mut settled = None;
+    for round in 0..400 {
+        let frame = runtime
+            .adjust(&viewpoint, &criteria, Goal::Threshold(t))
+            .unwrap();
+        if frame.effective_threshold == Some(t) && frame.changes.dirty_slots.is_empty() {
+            settled = Some(round);
+            break;
+        }
+    }
+    assert!(
+        settled.is_some(),
+        "the effective threshold never came back to {t}"
+    );
+    runtime.cut_mut().check().unwrap();
+    assert!(runtime.cut().active_triangle_count() > squeezed);
+    let deviation = measure::screen_deviation(runtime.cut(), &camera.view(), &positions, None);
+    assert!(
+        deviation.max_px <= f64::from(t) * (1.0 + 1e-4) + 1e-4,
+        "{} px > {t} px once the budget held the cut",
+        deviation.max_px
+    );
+}
+
+/// A page source that records which thread read each page.
+struct Recording {
+    file: VdtFile<Vec<u8>>,
+    reads: Arc<Mutex<Vec<ThreadId>>>,
+}
+
+impl PageSource for Recording {
+    fn header(&self) -> &Header {
+        self.file.header()
+    }
+    fn directory(&self) -> &[PageEntry] {
+        self.file.directory()
+    }
+    fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError> {
+        self.reads.lock().unwrap().push(std::thread::current().id());
+        self.file.read_page_into(index, page)
+    }
+}
+
+#[test]
+fn background_loading_under_eviction_never_reads_on_the_adjusting_thread() {
+    let (bytes, center, radius) = generated(60_000);
+    let budget = decoded_size(&bytes) / 8;
+    let reads = Arc::new(Mutex::new(Vec::new()));
+    let source = Recording {
+        file: VdtFile::from_bytes(bytes.clone()).unwrap(),
+        reads: Arc::clone(&reads),
+    };
+    let mut runtime = Runtime::with_loading(
+        Box::new(source),
+        CornerTracking::Incidence,
+        Loading::Background { threads: 2 },
+    )
+    .unwrap();
+    runtime.set_memory_budget(budget);
+    let opened = reads.lock().unwrap().len();
+    let me = std::thread::current().id();
+    let mut loaded_again = 0;
+    for (_, path) in paths(center, radius, 60) {
+        for camera in &path.cameras {
+            let frame = runtime
+                .adjust(
+                    &Viewpoint::Camera(*camera),
+                    &Criteria::default(),
+                    Goal::Threshold(1.0),
+                )
+                .unwrap();
+            runtime.cut_mut().check().unwrap();
+            assert!(
+                frame.memory.resident_bytes <= budget,
+                "{} > {budget}: {:?}, cut {}",
+                frame.memory.resident_bytes,
+                frame.memory,
+                runtime.cut().own_bytes()
+            );
+            loaded_again = frame.memory.pages_loaded;
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+    }
+    let reads = reads.lock().unwrap();
+    assert!(
+        reads[opened..].iter().all(|&thread| thread != me),
+        "an adjust read a page itself"
+    );
+    assert!(runtime.memory().pages_evicted > 0 && loaded_again > 0);
+}
+
+/// The numbers of column `name` of `vds-cut`'s statistics.
+fn column(csv: &str, name: &str) -> Vec<u64> {
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let at = header.iter().position(|&h| h == name).unwrap();
+    lines
+        .map(|l| l.split(',').nth(at).unwrap().parse().unwrap())
+        .collect()
+}
+
+#[test]
+fn rss_stays_within_the_budget_along_an_orbit_and_a_fly_through() {
+    // A model whose decoded tree is at least 8 times the budget, replayed by `vds-cut` with
+    // background loading: its anonymous resident memory, read per frame from
+    // /proc/self/status, stays within the budget and 64 MiB.
+    let (bytes, _, _) = generated(400_000);
+    let decoded = decoded_size(&bytes);
+    let budget: u64 = 4 << 20;
+    assert!(
+        decoded >= 8 * budget,
+        "the model decodes to only {decoded} bytes"
+    );
+    let dir = std::env::temp_dir().join(format!("vds-memory-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("generated.vdt");
+    std::fs::write(&file, &bytes).unwrap();
+    for path in ["--orbit", "--fly"] {
+        let stats = dir.join(format!("stats{path}.csv"));
+        let output = Command::new(env!("CARGO_BIN_EXE_vds-cut"))
+            .arg(&file)
+            .args([
+                path,
+                "--frames",
+                "90",
+                "--threshold",
+                "1",
+                "--loading",
+                "background",
+            ])
+            .args(["--memory-budget", "4MiB", "--pace-ms", "2", "--stats"])
+            .arg(&stats)
+            .output()
+            .unwrap();
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        let csv = std::fs::read_to_string(&stats).unwrap();
+        let rss = column(&csv, "rss_anon_bytes");
+        let held = column(&csv, "resident_bytes");
+        let evicted: u64 = column(&csv, "pages_evicted").iter().sum();
+        let worst = *rss.iter().max().unwrap();
+        assert!(
+            worst <= budget + (64 << 20),
+            "{path}: RssAnon reached {worst} bytes with a budget of {budget}"
+        );
+        assert!(
+            held.iter().all(|&h| h <= budget),
+            "{path}: the store went over its budget"
+        );
+        assert!(evicted > 0, "{path}: nothing was evicted");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
