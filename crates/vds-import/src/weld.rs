@@ -32,6 +32,7 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         mut triangles,
         mut triangle_parts,
         part_names,
+        parts,
         short_faces_dropped,
     } = soup;
     let input_vertices = positions.len() as u64;
@@ -133,6 +134,7 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         triangles,
         triangle_parts,
         part_names,
+        parts,
     }
 }
 
