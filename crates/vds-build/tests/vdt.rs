@@ -184,7 +184,7 @@ fn rejects_unknown_version_with_both_numbers() {
         bytes[8..12].copy_from_slice(&version.to_le_bytes());
         fix_checksums(&mut bytes);
         match VdtFile::from_bytes(bytes) {
-            Err(VdtError::Version { expected, got })
+            Err(VdtError::Version { expected, got, .. })
                 if expected == vds_format::VDT_VERSION && got == version => {}
             other => panic!("{:?}", other.err()),
         }

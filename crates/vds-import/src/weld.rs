@@ -461,6 +461,7 @@ mod tests {
             triangles,
             triangle_parts,
             part_names: (0..7).map(|k| format!("part {k}")).collect(),
+            parts: vec![Default::default(); 7],
             short_faces_dropped: 0,
         };
         let (positions, triangles, parts) = reference_weld(&soup);
