@@ -186,3 +186,96 @@ impl Metadata {
         chain.join("/")
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three parts, `b` under `a`; 5 triangles in all.
+    fn metadata() -> Metadata {
+        Metadata {
+            part_names: vec!["a".into(), "b".into(), "c".into()],
+            parts: vec![
+                PartInfo {
+                    color: Some([1.0, 0.5, 0.0, 1.0]),
+                    triangles: 2,
+                    ..Default::default()
+                },
+                PartInfo {
+                    parent: 0,
+                    triangles: 3,
+                    ..Default::default()
+                },
+                PartInfo::default(),
+            ],
+            ..Default::default()
+        }
+    }
+
+    fn refusal(m: &Metadata, triangles: u64) -> String {
+        m.check(triangles).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn accepts_a_forest_of_parts_and_no_part_records() {
+        metadata().check(5).unwrap();
+        let names_only = Metadata {
+            parts: Vec::new(),
+            ..metadata()
+        };
+        names_only.check(5).unwrap();
+    }
+
+    #[test]
+    fn rejects_a_parent_out_of_range() {
+        let mut m = metadata();
+        m.parts[1].parent = 7;
+        assert!(refusal(&m, 5).contains("part 1: parent 7"));
+    }
+
+    #[test]
+    fn rejects_a_cycle_as_a_parent_not_before_its_child() {
+        let mut m = metadata();
+        // 0 -> 1 -> 0: part 0's parent comes after it.
+        m.parts[0].parent = 1;
+        assert!(refusal(&m, 5).contains("part 0: parent 1"));
+        let mut m = metadata();
+        m.parts[2].parent = 2;
+        assert!(refusal(&m, 5).contains("part 2: parent 2"));
+    }
+
+    #[test]
+    fn rejects_colours_outside_zero_to_one_or_not_finite() {
+        for bad in [f32::NAN, f32::INFINITY, -0.1, 1.5] {
+            let mut m = metadata();
+            m.parts[0].color = Some([0.0, bad, 0.0, 1.0]);
+            assert!(refusal(&m, 5).contains("colour"), "{bad}");
+        }
+    }
+
+    #[test]
+    fn rejects_part_records_not_one_per_name() {
+        let mut m = metadata();
+        m.parts.pop();
+        assert!(refusal(&m, 5).contains("2 part records for 3 part names"));
+    }
+
+    #[test]
+    fn rejects_triangle_counts_that_miss_the_file_total() {
+        assert!(refusal(&metadata(), 6).contains("add up to 5"));
+        let mut m = metadata();
+        m.parts[2].triangles = u64::MAX;
+        assert!(refusal(&m, 5).contains("overflow"));
+    }
+
+    #[test]
+    fn part_paths_join_the_names_down_the_tree() {
+        let m = metadata();
+        assert_eq!(m.part_path(1), "a/b");
+        assert_eq!(m.part_path(2), "c");
+        assert_eq!(m.part_path(9), "");
+        assert_eq!(m.part_parent(0), None);
+        assert_eq!(m.part_parent(1), Some(0));
+        assert_eq!(m.part_color(0), Some([1.0, 0.5, 0.0, 1.0]));
+    }
+}
