@@ -99,7 +99,7 @@ pub struct ImportOptions {
     /// The most bytes an input may add to memory beyond its own mapped file: what a `.gz`
     /// input decompresses to, and what a glTF's external buffer files hold together.
     pub max_decompressed_bytes: u64,
-    /// Whether glTF URIs may name files outside the model's folder (absolute paths, `..`
+    /// Whether glTF URIs and OBJ `mtllib` paths may name files outside the model's folder (absolute paths, `..`
     /// leaving the folder, symbolic links out of it). Off by default: a model handed to a
     /// batch job must not make it read other files. Schemes other than `data:` and file
     /// paths are refused either way: nothing is fetched from a network.
