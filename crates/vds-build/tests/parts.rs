@@ -89,7 +89,14 @@ fn version_4_files_are_refused_naming_both_versions() {
     bytes[120..128].copy_from_slice(&sum.to_le_bytes());
     let error = VdtFile::from_bytes(bytes).err().unwrap();
     assert!(
-        matches!(error, VdtError::Version { got: 4, expected: 5, oldest: 5 }),
+        matches!(
+            error,
+            VdtError::Version {
+                got: 4,
+                expected: 5,
+                oldest: 5
+            }
+        ),
         "{error}"
     );
     let message = error.to_string();
@@ -129,7 +136,11 @@ fn info(file: &Path, flag: &str) -> String {
         .arg(flag)
         .output()
         .unwrap();
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     String::from_utf8(run.stdout).unwrap()
 }
 

@@ -502,10 +502,7 @@ fn walk<'a>(
             let material = primitive.material();
             if material.index().is_some() {
                 let rgba = material.pbr_metallic_roughness().base_color_factor();
-                color.add_weighted(
-                    rgba.map(f64::from),
-                    (soup.triangles.len() - first) as u64,
-                );
+                color.add_weighted(rgba.map(f64::from), (soup.triangles.len() - first) as u64);
             }
         }
         if soup.triangles.len() > before {

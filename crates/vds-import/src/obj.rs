@@ -59,8 +59,8 @@ impl MaterialFiles<'_> {
     ) -> tobj::MTLLoadResult {
         let failed = || tobj::LoadError::OpenFileFailed;
         let name = name.to_str().ok_or_else(failed)?;
-        let path =
-            crate::uri::resolve(name, Some(self.folder), self.allow_external).map_err(|_| failed())?;
+        let path = crate::uri::resolve(name, Some(self.folder), self.allow_external)
+            .map_err(|_| failed())?;
         let mut loaded = loaded.borrow_mut();
         if loaded.0.contains(&path) || loaded.0.len() >= MAX_MTL_FILES {
             // Already merged (or over the statement limit): nothing more to add.
@@ -72,7 +72,9 @@ impl MaterialFiles<'_> {
         if loaded.1.saturating_add(file.size) > MAX_MTL_BYTES {
             return Err(failed());
         }
-        let bytes = file.read_prefix(MAX_MTL_BYTES - loaded.1).map_err(|_| failed())?;
+        let bytes = file
+            .read_prefix(MAX_MTL_BYTES - loaded.1)
+            .map_err(|_| failed())?;
         loaded.1 += bytes.len() as u64;
         tobj::load_mtl_buf(&mut &bytes[..])
     }

@@ -553,7 +553,8 @@ fn set_part_colors(
     if !by_face && vertex_colors.len() + base != soup.positions.len() {
         return; // No colours, or not one per vertex and per triangle.
     }
-    let mut sums = vec![crate::soup::ColorSum::default(); soup.part_names.len() - first_part as usize];
+    let mut sums =
+        vec![crate::soup::ColorSum::default(); soup.part_names.len() - first_part as usize];
     for t in 0..triangles {
         let rgba = if by_face {
             triangle_colors[t].map(f64::from)
@@ -608,8 +609,8 @@ fn read_vertices(
                     if let Some(axis) = slots.iter().position(|&s| s == index) {
                         p[axis] = value as f32;
                     }
-                    if let Some(channel) = color_slots
-                        .and_then(|c| c.iter().position(|&s| s == Some(index)))
+                    if let Some(channel) =
+                        color_slots.and_then(|c| c.iter().position(|&s| s == Some(index)))
                     {
                         color[channel] = ty.unit(value);
                     }
@@ -739,8 +740,8 @@ fn read_faces(
                 }
                 Property::Scalar { ty, .. } => {
                     let value = values.real(*ty)?;
-                    if let Some(channel) = color_slots
-                        .and_then(|c| c.iter().position(|&s| s == Some(index)))
+                    if let Some(channel) =
+                        color_slots.and_then(|c| c.iter().position(|&s| s == Some(index)))
                     {
                         color[channel] = ty.unit(value);
                     }

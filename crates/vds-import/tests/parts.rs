@@ -56,7 +56,10 @@ fn obj_groups_take_kd_from_their_materials_averaged_over_triangles() {
     // One red triangle, two blue (alpha 0.5): a third red, two thirds blue.
     let third = 1.0 / 3.0;
     assert!(
-        close(scene.parts[1].color, [third, 0.0, 2.0 * third, 2.0 / 3.0 * 0.5 + third]),
+        close(
+            scene.parts[1].color,
+            [third, 0.0, 2.0 * third, 2.0 / 3.0 * 0.5 + third]
+        ),
         "{:?}",
         scene.parts[1]
     );
@@ -153,10 +156,13 @@ fn gltf_parts_keep_the_node_tree_and_base_colour() {
 fn gltf_material_without_base_colour_factor_is_white() {
     let dir = TempDir::new("gltf-default");
     let scene = load(&gltf(&dir, r#"[{"name":"p","mesh":0}]"#, "[{}]"));
-    assert_eq!(scene.parts, [PartInfo {
-        parent: None,
-        color: Some([1.0; 4])
-    }]);
+    assert_eq!(
+        scene.parts,
+        [PartInfo {
+            parent: None,
+            color: Some([1.0; 4])
+        }]
+    );
 }
 
 fn ply(header_props: &str, faces_props: &str, vertices: &str, faces: &str) -> String {
@@ -207,10 +213,10 @@ fn ply_binary_vertex_colours_take_the_fast_path_too() {
         property float y\nproperty float z\nproperty uchar red\nproperty uchar green\n\
         property uchar blue\nelement face 1\nproperty list uchar uint vertex_indices\nend_header\n"
         .to_vec();
-    for (p, rgb) in [([0f32, 0.0, 0.0], [0u8, 0, 255]); 1]
-        .into_iter()
-        .chain([([1.0, 0.0, 0.0], [0, 0, 255]), ([0.0, 1.0, 0.0], [0, 0, 255])])
-    {
+    for (p, rgb) in [([0f32, 0.0, 0.0], [0u8, 0, 255]); 1].into_iter().chain([
+        ([1.0, 0.0, 0.0], [0, 0, 255]),
+        ([0.0, 1.0, 0.0], [0, 0, 255]),
+    ]) {
         for c in p {
             bytes.extend(c.to_le_bytes());
         }
