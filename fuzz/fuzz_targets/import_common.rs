@@ -18,8 +18,8 @@ pub fn import(data: &[u8], format: Format) {
 }
 
 /// The scene invariants `vds_import::Scene` documents and the builder indexes by: corners in
-/// range and distinct, one part per triangle, parts named, positions finite, every position
-/// used.
+/// range and distinct, one part per triangle, parts named, part records valid, positions
+/// finite, every position used.
 fn check(scene: &Scene) {
     assert_eq!(scene.triangles.len(), scene.triangle_parts.len());
     let mut used = vec![false; scene.positions.len()];
@@ -40,4 +40,15 @@ fn check(scene: &Scene) {
         scene.positions.iter().flatten().all(|c| c.is_finite()),
         "a position is not finite"
     );
+    // What the .vdt writer requires of the part records: one per name, parents earlier,
+    // colours within 0..=1.
+    assert_eq!(scene.parts.len(), scene.part_names.len());
+    for (i, part) in scene.parts.iter().enumerate() {
+        assert!(part.parent.is_none_or(|p| (p as usize) < i), "part {i}'s parent");
+        assert!(
+            part.color
+                .is_none_or(|c| c.iter().all(|v| (0.0..=1.0).contains(v))),
+            "part {i}'s colour"
+        );
+    }
 }

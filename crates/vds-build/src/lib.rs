@@ -23,6 +23,7 @@ mod verify;
 pub use build::{BuildTimings, build_tree, build_tree_timed};
 pub use tree::{Node, NodeBounds, VertexTree};
 pub use vdt::{
-    TreeNodes, VerifyError, encode_scene, snap_to_grid, tree_content, tree_from_file, verify_file,
+    TreeNodes, VerifyError, encode_scene, part_records, snap_to_grid, tree_content, tree_from_file,
+    verify_file,
 };
 pub use verify::{TreeError, verify_tree};

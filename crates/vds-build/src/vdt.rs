@@ -71,6 +71,34 @@ fn record(tree: &VertexTree, id: u32) -> NodeRecord {
     }
 }
 
+/// The metadata's part records for `scene`: each part's parent and colour as imported and
+/// its triangle count, counted from the scene's triangles (every one becomes one subtri of
+/// the file). Empty when the scene names no parts, or a triangle's part has no name (the
+/// file then states nothing beyond the names).
+pub fn part_records(scene: &Scene) -> Vec<vds_format::PartInfo> {
+    let parts = scene.part_names.len();
+    let mut counts = vec![0u64; parts];
+    for &part in &scene.triangle_parts {
+        match counts.get_mut(part as usize) {
+            Some(count) => *count += 1,
+            None => return Vec::new(),
+        }
+    }
+    (0..parts)
+        .map(|i| {
+            let info = scene.parts.get(i).copied().unwrap_or_default();
+            vds_format::PartInfo {
+                parent: info
+                    .parent
+                    .filter(|&p| (p as usize) < i)
+                    .unwrap_or(vds_format::NO_PART),
+                color: info.color,
+                triangles: counts[i],
+            }
+        })
+        .collect()
+}
+
 /// Moves every vertex of `scene` to the nearest point of the `.vdt` grid for its bounds and
 /// returns that grid. Build the tree after snapping, so every bound the builder computes is
 /// exact for the positions the file will hold.
@@ -271,6 +299,12 @@ fn tree_from_pages<B: AsRef<[u8]>>(
         triangles,
         triangle_parts,
         part_names: file.metadata().part_names.clone(),
+        parts: (0..file.metadata().parts.len())
+            .map(|i| vds_import::PartInfo {
+                parent: file.metadata().part_parent(i),
+                color: file.metadata().part_color(i),
+            })
+            .collect(),
         stats: Default::default(),
     };
     Ok((tree, scene))
@@ -318,6 +352,7 @@ pub fn encode_scene(
     let metadata = vds_format::Metadata {
         tool: tool.to_string(),
         part_names: scene.part_names.clone(),
+        parts: part_records(scene),
         input_vertices: scene.stats.input_vertices,
         input_triangles: scene.stats.input_triangles,
         degree_histogram: tree.degree_histogram(),

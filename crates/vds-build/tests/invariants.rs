@@ -35,6 +35,7 @@ fn unwelded_scene(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Scene {
     Scene {
         triangle_parts: vec![0; triangles.len()],
         part_names: vec!["test".into()],
+        parts: Vec::new(),
         positions,
         triangles,
         stats: Default::default(),

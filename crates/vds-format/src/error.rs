@@ -25,12 +25,17 @@ pub enum VdtError {
     /// Not a `.vdt` file.
     #[error("not a .vdt file (bad magic bytes)")]
     Magic,
-    /// A version this reader does not know.
-    #[error("unsupported .vdt version {got} (this reader knows version {expected})")]
+    /// A version this reader does not read: older files must be rebuilt from their inputs
+    /// with `vds-build`, newer ones need a newer reader.
+    #[error(
+        "the file is .vdt version {got}, this reader reads {}; rebuild it from its inputs with this vds-build (or use a newer reader)",
+        version_range(*.oldest, *.expected)
+    )]
     Version {
-        /// The newest version this reader knows (it reads
-        /// [`crate::OLDEST_READABLE_VERSION`] up to this one).
+        /// The newest version this reader reads.
         expected: u32,
+        /// The oldest version this reader reads ([`crate::OLDEST_READABLE_VERSION`]).
+        oldest: u32,
         /// What the file says.
         got: u32,
     },
@@ -95,6 +100,14 @@ pub enum VdtError {
         /// zstd's message.
         message: String,
     },
+}
+
+fn version_range(oldest: u32, newest: u32) -> String {
+    if oldest == newest {
+        format!("version {newest} only")
+    } else {
+        format!("versions {oldest} to {newest}")
+    }
 }
 
 impl VdtError {

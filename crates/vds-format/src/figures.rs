@@ -31,6 +31,8 @@ pub enum StatedField {
     /// Metadata `input_triangles`: triangles as read, before dropping degenerate ones; at
     /// least the triangles in the tree.
     InputTriangles,
+    /// Metadata `parts[i].triangles`: the triangles whose part is `i`.
+    PartTriangles(u32),
 }
 
 impl StatedField {
@@ -65,6 +67,7 @@ impl std::fmt::Display for StatedField {
             StatedField::DegreeHistogram(k) => write!(f, "metadata degree_histogram[{k}]"),
             StatedField::InputVertices => f.write_str("metadata input_vertices"),
             StatedField::InputTriangles => f.write_str("metadata input_triangles"),
+            StatedField::PartTriangles(i) => write!(f, "metadata parts[{i}].triangles"),
         }
     }
 }
@@ -85,6 +88,9 @@ pub struct TreeFigures {
     pub max_depth: u64,
     /// Nodes with `k` children, `k = 0..=8` (the decoder refuses more).
     pub degree_histogram: [u64; 9],
+    /// Triangles per part id, up to the largest id seen (ids of [`crate::MAX_PARTS`] and
+    /// above, which no file may hold, are counted in `triangles` only).
+    pub part_triangles: Vec<u64>,
 }
 
 impl TreeFigures {
@@ -100,6 +106,16 @@ impl TreeFigures {
             self.max_depth = self.max_depth.max(u64::from(n.depth.get()));
         }
         self.leaves = self.degree_histogram[0];
+        for t in &page.triangles {
+            let part = t.part.get() as usize;
+            if part as u64 >= crate::MAX_PARTS {
+                continue;
+            }
+            if part >= self.part_triangles.len() {
+                self.part_triangles.resize(part + 1, 0);
+            }
+            self.part_triangles[part] += 1;
+        }
     }
 
     /// The figures of a file's pages, all of them decoded (in parallel).
@@ -114,8 +130,8 @@ impl TreeFigures {
 
 impl<B: AsRef<[u8]>> VdtFile<B> {
     /// Holds every figure the header and metadata state about the tree to `figures`, counted
-    /// from all of this file's pages: the counts, the depth and the degree histogram must be
-    /// equal, the input vertex and triangle counts at least the leaves and triangles. The
+    /// from all of this file's pages: the counts, the depth, the degree histogram and the
+    /// per-part triangle counts must be equal, the input vertex and triangle counts at least the leaves and triangles. The
     /// first false one is a [`VdtError::Misstated`] naming it.
     pub fn check_figures(&self, figures: &TreeFigures) -> Result<(), VdtError> {
         use StatedField::*;
@@ -133,6 +149,11 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         }));
         stated.push((InputVertices, m.input_vertices, figures.leaves));
         stated.push((InputTriangles, m.input_triangles, figures.triangles));
+        // A file that states no part records has no per-part counts to hold.
+        stated.extend(m.parts.iter().enumerate().map(|(i, p)| {
+            let counted = figures.part_triangles.get(i).copied().unwrap_or(0);
+            (PartTriangles(i as u32), p.triangles, counted)
+        }));
         for (field, stated, counted) in stated {
             let holds = if field.must_equal() {
                 stated == counted

@@ -14,11 +14,12 @@ use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 pub const VDT_MAGIC: [u8; 8] = *b"VDT\x00\r\n\x1a\n";
 
 /// The format version this crate writes.
-pub const VDT_VERSION: u32 = 4;
+pub const VDT_VERSION: u32 = 5;
 
-/// The oldest version this crate reads. Versions 1 to 3 were never released (see
-/// `docs/format.md`, Compatibility).
-pub const OLDEST_READABLE_VERSION: u32 = 4;
+/// The oldest version this crate reads. Versions 1 to 3 were never released, and version 4
+/// files (no part records in the metadata) must be rebuilt (see `docs/format.md`,
+/// Compatibility).
+pub const OLDEST_READABLE_VERSION: u32 = 5;
 
 /// [`NodeRecord::flags`] bit: the node's cone of normals is two-sided (every normal `n`
 /// has `n` or `−n` within the half-angle of the axis).

@@ -30,7 +30,7 @@ pub use layout::{
     FLAG_TWO_SIDED_CONE, HEADER_BYTES, Header, NO_NODE, NODE_BYTES, NodeRecord,
     OLDEST_READABLE_VERSION, PageEntry, TRIANGLE_BYTES, TriangleRecord, VDT_MAGIC, VDT_VERSION,
 };
-pub use metadata::{BuildInfo, InputInfo, Metadata};
+pub use metadata::{BuildInfo, InputInfo, MAX_PARTS, Metadata, NO_PART, PartInfo};
 pub use output::{OutputError, resolve_output, same_file, write_atomically};
 pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};
 pub use write::{

@@ -172,6 +172,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         if !(OLDEST_READABLE_VERSION..=VDT_VERSION).contains(&header.version.get()) {
             return Err(VdtError::Version {
                 expected: VDT_VERSION,
+                oldest: OLDEST_READABLE_VERSION,
                 got: header.version.get(),
             });
         }
@@ -203,6 +204,7 @@ impl<B: AsRef<[u8]>> VdtFile<B> {
         aligned.extend_from_slice(&data[start..end]);
         let metadata = rkyv::from_bytes::<Metadata, rkyv::rancor::Error>(&aligned)
             .map_err(|e| VdtError::invalid("metadata", format!("does not decode: {e}")))?;
+        metadata.check(header.triangle_count.get())?;
 
         let section = header.directory;
         let (start, end) = check_range(

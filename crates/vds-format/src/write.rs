@@ -278,6 +278,8 @@ pub fn encode<N: NodeSource>(
             ));
         }
     }
+    // A writer never produces a file its readers refuse.
+    content.metadata.check(triangle_at as u64)?;
     let metadata = rkyv::to_bytes::<rkyv::rancor::Error>(&content.metadata)
         .map_err(|e| VdtError::invalid("metadata", e.to_string()))?;
     let metadata_offset = HEADER_BYTES as u64;

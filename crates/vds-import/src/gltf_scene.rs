@@ -1,6 +1,12 @@
 //! glTF 2.0 (`.gltf` with external or embedded buffers, and `.glb`) through the `gltf` crate:
 //! walks the default scene's node hierarchy, applies world transforms, and reads every
-//! triangle primitive (strips and fans converted). Each mesh-carrying node becomes a part.
+//! triangle primitive (strips and fans converted). Each instance of a node whose mesh has
+//! triangles becomes a part, and so does each instance of a node above one (a grouping node
+//! such as `Engine` or `Block`), so the parts keep the assembly's tree: a part's parent is
+//! the part of its nearest ancestor node. Names are the node's own (the path
+//! `Engine/Block/Bolt_12` is the chain of parents). A part's colour is its primitives'
+//! material `baseColorFactor`, weighted by their triangles; textures are not read, and a
+//! primitive without a material adds no colour.
 //!
 //! Buffer URIs resolve inside the model's folder (see [`crate::uri`]), external buffers are
 //! read only up to their `byteLength`, and the instance tree is counted before it is
@@ -84,8 +90,16 @@ pub fn read_gltf(
     check_expansion(&document, &roots, options.max_triangles)?;
     let buffers = load_buffers(&document, blob, options)?;
     let mut on_path = vec![false; document.nodes().len()];
+    let mut ancestors = Vec::new();
     for root in roots {
-        walk(&root, DMat4::IDENTITY, 0, &mut on_path, &buffers, soup)?;
+        walk(
+            &root,
+            DMat4::IDENTITY,
+            &mut ancestors,
+            &mut on_path,
+            &buffers,
+            soup,
+        )?;
     }
     Ok(())
 }
@@ -127,7 +141,8 @@ struct Expansion {
     vertices: u64,
     instances: u64,
     /// Memory the part names of the instances take (each instance of a mesh with triangles
-    /// is a part): a 1 MB name instanced a million times is a terabyte of names.
+    /// is a part, and so is each instance of a node above one): a 1 MB name instanced a
+    /// million times is a terabyte of names.
     name_bytes: u64,
 }
 
@@ -144,11 +159,12 @@ impl Expansion {
 /// each: 256 MiB, far beyond any real assembly's names (a million parts of 200 characters).
 const MAX_NAME_BYTES: u64 = 1 << 28;
 
-/// The name of the part a mesh node's instance becomes: the node's name, else the mesh's,
-/// else `node N`.
-fn part_name(node: &gltf::Node, mesh: &gltf::Mesh) -> String {
+/// The name of the part a node's instance becomes: the node's name, else its mesh's, else
+/// `node N`.
+fn part_name(node: &gltf::Node) -> String {
+    let mesh = node.mesh();
     node.name()
-        .or(mesh.name())
+        .or(mesh.as_ref().and_then(|m| m.name()))
         .map_or_else(|| format!("node {}", node.index()), str::to_string)
 }
 
@@ -286,14 +302,17 @@ fn node_expansion(
             .mesh()
             .map_or_else(Expansion::default, |m| meshes[m.index()])
     };
-    if let Some(mesh) = node.mesh()
-        && out.triangles > 0
-    {
-        out.name_bytes = 24 + part_name(node, &mesh).len() as u64;
-    }
     for child in node.children() {
         out.add(node_expansion(&child, depth + 1, meshes, memo, on_path)?);
     }
+    // A part per instance with triangles of its own, or with triangles below it.
+    if out.triangles > 0 {
+        out.name_bytes = out
+            .name_bytes
+            .saturating_add(24 + size_of::<crate::PartInfo>() as u64)
+            .saturating_add(part_name(node).len() as u64);
+    }
+
     on_path[node.index()] = false;
     memo[node.index()] = Some(out);
     Ok(out)
@@ -439,10 +458,18 @@ fn load_buffers(
     Ok(out)
 }
 
-fn walk(
-    node: &gltf::Node,
+/// A node on the path from a root to the node being walked, and the part its instance
+/// became on this path, once one has (an ancestor becomes a part only when a node below it
+/// has triangles, so that grouping nodes without geometry leave no parts).
+struct Ancestor<'a> {
+    node: gltf::Node<'a>,
+    part: Option<u32>,
+}
+
+fn walk<'a>(
+    node: &gltf::Node<'a>,
     parent: DMat4,
-    depth: usize,
+    ancestors: &mut Vec<Ancestor<'a>>,
     on_path: &mut [bool],
     buffers: &[Buffer],
     soup: &mut MeshSoup,
@@ -451,7 +478,7 @@ fn walk(
         kind: "node".into(),
         index: node.index() as u64,
     };
-    if depth > MAX_NODE_DEPTH || on_path[node.index()] {
+    if ancestors.len() > MAX_NODE_DEPTH || on_path[node.index()] {
         return Err(FormatError::syntax(
             at(),
             "node hierarchy has a cycle or is too deep",
@@ -460,21 +487,46 @@ fn walk(
     on_path[node.index()] = true;
     let local = node.transform().matrix().map(|c| c.map(f64::from));
     let world = parent * DMat4::from_cols_array_2d(&local);
+    let mut own_part = None;
     if let Some(mesh) = node.mesh() {
         // The part is named only once it has triangles: a mesh of empty primitives
-        // instanced many times must not leave a name per instance.
-        let part = soup.part_names.len() as u32;
+        // instanced many times must not leave a name per instance. Its id comes after the
+        // ancestors that become parts with it.
+        let pending = ancestors.iter().filter(|a| a.part.is_none()).count();
+        let part = (soup.part_names.len() + pending) as u32;
         let before = soup.triangles.len();
+        let mut color = crate::soup::ColorSum::default();
         for primitive in mesh.primitives() {
+            let first = soup.triangles.len();
             read_primitive(&mesh, &primitive, &world, buffers, part, soup)?;
+            let material = primitive.material();
+            if material.index().is_some() {
+                let rgba = material.pbr_metallic_roughness().base_color_factor();
+                color.add_weighted(rgba.map(f64::from), (soup.triangles.len() - first) as u64);
+            }
         }
         if soup.triangles.len() > before {
-            soup.begin_part(part_name(node, &mesh));
+            let mut above = None;
+            for ancestor in ancestors.iter_mut() {
+                let id = *ancestor
+                    .part
+                    .get_or_insert_with(|| soup.begin_child_part(part_name(&ancestor.node), above));
+                above = Some(id);
+            }
+            let id = soup.begin_child_part(part_name(node), above);
+            debug_assert_eq!(id, part);
+            soup.parts[id as usize].color = color.mean();
+            own_part = Some(id);
         }
     }
+    ancestors.push(Ancestor {
+        node: node.clone(),
+        part: own_part,
+    });
     for child in node.children() {
-        walk(&child, world, depth + 1, on_path, buffers, soup)?;
+        walk(&child, world, ancestors, on_path, buffers, soup)?;
     }
+    ancestors.pop();
     on_path[node.index()] = false;
     Ok(())
 }

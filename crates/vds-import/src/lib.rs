@@ -3,7 +3,8 @@
 //!
 //! The vertex tree is global (Luebke's point: small parts merge across objects), so every
 //! input, and every object inside an input, lands in one scene; parts are kept only as a
-//! per-triangle id and a name, for colouring and picking.
+//! per-triangle id and, per part, a name, a colour and a parent in the assembly
+//! ([`PartInfo`]), for colouring, picking and the assembly tree.
 //!
 //! Every malformed input yields an [`ImportError`] naming the file and the line, byte or
 //! element at fault; no reader panics or allocates from a count it has not checked against
@@ -39,8 +40,24 @@ pub struct Scene {
     pub triangle_parts: Vec<u32>,
     /// Part names, in input order.
     pub part_names: Vec<String>,
+    /// Per part name, its parent and colour; empty in scenes made by hand, which means every
+    /// part at the top and none coloured.
+    pub parts: Vec<PartInfo>,
     /// What import and welding did.
     pub stats: ImportStats,
+}
+
+/// What an input says about a part besides its name.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PartInfo {
+    /// The part it belongs to in the assembly (always an earlier part): a glTF node's
+    /// nearest ancestor that is a part. OBJ, STL and PLY parts are flat (none).
+    pub parent: Option<u32>,
+    /// RGBA in `0..=1`: glTF `baseColorFactor` (triangle-weighted over the node's
+    /// primitives; textures are not read), OBJ `Kd` and `d` of the group's materials, PLY
+    /// per-face or per-vertex colours, binary STL VisCAM/SolidView colour words, each
+    /// averaged over the part's triangles. None when the input gives no colour.
+    pub color: Option<[f32; 4]>,
 }
 
 /// Counts of what import and welding changed.
@@ -82,7 +99,7 @@ pub struct ImportOptions {
     /// The most bytes an input may add to memory beyond its own mapped file: what a `.gz`
     /// input decompresses to, and what a glTF's external buffer files hold together.
     pub max_decompressed_bytes: u64,
-    /// Whether glTF URIs may name files outside the model's folder (absolute paths, `..`
+    /// Whether glTF URIs and OBJ `mtllib` paths may name files outside the model's folder (absolute paths, `..`
     /// leaving the folder, symbolic links out of it). Off by default: a model handed to a
     /// batch job must not make it read other files. Schemes other than `data:` and file
     /// paths are refused either way: nothing is fetched from a network.
@@ -126,15 +143,21 @@ pub fn read_file(
     let budget = options
         .max_triangles
         .saturating_sub(soup.triangles.len() as u64);
+    let folder = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     let result = match format {
-        Format::Obj => obj::read_obj(&bytes, &name, &mut file_soup),
+        Format::Obj => {
+            let materials = obj::MaterialFiles {
+                folder,
+                allow_external: options.allow_external_uris,
+            };
+            obj::read_obj(&bytes, &name, Some(&materials), &mut file_soup)
+        }
         Format::Gltf => {
             let gltf_options = gltf_scene::GltfOptions {
-                folder: Some(
-                    path.parent()
-                        .filter(|p| !p.as_os_str().is_empty())
-                        .unwrap_or(Path::new(".")),
-                ),
+                folder: Some(folder),
                 allow_external_uris: options.allow_external_uris,
                 max_triangles: budget,
                 max_buffer_bytes: options.max_decompressed_bytes,
@@ -172,7 +195,7 @@ pub fn read_file(
 
 /// Reads mesh bytes of a known format (for tests and embedders that hold files in memory).
 /// `name` names the part of single-part formats; glTF external buffers are not available
-/// (a URI other than `data:` is an error) and instance trees are limited by
+/// (a URI other than `data:` is an error), OBJ material libraries are not read and instance trees are limited by
 /// [`ImportOptions::DEFAULT_MAX_TRIANGLES`].
 pub fn read_bytes(
     bytes: &[u8],
@@ -181,7 +204,7 @@ pub fn read_bytes(
     soup: &mut MeshSoup,
 ) -> Result<(), FormatError> {
     match format {
-        Format::Obj => obj::read_obj(bytes, name, soup),
+        Format::Obj => obj::read_obj(bytes, name, None, soup),
         Format::Gltf => {
             // No folder to read from: every URI other than `data:` is refused.
             let options = gltf_scene::GltfOptions {

@@ -9,6 +9,15 @@
 //! strips texture and normal indices from faces (the tree needs none, and `tobj` panics on
 //! some out-of-range relative ones).
 //!
+//! Colours come from the `Kd` (and `d`, as alpha) of the materials a group uses, averaged
+//! over its triangles. Material libraries (`mtllib`) are read only for a file read from disk
+//! ([`MaterialFiles`]), resolved like glTF URIs ([`crate::uri::resolve`]: inside the OBJ's
+//! folder unless external URIs are allowed), at most [`MAX_MTL_BYTES`] of them in all and
+//! each file once. A library that is missing, refused, too large or malformed only costs
+//! the colours: the geometry is read as without it. `tobj` starts a new model where a group
+//! switches material; consecutive models of the same name are one part, as they were one
+//! group in the file.
+//!
 //! `tobj` reports what went wrong but not where, so the reader knows how far `tobj` got
 //! and, on the rare error path, rescans the text to name the exact line of a non-finite
 //! coordinate or an out-of-range face index.
@@ -23,6 +32,60 @@ use crate::soup::MeshSoup;
 /// corners written as `v/vt/vn` triples is about 200 KB); the limit bounds what one line can
 /// make `tobj` allocate.
 pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// The most bytes of material libraries one OBJ file may make the reader load, all its
+/// `mtllib` statements together: real libraries are a few kilobytes, and the limit bounds
+/// what a file naming one huge library many times can cost.
+pub const MAX_MTL_BYTES: u64 = 16 << 20;
+
+/// The most `mtllib` statements of one OBJ file that are followed (each costs a file open).
+const MAX_MTL_FILES: usize = 64;
+
+/// Where an OBJ file read from disk may find its material libraries.
+pub struct MaterialFiles<'a> {
+    /// The OBJ file's folder.
+    pub folder: &'a std::path::Path,
+    /// Whether libraries may lie outside it (see [`crate::ImportOptions::allow_external_uris`]).
+    pub allow_external: bool,
+}
+
+impl MaterialFiles<'_> {
+    /// Loads one library for `tobj`, within the budget `loaded` keeps (the files read so far
+    /// and their bytes); any failure is tobj's `OpenFileFailed`, which costs only colours.
+    fn load(
+        &self,
+        name: &std::path::Path,
+        loaded: &std::cell::RefCell<(Vec<std::path::PathBuf>, u64)>,
+    ) -> tobj::MTLLoadResult {
+        let failed = || tobj::LoadError::OpenFileFailed;
+        let name = name.to_str().ok_or_else(failed)?;
+        let path = crate::uri::resolve(name, Some(self.folder), self.allow_external)
+            .map_err(|_| failed())?;
+        let mut loaded = loaded.borrow_mut();
+        if loaded.0.contains(&path) || loaded.0.len() >= MAX_MTL_FILES {
+            // Already merged (or over the statement limit): nothing more to add.
+            return Ok((Vec::new(), Default::default()));
+        }
+        loaded.0.push(path.clone());
+        let inside = (!self.allow_external).then_some(self.folder);
+        let file = crate::uri::open_buffer_file(&path, inside).map_err(|_| failed())?;
+        if loaded.1.saturating_add(file.size) > MAX_MTL_BYTES {
+            return Err(failed());
+        }
+        let bytes = file
+            .read_prefix(MAX_MTL_BYTES - loaded.1)
+            .map_err(|_| failed())?;
+        loaded.1 += bytes.len() as u64;
+        tobj::load_mtl_buf(&mut &bytes[..])
+    }
+}
+
+/// A material's colour: `Kd` with `d` as alpha (1 without it); none without `Kd`.
+fn material_color(material: &tobj::Material) -> Option<[f64; 4]> {
+    let [r, g, b] = material.diffuse?;
+    let a = material.dissolve.unwrap_or(1.0);
+    Some([r, g, b, a].map(f64::from))
+}
 
 /// The text `tobj` should see: no byte-order mark, LF line endings, no over-long line.
 fn prepare(data: &[u8]) -> Result<Cow<'_, [u8]>, FormatError> {
@@ -152,8 +215,14 @@ impl BufRead for ObjReader<'_> {
     }
 }
 
-/// Reads an OBJ file's bytes into `soup`, one part per object or group.
-pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<(), FormatError> {
+/// Reads an OBJ file's bytes into `soup`, one part per object or group, with colours from
+/// the material libraries `materials` lets it read (none: no library is read).
+pub fn read_obj(
+    data: &[u8],
+    default_name: &str,
+    materials: Option<&MaterialFiles>,
+    soup: &mut MeshSoup,
+) -> Result<(), FormatError> {
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: false,
@@ -162,12 +231,14 @@ pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<
     };
     let data = &*prepare(data)?;
     let mut reader = ObjReader::new(data);
-    let loaded = tobj::load_obj_buf(&mut reader, &options, |_| {
-        // Materials carry nothing the vertex tree needs; never touch the file system.
-        Err(tobj::LoadError::OpenFileFailed)
+    let libraries = std::cell::RefCell::new((Vec::new(), 0u64));
+    let loaded = tobj::load_obj_buf(&mut reader, &options, |name| match materials {
+        Some(files) => files.load(name, &libraries),
+        // Bytes from memory: never touch the file system.
+        None => Err(tobj::LoadError::OpenFileFailed),
     });
-    let models = match loaded {
-        Ok((models, _materials)) => models,
+    let (models, materials) = match loaded {
+        Ok((models, materials)) => (models, materials.unwrap_or_default()),
         Err(tobj::LoadError::FaceVertexOutOfBounds) => return Err(locate_bad_face_index(data)),
         Err(error) => {
             return Err(FormatError::syntax(
@@ -176,17 +247,43 @@ pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<
             ));
         }
     };
-    for (model_index, model) in models.iter().enumerate() {
-        let name = if model.name.is_empty() || model.name == "unnamed_object" {
-            if models.len() == 1 {
-                default_name.to_string()
-            } else {
-                format!("{default_name}#{model_index}")
+    // tobj splits a group where its material changes: one part per run of equal names.
+    let mut groups = 0usize;
+    let mut previous: Option<&str> = None;
+    let mut part = 0u32;
+    let mut color = crate::soup::ColorSum::default();
+    let distinct = models
+        .iter()
+        .enumerate()
+        .filter(|(i, m)| *i == 0 || models[i - 1].name != m.name)
+        .count();
+    for model in &models {
+        if previous != Some(model.name.as_str()) {
+            if previous.is_some() {
+                soup.parts[part as usize].color = color.mean();
             }
-        } else {
-            model.name.clone()
-        };
-        let part = soup.begin_part(name);
+            color = Default::default();
+            let name = if model.name.is_empty() || model.name == "unnamed_object" {
+                if distinct == 1 {
+                    default_name.to_string()
+                } else {
+                    format!("{default_name}#{groups}")
+                }
+            } else {
+                model.name.clone()
+            };
+            groups += 1;
+            part = soup.begin_part(name);
+            previous = Some(model.name.as_str());
+        }
+        if let Some(rgba) = model
+            .mesh
+            .material_id
+            .and_then(|m| materials.get(m))
+            .and_then(material_color)
+        {
+            color.add_weighted(rgba, (model.mesh.indices.len() / 3) as u64);
+        }
         let mesh = &model.mesh;
         let base = soup.positions.len();
         for p in mesh.positions.chunks_exact(3) {
@@ -209,6 +306,9 @@ pub fn read_obj(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<
             }
             soup.push_polygon(part, &corners);
         }
+    }
+    if previous.is_some() {
+        soup.parts[part as usize].color = color.mean();
     }
     Ok(())
 }

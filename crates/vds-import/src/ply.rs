@@ -1,5 +1,10 @@
 //! Stanford PLY: ASCII, binary little-endian and binary big-endian, any property layout
-//! (extra vertex properties such as normals, colours and flags are skipped), polygon faces.
+//! (extra properties such as normals and flags are skipped), polygon faces.
+//!
+//! Colour: scalar `red`, `green`, `blue` (and `alpha`; also `diffuse_red` ...) of the faces,
+//! else of the vertices, scaled to `0..=1` (integers by their type's largest value, floats
+//! as they are) and averaged per part over its triangles (a triangle's colour is its face's,
+//! or the mean of its corners').
 //!
 //! Hand-written: the PLY crates on crates.io (`ply-rs`) are unmaintained and allocate from
 //! header counts without checking them against the file. This reader checks every count
@@ -59,6 +64,59 @@ impl Scalar {
     fn is_integer(self) -> bool {
         !matches!(self, Scalar::F32 | Scalar::F64)
     }
+}
+
+impl Scalar {
+    /// A colour component of this type scaled to `0..=1` (clamped; integers by their
+    /// type's largest value, floats as they are).
+    fn unit(self, value: f64) -> f64 {
+        let largest = match self {
+            Scalar::I8 => f64::from(i8::MAX),
+            Scalar::U8 => f64::from(u8::MAX),
+            Scalar::I16 => f64::from(i16::MAX),
+            Scalar::U16 => f64::from(u16::MAX),
+            Scalar::I32 => f64::from(i32::MAX),
+            Scalar::U32 => f64::from(u32::MAX),
+            Scalar::F32 | Scalar::F64 => 1.0,
+        };
+        (value / largest).clamp(0.0, 1.0)
+    }
+}
+
+/// Which colour channel (red, green, blue, alpha) a property name is.
+fn color_channel(name: &str) -> Option<usize> {
+    match name.strip_prefix("diffuse_").unwrap_or(name) {
+        "red" => Some(0),
+        "green" => Some(1),
+        "blue" => Some(2),
+        "alpha" => Some(3),
+        _ => None,
+    }
+}
+
+/// The property slots of an element's colour channels, when it has red, green and blue
+/// scalars (alpha optional).
+fn color_slots(element: &Element) -> Option<[Option<usize>; 4]> {
+    let mut slots = [None; 4];
+    for (index, property) in element.properties.iter().enumerate() {
+        if let Property::Scalar { name, .. } = property
+            && let Some(channel) = color_channel(name)
+        {
+            slots[channel].get_or_insert(index);
+        }
+    }
+    slots[..3].iter().all(Option::is_some).then_some(slots)
+}
+
+/// A row's colour from the values of its colour slots (alpha 1 when there is none).
+fn row_color(values: &[f64; 4], slots: &[Option<usize>; 4]) -> [f32; 4] {
+    let mut rgba = [1f32; 4];
+    for k in 0..4 {
+        if slots[k].is_some() {
+            rgba[k] = values[k] as f32;
+        }
+    }
+    rgba
 }
 
 #[derive(Debug, Clone)]
@@ -404,7 +462,11 @@ fn read_body(
         .map_or(0, |e| e.count);
     let base = soup.positions.len();
     let part = soup.begin_part(name);
+    let first_triangle = soup.triangles.len();
     let mut saw_faces = false;
+    // This file's vertex colours, and one colour per triangle when the faces have them.
+    let mut vertex_colors: Vec<[f32; 4]> = Vec::new();
+    let mut triangle_colors: Vec<[f32; 4]> = Vec::new();
     for element in &header.elements {
         let min_row_bytes: usize = element
             .properties
@@ -427,15 +489,32 @@ fn read_body(
         }
         match element.name.as_str() {
             "vertex" => {
-                if !fast::read_vertices(element, values, soup)? {
-                    read_vertices(element, values, soup)?;
+                if !fast::read_vertices(element, values, soup, &mut vertex_colors)? {
+                    read_vertices(element, values, soup, &mut vertex_colors)?;
                 }
             }
             "face" => {
                 saw_faces = true;
                 let mut parts = PartMap::new(name, part);
-                if !fast::read_faces(element, values, vertex_count, base, &mut parts, soup)? {
-                    read_faces(element, values, vertex_count, base, &mut parts, soup)?;
+                let faces = fast::read_faces(
+                    element,
+                    values,
+                    vertex_count,
+                    base,
+                    &mut parts,
+                    soup,
+                    &mut triangle_colors,
+                )?;
+                if !faces {
+                    read_faces(
+                        element,
+                        values,
+                        vertex_count,
+                        base,
+                        &mut parts,
+                        soup,
+                        &mut triangle_colors,
+                    )?;
                 }
             }
             _ => skip_rows(element, values)?,
@@ -447,14 +526,62 @@ fn read_body(
             Problem::Unsupported("PLY 'tristrips' element without 'face'".into()),
         ));
     }
+    set_part_colors(
+        soup,
+        part,
+        first_triangle,
+        base,
+        &vertex_colors,
+        &triangle_colors,
+    );
     Ok(())
+}
+
+/// Averages the colours of this file's triangles (from `first_triangle` on) per part:
+/// `triangle_colors` when the faces had colours (one per triangle), else the mean of the
+/// corners' `vertex_colors` (indexed from `base`), else nothing.
+fn set_part_colors(
+    soup: &mut MeshSoup,
+    first_part: u32,
+    first_triangle: usize,
+    base: usize,
+    vertex_colors: &[[f32; 4]],
+    triangle_colors: &[[f32; 4]],
+) {
+    let triangles = soup.triangles.len() - first_triangle;
+    let by_face = triangle_colors.len() == triangles;
+    if !by_face && vertex_colors.len() + base != soup.positions.len() {
+        return; // No colours, or not one per vertex and per triangle.
+    }
+    let mut sums =
+        vec![crate::soup::ColorSum::default(); soup.part_names.len() - first_part as usize];
+    for t in 0..triangles {
+        let rgba = if by_face {
+            triangle_colors[t].map(f64::from)
+        } else {
+            let mut mean = [0f64; 4];
+            for &corner in &soup.triangles[first_triangle + t] {
+                let c = vertex_colors[corner as usize - base];
+                for k in 0..4 {
+                    mean[k] += f64::from(c[k]) / 3.0;
+                }
+            }
+            mean
+        };
+        sums[(soup.triangle_parts[first_triangle + t] - first_part) as usize].add(rgba);
+    }
+    for (k, sum) in sums.iter().enumerate() {
+        soup.parts[first_part as usize + k].color = sum.mean();
+    }
 }
 
 fn read_vertices(
     element: &Element,
     values: &mut impl Values,
     soup: &mut MeshSoup,
+    colors: &mut Vec<[f32; 4]>,
 ) -> Result<(), FormatError> {
+    let color_slots = color_slots(element);
     let axis = |axis: &str| {
         element
             .properties
@@ -469,8 +596,12 @@ fn read_vertices(
     };
     let slots = [axis("x")?, axis("y")?, axis("z")?];
     soup.positions.reserve(element.count as usize);
+    if color_slots.is_some() {
+        colors.reserve(element.count as usize);
+    }
     for row in 0..element.count {
         let mut p = [0f32; 3];
+        let mut color = [0f64; 4];
         for (index, property) in element.properties.iter().enumerate() {
             match property {
                 Property::Scalar { ty, .. } => {
@@ -478,9 +609,17 @@ fn read_vertices(
                     if let Some(axis) = slots.iter().position(|&s| s == index) {
                         p[axis] = value as f32;
                     }
+                    if let Some(channel) =
+                        color_slots.and_then(|c| c.iter().position(|&s| s == Some(index)))
+                    {
+                        color[channel] = ty.unit(value);
+                    }
                 }
                 Property::List { count, item, .. } => skip_list(values, *count, *item)?,
             }
+        }
+        if let Some(slots) = &color_slots {
+            colors.push(row_color(&color, slots));
         }
         soup.push_vertex(p, || Location::Element {
             kind: "vertex".into(),
@@ -540,8 +679,10 @@ fn read_faces(
     base: usize,
     parts: &mut PartMap,
     soup: &mut MeshSoup,
+    triangle_colors: &mut Vec<[f32; 4]>,
 ) -> Result<(), FormatError> {
     let part_slot = part_slot(element);
+    let color_slots = color_slots(element);
     let corners_slot = element
         .properties
         .iter()
@@ -560,6 +701,7 @@ fn read_faces(
     let mut corners: Vec<u32> = Vec::new();
     for row in 0..element.count {
         let mut part_value = None;
+        let mut color = [0f64; 4];
         for (index, property) in element.properties.iter().enumerate() {
             match property {
                 Property::List { count, item, .. } if index == corners_slot => {
@@ -597,12 +739,22 @@ fn read_faces(
                     part_value = Some(values.integer(*ty)?);
                 }
                 Property::Scalar { ty, .. } => {
-                    values.real(*ty)?;
+                    let value = values.real(*ty)?;
+                    if let Some(channel) =
+                        color_slots.and_then(|c| c.iter().position(|&s| s == Some(index)))
+                    {
+                        color[channel] = ty.unit(value);
+                    }
                 }
             }
         }
         let part = parts.part(part_value, soup);
+        let before = soup.triangles.len();
         soup.push_polygon(part, &corners);
+        if let Some(slots) = &color_slots {
+            let rgba = row_color(&color, slots);
+            triangle_colors.extend(std::iter::repeat_n(rgba, soup.triangles.len() - before));
+        }
     }
     Ok(())
 }
@@ -647,7 +799,7 @@ fn skip_rows(element: &Element, values: &mut impl Values) -> Result<(), FormatEr
 mod fast {
     use rayon::prelude::*;
 
-    use super::{Element, PartMap, Property, Scalar, Values, part_slot};
+    use super::{Element, PartMap, Property, Scalar, Values, color_slots, part_slot, row_color};
     use crate::error::FormatError;
     use crate::soup::{MeshSoup, check_position};
 
@@ -697,10 +849,47 @@ mod fast {
         raw.par_chunks_exact(stride).map(&read).collect()
     }
 
+    /// One colour per fixed-size row of `raw`, when the element has colour slots.
+    fn row_colors(
+        element: &Element,
+        raw: &[u8],
+        stride: usize,
+        big_endian: bool,
+    ) -> Option<Vec<[f32; 4]>> {
+        let slots = color_slots(element)?;
+        // Byte offsets and types of the colour properties (every property before them is a
+        // scalar or a triangle list of this layout, whose sizes the caller summed the same way).
+        let mut at = Vec::new();
+        let mut offset = 0;
+        for (index, property) in element.properties.iter().enumerate() {
+            match property {
+                Property::Scalar { ty, .. } => {
+                    if let Some(channel) = slots.iter().position(|&s| s == Some(index)) {
+                        at.push((channel, offset, *ty));
+                    }
+                    offset += ty.size();
+                }
+                Property::List { count, item, .. } => offset += count.size() + 3 * item.size(),
+            }
+        }
+        Some(
+            raw.par_chunks_exact(stride)
+                .map(|row| {
+                    let mut color = [0f64; 4];
+                    for &(channel, offset, ty) in &at {
+                        color[channel] = ty.unit(scalar(&row[offset..], ty, big_endian));
+                    }
+                    row_color(&color, &slots)
+                })
+                .collect(),
+        )
+    }
+
     pub(super) fn read_vertices(
         element: &Element,
         values: &mut impl Values,
         soup: &mut MeshSoup,
+        colors: &mut Vec<[f32; 4]>,
     ) -> Result<bool, FormatError> {
         let Some((raw, big_endian)) = values.raw() else {
             return Ok(false);
@@ -748,6 +937,9 @@ mod fast {
             soup.positions = positions;
         } else {
             soup.positions.extend(positions);
+        }
+        if let Some(found) = row_colors(element, raw, stride, big_endian) {
+            *colors = found;
         }
         values.skip_bytes(bytes);
         Ok(true)
@@ -822,6 +1014,7 @@ mod fast {
         base: usize,
         parts: &mut PartMap,
         soup: &mut MeshSoup,
+        triangle_colors: &mut Vec<[f32; 4]>,
     ) -> Result<bool, FormatError> {
         let Some((raw, big_endian)) = values.raw() else {
             return Ok(false);
@@ -934,6 +1127,9 @@ mod fast {
             };
         }
         soup.triangle_parts = triangle_parts;
+        if let Some(found) = row_colors(element, raw, stride, big_endian) {
+            triangle_colors.extend(found);
+        }
         values.skip_bytes(bytes);
         Ok(true)
     }

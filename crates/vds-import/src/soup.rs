@@ -1,5 +1,7 @@
-//! The triangle soup that format readers fill: positions, triangles, and a part id per
-//! triangle, before any welding. Polygons are fan-triangulated here, in one place.
+//! The triangle soup that format readers fill: positions, triangles, a part id per
+//! triangle, and per part its name, colour and parent, before any welding. Polygons are
+//! fan-triangulated here, in one place; colours are averaged per part here
+//! ([`ColorSum`]).
 
 use crate::error::{FormatError, Location, Problem};
 
@@ -18,14 +20,27 @@ pub struct MeshSoup {
     pub triangle_parts: Vec<u32>,
     /// One name per part (an OBJ object/group, a glTF node, a file).
     pub part_names: Vec<String>,
+    /// One entry per part name: its parent and colour.
+    pub parts: Vec<crate::PartInfo>,
     /// Faces with fewer than three corners that readers skipped.
     pub short_faces_dropped: u64,
 }
 
 impl MeshSoup {
-    /// Starts a new part and returns its id.
+    /// Starts a new part at the top of the assembly, without a colour, and returns its id.
     pub fn begin_part(&mut self, name: impl Into<String>) -> u32 {
+        self.begin_child_part(name, None)
+    }
+
+    /// Starts a new part under `parent` (an earlier part), without a colour, and returns
+    /// its id.
+    pub fn begin_child_part(&mut self, name: impl Into<String>, parent: Option<u32>) -> u32 {
+        debug_assert!(parent.is_none_or(|p| (p as usize) < self.part_names.len()));
         self.part_names.push(name.into());
+        self.parts.push(crate::PartInfo {
+            parent,
+            color: None,
+        });
         (self.part_names.len() - 1) as u32
     }
 
@@ -73,6 +88,11 @@ impl MeshSoup {
         self.triangle_parts
             .extend(other.triangle_parts.iter().map(|p| p + part_base));
         self.part_names.extend(other.part_names);
+        self.parts
+            .extend(other.parts.into_iter().map(|p| crate::PartInfo {
+                parent: p.parent.map(|q| q + part_base),
+                color: p.color,
+            }));
         self.short_faces_dropped += other.short_faces_dropped;
     }
 }
@@ -111,5 +131,41 @@ pub(crate) fn check_index(
                 vertex_count: vertex_count as u64,
             },
         ))
+    }
+}
+
+/// A running sum of RGBA samples (each component in `0..=1`), for a part's average colour.
+/// Samples are added in file order and summed in `f64`, so the average is deterministic.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct ColorSum {
+    sum: [f64; 4],
+    count: u64,
+}
+
+impl ColorSum {
+    /// Adds one sample; components are clamped to `0..=1`, and a sample with a NaN is
+    /// skipped.
+    pub(crate) fn add(&mut self, rgba: [f64; 4]) {
+        self.add_weighted(rgba, 1);
+    }
+
+    /// Adds a sample that stands for `weight` samples (a primitive's colour for each of its
+    /// triangles).
+    pub(crate) fn add_weighted(&mut self, rgba: [f64; 4], weight: u64) {
+        if rgba.iter().any(|c| c.is_nan()) || weight == 0 {
+            return;
+        }
+        for (s, c) in self.sum.iter_mut().zip(rgba) {
+            *s += c.clamp(0.0, 1.0) * weight as f64;
+        }
+        self.count += weight;
+    }
+
+    /// The average, if any sample was added.
+    pub(crate) fn mean(&self) -> Option<[f32; 4]> {
+        (self.count > 0).then(|| {
+            self.sum
+                .map(|s| ((s / self.count as f64) as f32).clamp(0.0, 1.0))
+        })
     }
 }

@@ -1,6 +1,15 @@
 //! STL, binary and ASCII. STL stores three vertex positions per triangle and shares nothing,
 //! so every triangle adds three vertices here and welding (in `weld`) joins them.
 //!
+//! Colour: binary STL has no standard for it, but two conventions use each facet's 16-bit
+//! attribute word. The common one, VisCAM and SolidView's, is read by default: bit 15 set
+//! means the facet has a colour, bits 10–14 red, 5–9 green, 0–4 blue (5 bits each). A file
+//! whose 80-byte header holds `COLOR=` follows Materialise Magics instead: the four bytes
+//! after it are the object's RGBA, and a facet with bit 15 *clear* has its own colour, red
+//! in bits 0–4, green 5–9, blue 10–14. The part's colour is the average over its facets
+//! that have one (the object colour standing in for the others under Magics); none if no
+//! facet has one. ASCII STL has no colour.
+//!
 //! Hand-written rather than through `stl_io`: the format is a 50-byte record or a handful of
 //! keywords, and we need typed errors with byte and line positions and a triangle count that
 //! is checked against the file size before anything is allocated.
@@ -55,6 +64,8 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
         ));
     }
     let part = soup.begin_part(name);
+    let convention = ColorConvention::of_header(&data[..HEADER_BYTES]);
+    let mut color = crate::soup::ColorSum::default();
     soup.positions.reserve(count as usize * 3);
     soup.triangles.reserve(count as usize);
     soup.triangle_parts.reserve(count as usize);
@@ -63,7 +74,10 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
         .take(count as usize)
         .enumerate()
     {
-        // Bytes 0..12 are the facet normal, 48..50 the attribute word: neither is used.
+        // Bytes 0..12 are the facet normal (not used), 48..50 the attribute word.
+        if let Some(rgba) = convention.facet(u16::from_le_bytes([record[48], record[49]])) {
+            color.add(rgba);
+        }
         let mut corners = [0u32; 3];
         for (k, corner) in corners.iter_mut().enumerate() {
             let at = 12 + 12 * k;
@@ -81,7 +95,44 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
         }
         soup.push_polygon(part, &corners);
     }
+    soup.parts[part as usize].color = color.mean();
     Ok(())
+}
+
+/// How a binary STL stores facet colours in the attribute word (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum ColorConvention {
+    /// VisCAM / SolidView: bit 15 set means valid, red in the high bits.
+    VisCam,
+    /// Materialise Magics: bit 15 clear means the facet's own colour, red in the low bits;
+    /// the header's `COLOR=` RGBA otherwise.
+    Magics { object: [f64; 4] },
+}
+
+impl ColorConvention {
+    fn of_header(header: &[u8]) -> ColorConvention {
+        const KEY: &[u8] = b"COLOR=";
+        match header.windows(KEY.len()).position(|w| w == KEY) {
+            Some(at) if at + KEY.len() + 4 <= header.len() => {
+                let b = &header[at + KEY.len()..at + KEY.len() + 4];
+                ColorConvention::Magics {
+                    object: [0, 1, 2, 3].map(|k| f64::from(b[k]) / 255.0),
+                }
+            }
+            _ => ColorConvention::VisCam,
+        }
+    }
+
+    /// The colour a facet's attribute word gives it, if any.
+    fn facet(self, word: u16) -> Option<[f64; 4]> {
+        let five = |shift: u16| f64::from((word >> shift) & 31) / 31.0;
+        let valid = word & 0x8000 != 0;
+        match self {
+            ColorConvention::VisCam => valid.then(|| [five(10), five(5), five(0), 1.0]),
+            ColorConvention::Magics { object } if valid => Some(object),
+            ColorConvention::Magics { .. } => Some([five(0), five(5), five(10), 1.0]),
+        }
+    }
 }
 
 fn read_ascii(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<(), FormatError> {

@@ -32,6 +32,7 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         mut triangles,
         mut triangle_parts,
         part_names,
+        parts,
         short_faces_dropped,
     } = soup;
     let input_vertices = positions.len() as u64;
@@ -133,6 +134,7 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         triangles,
         triangle_parts,
         part_names,
+        parts,
     }
 }
 
@@ -459,6 +461,7 @@ mod tests {
             triangles,
             triangle_parts,
             part_names: (0..7).map(|k| format!("part {k}")).collect(),
+            parts: vec![Default::default(); 7],
             short_faces_dropped: 0,
         };
         let (positions, triangles, parts) = reference_weld(&soup);

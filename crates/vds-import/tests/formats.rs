@@ -447,7 +447,10 @@ fn gltf(positions: &[[f32; 3]], indices: &[u32], mode: u32, translation: [f32; 3
 fn gltf_applies_world_transforms_and_names_parts_after_nodes() {
     let text = gltf(&SQUARE, &[0, 1, 2, 0, 2, 3], 4, [10.0, 0.0, 0.0]);
     let soup = read(text.as_bytes(), Format::Gltf).unwrap();
-    assert_eq!(soup.part_names, vec!["bracket"]);
+    // The transforming root node is the assembly above the bracket.
+    assert_eq!(soup.part_names, vec!["root", "bracket"]);
+    assert_eq!(soup.parts[1].parent, Some(0));
+    assert_eq!(soup.triangle_parts, [1, 1]);
     assert_eq!(soup.triangles.len(), 2);
     assert_eq!(soup.positions[1], [11.0, 0.0, 0.0]);
 }

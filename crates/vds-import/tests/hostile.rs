@@ -391,14 +391,15 @@ fn gltf_many_instances_of_one_mesh_are_refused_above_the_limit() {
         message.contains("'assembly'") && message.contains("--max-triangles"),
         "{message}"
     );
-    // The same file within a limit that holds it reads every instance.
+    // The same file within a limit that holds it reads every instance: a part each, under
+    // the 'assembly' part.
     let options = ImportOptions {
         max_triangles: 20_000,
         ..Default::default()
     };
     assert_eq!(
         load_file(&model, &options).unwrap().part_names.len(),
-        20_000
+        20_001
     );
 }
 
@@ -688,5 +689,6 @@ fn gltf_part_names_are_not_multiplied_by_empty_instances() {
     std::fs::write(&model, text).unwrap();
     let scene = load_file(&model, &ImportOptions::default()).unwrap();
     assert_eq!(scene.triangles.len(), 1);
-    assert_eq!(scene.part_names, vec!["part"]);
+    // The root is a part too (the assembly above "part"), once, not once per instance.
+    assert_eq!(scene.part_names, vec!["root", "part"]);
 }

@@ -229,6 +229,7 @@ fn golden_images_of_the_bunny_and_a_generated_scene() {
         part_names: (0..generated.part_count)
             .map(|p| format!("part{p}"))
             .collect(),
+        parts: Vec::new(),
         stats: Default::default(),
     };
     let (_, cad) = build(cad);

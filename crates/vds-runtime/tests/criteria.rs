@@ -46,6 +46,7 @@ fn sphere(segments: u32, rings: u32) -> Scene {
         triangles,
         triangle_parts: vec![0; count],
         part_names: vec!["sphere".into()],
+        parts: Vec::new(),
         stats: Default::default(),
     }
 }
@@ -252,6 +253,7 @@ fn plate(n: u32, h: f32) -> Scene {
         triangles,
         triangle_parts: vec![0; count],
         part_names: vec!["plate".into()],
+        parts: Vec::new(),
         stats: Default::default(),
     }
 }

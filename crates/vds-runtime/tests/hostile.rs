@@ -193,6 +193,7 @@ fn a_leaf_outside_its_parent_error_radius_fails_the_load() {
         triangles: vec![[0, 1, 2]],
         triangle_parts: vec![0],
         part_names: vec!["triangle".into()],
+        parts: Vec::new(),
         stats: Default::default(),
     };
     let bytes = lying_file(&mut scene, |tree| {

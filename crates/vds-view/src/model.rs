@@ -101,6 +101,7 @@ fn mesh_of(runtime: &mut Runtime) -> Result<vds_import::Scene> {
         triangles,
         triangle_parts,
         part_names: Vec::new(),
+        parts: Vec::new(),
         stats: Default::default(),
     })
 }

@@ -392,6 +392,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
                     page_bytes: vds_format::DEFAULT_PAGE_BYTES,
                 },
                 part_names: scene.part_names.clone(),
+                parts: vds_build::part_records(&scene),
                 input_vertices: scene.stats.input_vertices,
                 input_triangles: scene.stats.input_triangles,
                 degree_histogram,

@@ -1,6 +1,11 @@
 //! `vds-info`: what is inside a `.vdt` file; `--verify` decodes every page, checks every
 //! checksum, every figure of the header and metadata against the pages, and every
-//! vertex-tree invariant.
+//! vertex-tree invariant; `--parts` prints the assembly as an indented tree. `--json` lists
+//! every part (name, path, colour, parent, triangles) in `part_list`.
+//!
+//! Per-part triangle counts are the ones the file's metadata states (`vds-build` counts
+//! them when it writes the file, and `--verify` holds them to the pages); a file that states
+//! none has them counted from its pages here.
 //!
 //! Exit codes: 0 the file opened (and, with `--verify`, is intact), 1 it is not, 2 bad
 //! command line.
@@ -24,6 +29,24 @@ struct Args {
     /// invariant.
     #[arg(long)]
     verify: bool,
+    /// Print the parts as an indented tree (with `--json`: no effect, `part_list` has them).
+    #[arg(long)]
+    parts: bool,
+}
+
+/// One part, as `--json` lists it.
+#[derive(Serialize)]
+struct PartEntry {
+    /// Its index: triangles name it by this id.
+    index: usize,
+    name: String,
+    /// The names from the top of the assembly down to it, joined by `/`.
+    path: String,
+    /// RGBA in 0..1, or null.
+    color: Option<[f32; 4]>,
+    /// The index of its parent part, or null at the top.
+    parent: Option<u32>,
+    triangles: u64,
 }
 
 #[derive(Serialize)]
@@ -38,6 +61,7 @@ struct Info {
     depth: u32,
     degree_histogram: [u64; 9],
     parts: usize,
+    part_list: Vec<PartEntry>,
     pages: u32,
     page_compressed_bytes: PageSizes,
     raw_page_bytes: u64,
@@ -88,6 +112,24 @@ fn run(args: &Args) -> Result<()> {
         .map(|p| u64::from(p.raw_length.get()))
         .sum();
     let compressed: u64 = sizes.iter().map(|&s| u64::from(s)).sum();
+    let part_triangles: Vec<u64> = if metadata.parts.is_empty() && !metadata.part_names.is_empty() {
+        let figures = vds_format::TreeFigures::of_file(&file)?;
+        (0..metadata.part_names.len())
+            .map(|i| figures.part_triangles.get(i).copied().unwrap_or(0))
+            .collect()
+    } else {
+        metadata.parts.iter().map(|p| p.triangles).collect()
+    };
+    let part_list: Vec<PartEntry> = (0..metadata.part_names.len())
+        .map(|i| PartEntry {
+            index: i,
+            name: metadata.part_names[i].clone(),
+            path: metadata.part_path(i),
+            color: metadata.part_color(i),
+            parent: metadata.part_parent(i),
+            triangles: part_triangles[i],
+        })
+        .collect();
     let info = Info {
         file: args.file.display().to_string(),
         version: header.version.get(),
@@ -99,6 +141,7 @@ fn run(args: &Args) -> Result<()> {
         depth: header.max_depth.get(),
         degree_histogram: metadata.degree_histogram,
         parts: metadata.part_names.len(),
+        part_list,
         pages: header.page_count.get(),
         page_compressed_bytes: PageSizes {
             min: sizes[0],
@@ -168,5 +211,49 @@ fn run(args: &Args) -> Result<()> {
             "  verified: every page checksum, every stated figure and every tree invariant holds"
         );
     }
+    if args.parts {
+        print_part_tree(&info.part_list);
+    }
     Ok(())
+}
+
+/// Prints the parts as a tree, children indented two spaces under their parent, in index
+/// order among siblings: `name  (N triangles, colour #rrggbbaa)`.
+fn print_part_tree(parts: &[PartEntry]) {
+    println!("parts:");
+    let mut children: Vec<Vec<usize>> = vec![Vec::new(); parts.len()];
+    let mut roots = Vec::new();
+    for part in parts {
+        match part.parent {
+            // Parents precede their children (the reader checks it), so this is a forest.
+            Some(p) => children[p as usize].push(part.index),
+            None => roots.push(part.index),
+        }
+    }
+    // Depth first, without recursion (a hostile file may nest its parts deeply).
+    let mut stack: Vec<(usize, usize)> = roots.iter().rev().map(|&r| (r, 1)).collect();
+    while let Some((index, depth)) = stack.pop() {
+        let part = &parts[index];
+        let color = match part.color {
+            Some(c) => {
+                let byte = |v: f32| (v * 255.0).round() as u8;
+                format!(
+                    ", colour #{:02x}{:02x}{:02x}{:02x}",
+                    byte(c[0]),
+                    byte(c[1]),
+                    byte(c[2]),
+                    byte(c[3])
+                )
+            }
+            None => String::new(),
+        };
+        println!(
+            "{:indent$}{}  ({} triangles{color})",
+            "",
+            part.name,
+            part.triangles,
+            indent = 2 * depth
+        );
+        stack.extend(children[index].iter().rev().map(|&c| (c, depth + 1)));
+    }
 }
