@@ -44,7 +44,10 @@ fn check(scene: &Scene) {
     // colours within 0..=1.
     assert_eq!(scene.parts.len(), scene.part_names.len());
     for (i, part) in scene.parts.iter().enumerate() {
-        assert!(part.parent.is_none_or(|p| (p as usize) < i), "part {i}'s parent");
+        assert!(
+            part.parent.is_none_or(|p| (p as usize) < i),
+            "part {i}'s parent"
+        );
         assert!(
             part.color
                 .is_none_or(|c| c.iter().all(|v| (0.0..=1.0).contains(v))),

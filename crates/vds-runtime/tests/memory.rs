@@ -25,6 +25,7 @@ fn generated(triangles: u64) -> (Vec<u8>, [f32; 3], f32) {
         triangles: g.triangles,
         triangle_parts: g.triangle_parts,
         part_names: (0..g.part_count).map(|p| format!("part{p}")).collect(),
+        parts: Vec::new(),
         stats: Default::default(),
     };
     let (center, radius) = bounds(&scene.positions);
