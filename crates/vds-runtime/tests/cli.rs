@@ -346,3 +346,68 @@ fn replay_refuses_an_unusable_camera_path_naming_it() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_memory_budget_that_is_not_a_size_is_refused_naming_it() {
+    let dir = temp_dir("budget-bad");
+    let mut scene = load("cow.obj");
+    let file = dir.join("cow.vdt");
+    std::fs::write(&file, vdt_bytes(&mut scene)).unwrap();
+    for bad in ["12parsecs", "-1MiB", "lots"] {
+        let flag = format!("--memory-budget={bad}");
+        let result = vds_cut()
+            .arg(&file)
+            .args(["--orbit", "--threshold", "1", &flag])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(2), "{bad}: {stderr}");
+        assert!(
+            stderr.contains("--memory-budget") && stderr.contains(bad),
+            "{stderr}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_single_camera_cut_under_a_tight_budget_fits_and_reports_the_raised_threshold() {
+    let dir = temp_dir("budget-single");
+    let mut scene = load("bunny.obj");
+    let file = dir.join("bunny.vdt");
+    std::fs::write(&file, vdt_bytes(&mut scene)).unwrap();
+    let out = dir.join("cut.obj");
+    let result = vds_cut()
+        .arg(&file)
+        .args([
+            "--threshold",
+            "0.5",
+            "--memory-budget",
+            "512KiB",
+            "--json",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&result.stdout).unwrap();
+    let held = report["resident_bytes"].as_u64().unwrap();
+    let effective = report["effective_threshold"].as_f64().unwrap();
+    assert!(held <= 512 << 10, "{held} bytes held");
+    assert!(
+        effective > 0.5,
+        "a 512 KiB budget held the bunny's 0.5 px cut"
+    );
+    // The cut meets the threshold it reports.
+    let deviation = report["max_deviation_px"].as_f64().unwrap();
+    assert!(
+        deviation <= effective * (1.0 + 1e-4) + 1e-4,
+        "{deviation} px > {effective} px"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -280,7 +280,7 @@ fn rss_stays_within_the_budget_along_an_orbit_and_a_fly_through() {
         let csv = std::fs::read_to_string(&stats).unwrap();
         let rss = column(&csv, "rss_anon_bytes");
         let held = column(&csv, "resident_bytes");
-        let evicted: u64 = column(&csv, "pages_evicted").iter().sum();
+        let evicted = *column(&csv, "pages_evicted").last().unwrap();
         let worst = *rss.iter().max().unwrap();
         assert!(
             worst <= budget + (64 << 20),

@@ -54,12 +54,12 @@ pub struct FrameRow {
     pub batches: usize,
 }
 
-const CSV_HEADER: &str = "frame,adjust_ms,upload_bytes,gpu_ms,cpu_frame_ms,active_triangles,added,removed,changed,drawn_slots,batches,pages_resident,pages_pending";
+const CSV_HEADER: &str = "frame,adjust_ms,upload_bytes,gpu_ms,cpu_frame_ms,active_triangles,added,removed,changed,drawn_slots,batches,pages_resident,pages_pending,resident_bytes,pages_loaded,pages_evicted,effective_threshold";
 
 impl FrameRow {
     fn csv(&self) -> String {
         format!(
-            "{},{:.4},{},{},{:.4},{},{},{},{},{},{},{},{}",
+            "{},{:.4},{},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{}",
             self.frame,
             self.adjust.adjust_ms,
             self.upload_bytes,
@@ -72,7 +72,13 @@ impl FrameRow {
             self.drawn_slots,
             self.batches,
             self.adjust.pages_resident,
-            self.adjust.pages_pending
+            self.adjust.pages_pending,
+            self.adjust.resident_bytes,
+            self.adjust.pages_loaded,
+            self.adjust.pages_evicted,
+            self.adjust
+                .effective_threshold
+                .map_or_else(String::new, |t| format!("{t}")),
         )
     }
 }

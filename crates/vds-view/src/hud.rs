@@ -167,6 +167,23 @@ fn contents(ui: &mut egui::Ui, model: &mut PanelModel) {
                 format!("{} / {}", a.pages_resident, model.pages)
             },
         );
+        row(
+            "memory",
+            format!(
+                "{} / {}",
+                vds_runtime::size::format_size(a.resident_bytes),
+                vds_runtime::size::format_size(a.budget_bytes)
+            ),
+        );
+        if let (Goal::Threshold(asked), Some(effective)) =
+            (model.settings.goal, a.effective_threshold)
+            && effective > asked
+        {
+            row(
+                "threshold",
+                format!("{effective:.2} px (raised from {asked:.2}: memory)"),
+            );
+        }
     });
     ui.separator();
     let settings = &mut model.settings;

@@ -109,6 +109,12 @@ struct Args {
     /// headless (so runs are repeatable).
     #[arg(long, value_enum)]
     loading: Option<LoadingArg>,
+    /// Memory budget for the decoded tree and the cut, e.g. 512MiB or 2GiB (default: 1 GiB,
+    /// or a quarter of physical memory if that is less). Pages below the boundary are
+    /// evicted to stay within it; when the cut itself does not fit, the threshold is raised
+    /// until it does (the panel and --stats show the effective threshold).
+    #[arg(long, value_name = "SIZE", value_parser = vds_runtime::size::parse_size)]
+    memory_budget: Option<u64>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -242,7 +248,7 @@ fn run(args: &Args) -> Result<()> {
             );
         }
         let loading = args.loading.unwrap_or(LoadingArg::Background).loading();
-        let model = model::open(args.file.as_deref(), false, loading)?;
+        let model = model::open(args.file.as_deref(), false, loading, args.memory_budget)?;
         return window::run(
             model,
             args.settings(),
@@ -252,7 +258,12 @@ fn run(args: &Args) -> Result<()> {
         );
     }
     let loading = args.loading.unwrap_or(LoadingArg::Synchronous).loading();
-    let model = model::open(args.file.as_deref(), args.brute_force, loading)?;
+    let model = model::open(
+        args.file.as_deref(),
+        args.brute_force,
+        loading,
+        args.memory_budget,
+    )?;
     let root = model.runtime.cut().node(0);
     let loop_frames = args.path_frames.or(args.frames).unwrap_or(120) as u32;
     let source = PathSource::from_flags(args.camera_path.as_deref(), args.fly);
@@ -297,7 +308,7 @@ fn run(args: &Args) -> Result<()> {
     // Same cameras, same process: first the cut, then the whole model.
     let vds = Summary::run(model, &headless)?;
     println!("{vds}");
-    let model = model::open(args.file.as_deref(), true, loading)?;
+    let model = model::open(args.file.as_deref(), true, loading, args.memory_budget)?;
     let brute_force = Headless {
         brute_force: true,
         out: None,

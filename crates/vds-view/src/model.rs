@@ -25,8 +25,15 @@ pub struct Model {
 
 /// Opens `path` (or the demo when `None`). `keep_mesh` keeps the original triangles for
 /// brute-force draws (only possible for mesh inputs: a `.vdt` file is decoded fully for it).
-/// Pages are loaded as `loading` says.
-pub fn open(path: Option<&Path>, keep_mesh: bool, loading: Loading) -> Result<Model> {
+/// Pages are loaded as `loading` says, within `memory_budget` bytes (default:
+/// [`vds_runtime::default_memory_budget`]).
+pub fn open(
+    path: Option<&Path>,
+    keep_mesh: bool,
+    loading: Loading,
+    memory_budget: Option<u64>,
+) -> Result<Model> {
+    let budget = memory_budget.unwrap_or_else(vds_runtime::default_memory_budget);
     let tracking = CornerTracking::Incidence;
     let (scene, name) = match path {
         Some(path)
@@ -43,6 +50,7 @@ pub fn open(path: Option<&Path>, keep_mesh: bool, loading: Loading) -> Result<Mo
             let triangles = file.header().triangle_count.get();
             let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
                 .with_context(|| path.display().to_string())?;
+            runtime.set_memory_budget(budget);
             let mesh = keep_mesh
                 .then(|| mesh_of(&mut runtime))
                 .transpose()
@@ -76,8 +84,9 @@ pub fn open(path: Option<&Path>, keep_mesh: bool, loading: Loading) -> Result<Mo
     )
     .with_context(|| format!("building the tree of {name}"))?;
     let file = VdtFile::from_bytes(bytes).with_context(|| format!("the tree of {name}"))?;
-    let runtime = Runtime::with_loading(Box::new(file), tracking, loading)
+    let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
         .with_context(|| format!("the tree of {name}"))?;
+    runtime.set_memory_budget(budget);
     Ok(Model {
         runtime,
         name,

@@ -46,6 +46,17 @@ pub struct AdjustFigures {
     pub pages_resident: u32,
     /// Pages asked of the background loader and not yet arrived.
     pub pages_pending: u32,
+    /// Pages decoded since the model opened.
+    pub pages_loaded: u64,
+    /// Pages evicted since the model opened.
+    pub pages_evicted: u64,
+    /// Bytes the runtime holds (decoded pages, page tables, the cut's arrays).
+    pub resident_bytes: u64,
+    /// The memory budget those bytes are held to.
+    pub budget_bytes: u64,
+    /// The threshold the adjust used (threshold mode): the requested one, or more while the
+    /// budget cannot hold the cut.
+    pub effective_threshold: Option<f32>,
 }
 
 /// One adjust's worth of GPU updates.
@@ -138,8 +149,13 @@ impl Simplifier {
                 added: frame.changes.added,
                 removed: frame.changes.removed,
                 changed: frame.changes.changed,
-                pages_resident: cut.store().pages_resident().0,
-                pages_pending: self.runtime.pending_pages(),
+                pages_resident: frame.memory.pages_resident,
+                pages_pending: frame.memory.pages_pending,
+                pages_loaded: frame.memory.pages_loaded,
+                pages_evicted: frame.memory.pages_evicted,
+                resident_bytes: frame.memory.resident_bytes,
+                budget_bytes: frame.memory.budget_bytes,
+                effective_threshold: frame.effective_threshold,
             },
             fingerprint,
         })

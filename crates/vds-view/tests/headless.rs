@@ -244,3 +244,49 @@ fn headless_background_loading_reports_pages_and_keeps_every_frame_a_whole_cut()
     assert!(rows[1..].iter().all(|r| r[pending].parse::<u32>().is_ok()));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn headless_memory_budget_holds_evicts_and_keeps_the_mirror_whole() {
+    let dir = temp_dir("budget");
+    let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bunny.obj");
+    let mut scene = vds_import::load_file(&shared, &Default::default()).unwrap();
+    let options = vds_format::WriteOptions {
+        zstd_level: 1,
+        page_bytes: 4096,
+    };
+    let bytes = vds_build::encode_scene(&mut scene, "test", &options).unwrap();
+    let file = dir.join("bunny.vdt");
+    std::fs::write(&file, bytes).unwrap();
+    let budget: u64 = 1 << 20;
+    let result = vds_view()
+        .arg(&file)
+        .args(["--headless", "--fly", "--frames", "40", "--size", "320x240"])
+        .args(["--memory-budget", "1MiB", "--verify", "--stats"])
+        .arg(dir.join("stats.csv"))
+        .output()
+        .unwrap();
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let csv = std::fs::read_to_string(dir.join("stats.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+    let column = |name: &str| rows[0].iter().position(|c| *c == name).unwrap();
+    let (held, evicted, threshold) = (
+        column("resident_bytes"),
+        column("pages_evicted"),
+        column("effective_threshold"),
+    );
+    for row in &rows[1..] {
+        let bytes: u64 = row[held].parse().unwrap();
+        assert!(
+            bytes <= budget,
+            "{bytes} bytes held over a budget of {budget}"
+        );
+        assert!(row[threshold].parse::<f32>().unwrap() >= 1.0);
+    }
+    let evicted: u64 = rows.last().unwrap()[evicted].parse().unwrap();
+    assert!(evicted > 0, "a 1 MiB budget evicted nothing");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -49,7 +49,7 @@ struct Args {
     frames: Option<u32>,
     /// With a path replay: one CSV row per frame (frame, adjust_ms, active_triangles,
     /// added, removed, changed, nodes_visited, unfolds, folds, deferred_unfolds,
-    /// resident_bytes, pages_resident, pages_loaded and pages_evicted by the frame,
+    /// resident_bytes, pages_resident, pages_loaded and pages_evicted since the start,
     /// pages_pending, effective_threshold, and rss_anon_bytes: the process's anonymous
     /// resident memory from /proc/self/status, empty where there is none).
     #[arg(long, value_name = "OUT.csv", requires = "replay")]
@@ -240,8 +240,15 @@ struct Report {
     active_nodes: u32,
     boundary_nodes: usize,
     nodes_visited: u32,
+    /// Pages resident when the cut settled.
     pages_loaded: u32,
     pages: u32,
+    /// Bytes the runtime held then, and the budget.
+    resident_bytes: u64,
+    memory_budget: u64,
+    /// The threshold the cut meets: the one asked for, or a larger one when the memory
+    /// budget could not hold that cut (threshold mode only).
+    effective_threshold: Option<f32>,
     /// The largest screen-space distance between a visible original vertex (in the frustum
     /// and, with backface simplification, on a triangle facing the eye) and its proxy, in
     /// pixels; absent when view-independent.
@@ -368,15 +375,17 @@ fn run(args: &Args) -> Result<()> {
     // With background loading one adjust leaves unfolds waiting for pages: the exported cut
     // is the settled one, so adjust again as pages arrive until nothing waits (a page that
     // cannot be read fails the export).
-    // Under a memory budget that cannot hold the cut, pages are refused and the effective
-    // threshold rises each adjust until the cut fits: adjust again until none is refused
-    // (each round raises the threshold by a quarter, so this ends).
-    let mut refused = frame.memory.refusals;
+    // Under a memory budget that cannot hold the cut, pages are refused (or the pinned pages
+    // are over it) and the effective threshold rises each adjust until the cut fits: adjust
+    // again until it fits with nothing refused, so that the exported cut meets the threshold
+    // it reports (each round raises the threshold by a quarter, so this ends).
+    let mut refused = 0;
     let mut rounds = 0;
-    while frame.stats.deferred_unfolds > 0
-        || runtime.pending_pages() > 0
-        || (frame.memory.refusals > std::mem::replace(&mut refused, frame.memory.refusals)
-            && rounds < 1000)
+    while rounds < 1000
+        && (frame.stats.deferred_unfolds > 0
+            || runtime.pending_pages() > 0
+            || frame.memory.refusals > std::mem::replace(&mut refused, frame.memory.refusals)
+            || frame.memory.resident_bytes > frame.memory.budget_bytes)
     {
         rounds += 1;
         runtime.wait_for_pages();
@@ -432,6 +441,9 @@ fn run(args: &Args) -> Result<()> {
         nodes_visited: frame.stats.visited,
         pages_loaded: pages.0,
         pages: pages.1,
+        resident_bytes: frame.memory.resident_bytes,
+        memory_budget: frame.memory.budget_bytes,
+        effective_threshold: frame.effective_threshold,
         max_deviation_px: deviation.map(|d| d.max_px),
         visible_vertices: deviation.map(|d| d.visible_vertices),
         max_object_error,
@@ -453,6 +465,15 @@ fn run(args: &Args) -> Result<()> {
             report.pages_loaded,
             report.pages
         );
+        if let (Some(effective), Goal::Threshold(asked)) = (frame.effective_threshold, goal)
+            && effective > asked
+        {
+            println!(
+                "threshold raised from {asked} to {effective} px: the cut at {asked} px does not \
+                 fit in the {} memory budget",
+                vds_runtime::size::format_size(frame.memory.budget_bytes)
+            );
+        }
         if let Some(d) = deviation {
             println!(
                 "largest screen-space deviation {:.3} px over {} visible vertices",
@@ -503,7 +524,6 @@ fn replay(
         if let Some(wait) = (pace * i as u32).checked_sub(replay_start.elapsed()) {
             std::thread::sleep(wait);
         }
-        let before = runtime.memory();
         let start = Instant::now();
         let frame = runtime
             .adjust(&Viewpoint::Camera(*camera), criteria, goal)
@@ -514,11 +534,8 @@ fn replay(
             errors += 1;
             eprintln!("vds-cut: {}: {error}", args.file.display());
         }
-        // Pages taken in by this adjust (from the background loader, or read synchronously)
-        // and evicted by it.
         let memory = &frame.memory;
-        let loaded = memory.pages_loaded - before.pages_loaded;
-        let evicted = memory.pages_evicted - before.pages_evicted;
+        let (loaded, evicted) = (memory.pages_loaded, memory.pages_evicted);
         let (stats, changes) = (&frame.stats, &frame.changes);
         rows += &format!(
             "{i},{ms:.4},{},{},{},{},{},{},{},{},{},{},{loaded},{evicted},{},{},{}\n",
