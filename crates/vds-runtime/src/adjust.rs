@@ -71,6 +71,11 @@ pub struct AdjustStats {
     pub deferred_unfolds: u32,
 }
 
+/// A boundary node whose screen-space error is past this share of the threshold has its
+/// children's pages fetched ahead of need (background loading): a camera closing in by less
+/// than half the distance makes it unfold.
+const PREFETCH_RATIO: f32 = 0.5;
+
 /// How many entries ahead of the threshold traversal its children's data is prefetched.
 const LOOKAHEAD: usize = 8;
 
@@ -146,6 +151,7 @@ impl Adjuster {
             }
         }
         let tight = judge.tightest(t);
+        let prefetching = cut.store().loads_in_background() && t > 0.0;
         let now = self.motion.advance(judge, t);
         if now.is_some_and(|now| now.fresh) {
             cut.clear_reuse();
@@ -198,6 +204,14 @@ impl Adjuster {
                                 self.refine(cut, judge, t, c)?;
                             } else {
                                 least = least.min(child_margin);
+                                // Near its threshold: its children's pages are fetched
+                                // ahead of need, the nearest first.
+                                if prefetching {
+                                    let ratio = judge.screen_error(tested) / t;
+                                    if ratio > PREFETCH_RATIO && tested.hot.child_count > 0 {
+                                        cut.store_mut().prefetch_children(c, ratio - 1.0);
+                                    }
+                                }
                             }
                         }
                         margin = Some(least);

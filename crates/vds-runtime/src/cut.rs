@@ -151,6 +151,9 @@ pub struct Cut {
     /// Scratch of `take_changes`: triangles in touched slots now, by slot, and before.
     now_in_slot: rustc_hash::FxHashMap<u32, u32>,
     before: rustc_hash::FxHashSet<u32>,
+    /// Scratch of `unfold_node`: the children's first leaf ranks, and the subtris' corners.
+    child_starts: Vec<u32>,
+    subtri_scratch: Vec<[u32; 3]>,
 }
 
 impl Cut {
@@ -172,6 +175,8 @@ impl Cut {
             lazy_dirty: false,
             now_in_slot: Default::default(),
             before: Default::default(),
+            child_starts: Vec::new(),
+            subtri_scratch: Vec::new(),
         }
     }
 
@@ -360,14 +365,19 @@ impl Cut {
         self.boundary_count += u32::from(node.child_count) - 1;
         self.count_active_child(node.parent, 1);
         self.active_node_count += 1;
+        // The children's first leaf ranks, once: every corner that moves down, and every
+        // subtri corner under `id`, picks its child from them without a look-up per corner.
+        let mut starts = std::mem::take(&mut self.child_starts);
+        starts.clear();
+        starts.extend(node.children().map(|c| self.store.node(c).leaf_begin));
+        let child_of =
+            |rank: u32| node.first_child + starts.partition_point(|&b| b <= rank) as u32 - 1;
         if self.tracking == CornerTracking::Incidence {
             let mut entry = std::mem::replace(&mut self.store.label_mut(id).head, NIL);
             while entry != NIL {
                 let following = self.next_of(entry);
                 let (slot, k) = (entry / 3, (entry % 3) as usize);
-                let child = self
-                    .store
-                    .child_supporting(id, self.slots[slot as usize].leaves[k]);
+                let child = child_of(self.slots[slot as usize].leaves[k]);
                 self.touch(slot);
                 self.slots[slot as usize].corners[k] = child;
                 self.link(child, entry);
@@ -376,11 +386,23 @@ impl Cut {
         } else {
             self.lazy_dirty = true;
         }
-        for (k, t) in (node.subtri_begin..node.subtri_begin + node.subtri_count).enumerate() {
-            let leaves = self.store.subtri_corners(id)[k];
-            let corners = leaves.map(|rank| self.boundary_node_of(rank, id));
+        let mut subtris = std::mem::take(&mut self.subtri_scratch);
+        subtris.clear();
+        subtris.extend_from_slice(self.store.subtri_corners(id));
+        for (t, &leaves) in (node.subtri_begin..).zip(&subtris) {
+            // A corner under `id` is on one of its children, which are all on the boundary
+            // now; the others are found from `id` upwards.
+            let corners = leaves.map(|rank| {
+                if node.supports_rank(rank) {
+                    child_of(rank)
+                } else {
+                    self.boundary_node_of(rank, id)
+                }
+            });
             self.insert_triangle(id, t, leaves, corners);
         }
+        self.child_starts = starts;
+        self.subtri_scratch = subtris;
         Ok(())
     }
 
@@ -448,7 +470,7 @@ impl Cut {
         if bytes == 0 {
             return true;
         }
-        if !self.store.make_room_for_cut(bytes as u64) {
+        if !self.store.make_room_for_cut(bytes as u64, id) {
             return false;
         }
         self.slots.reserve_exact(slot_growth);
@@ -786,13 +808,12 @@ impl Cut {
 
     #[inline]
     fn link(&mut self, node: u32, entry: u32) {
-        let first = self.store.label(node).head;
+        let first = std::mem::replace(&mut self.store.label_mut(node).head, entry);
         self.set_next(entry, first);
         self.set_prev(entry, NIL);
         if first != NIL {
             self.set_prev(first, entry);
         }
-        self.store.label_mut(node).head = entry;
     }
 
     #[inline]

@@ -257,11 +257,15 @@ impl NodeLabel {
 /// "None" for slots, list links and page slots.
 const NIL: u32 = u32::MAX;
 
+/// The `awaited` priority of a page nobody asked for.
+const NOT_AWAITED: f32 = f32::NEG_INFINITY;
+
 /// One decoded page: its nodes' records split by who reads them, its triangles, and the cut's
 /// per-node and per-triangle state, all freed together when the page is evicted.
 struct ResidentPage {
     /// The page's index in the file.
     index: u32,
+    first_node: u32,
     first_triangle: u32,
     hot: Vec<Hot>,
     shape: Vec<Shape>,
@@ -291,6 +295,7 @@ impl ResidentPage {
         let t = page.triangles.len();
         let mut resident = ResidentPage {
             index,
+            first_node: page.first_node,
             first_triangle: page.first_triangle,
             hot: Vec::with_capacity(n),
             shape: Vec::with_capacity(n),
@@ -378,10 +383,16 @@ struct Place {
     local: u32,
 }
 
-/// How many node ids share one entry of the node → page look-up table (`2^BLOCK_SHIFT`). A
-/// page holds a few thousand nodes, so an entry is usually the answer and the table costs
-/// about a byte per page.
-const BLOCK_SHIFT: u32 = 10;
+/// The node → slot table's blocks: `2^shift` node ids each, the largest power of two at most
+/// a sixteenth of a page's average node count (4 to 65536 ids). A block that straddles two
+/// pages has no entry (the look-up then searches the page directory), so the blocks must be
+/// small against pages for most look-ups to take the table: with sixteen or more blocks a
+/// page, at most about one id in eight falls in a straddling block. The table costs 4 B a
+/// block, about 64 B a page of the file.
+fn block_shift(node_count: u32, page_count: usize) -> u32 {
+    let per_block = (u64::from(node_count) / page_count.max(1) as u64 / 16).max(1);
+    (63 - per_block.leading_zeros()).clamp(2, 16)
+}
 
 /// Memory figures of a store ([`NodeStore::memory`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -426,7 +437,7 @@ fn physical_memory() -> Option<u64> {
 ///
 /// Nothing here is sized by the model but a few tables with an entry per page of the file
 /// (where a page starts, its slot, its state) and the node → page table of one entry per
-/// [`BLOCK_SHIFT`] node ids. Every per-node and per-triangle record lives in the resident
+/// block of node ids ([`block_shift`]). Every per-node and per-triangle record lives in the resident
 /// page that holds it ([`ResidentPage`]), found through those tables.
 ///
 /// ## Memory budget and eviction
@@ -452,8 +463,11 @@ pub struct NodeStore {
     vertex_count: u32,
     page_first_node: Vec<u32>,
     page_first_triangle: Vec<u32>,
-    /// Per block of `2^BLOCK_SHIFT` node ids: the page holding its first id.
-    block_first_page: Vec<u32>,
+    /// Node ids per block of `block_slot`, as a shift.
+    block_shift: u32,
+    /// Per block of node ids: the slot of the resident page that holds the whole block, or
+    /// [`NIL`] (not resident, or the block spans pages): the look-up's fast path.
+    block_slot: Vec<u32>,
     page_state: Vec<PageState>,
     /// Per page: its slot in `pages`, or [`NIL`].
     page_slot: Vec<u32>,
@@ -480,7 +494,8 @@ pub struct NodeStore {
     /// Background loading, when on.
     loader: Option<crate::loader::Loader>,
     /// Per page: the highest priority it was asked for with and not yet delivered, or
-    /// negative when it is not awaited.
+    /// [`NOT_AWAITED`] when it is not awaited. Pages asked for ahead of need
+    /// ([`NodeStore::prefetch_children`]) have priorities below zero, needed ones zero or more.
     awaited: Vec<f32>,
     /// Pages asked of the loader and not yet delivered.
     pending_pages: u32,
@@ -537,12 +552,8 @@ impl NodeStore {
         let page_count = page_first_node.len();
         // The reader checked that pages start in ascending order; the table takes that as
         // given only through `partition_point`, which stays in bounds whatever the order.
-        let block_first_page: Vec<u32> = (0..=(node_count >> BLOCK_SHIFT))
-            .map(|b| {
-                let first = b << BLOCK_SHIFT;
-                page_first_node.partition_point(|&f| f <= first) as u32 - 1
-            })
-            .collect();
+        let shift = block_shift(node_count, page_count);
+        let blocks = (node_count >> shift) as usize + 1;
         let loader = match loading {
             Loading::Synchronous => None,
             Loading::Background { threads } => Some(crate::loader::Loader::start(
@@ -556,7 +567,7 @@ impl NodeStore {
                 + size_of::<u32>()
                 + size_of::<f32>()
                 + if loader.is_some() { 1 } else { 0 })
-            + block_first_page.len() * size_of::<u32>()) as u64;
+            + blocks * size_of::<u32>()) as u64;
         let mut store = NodeStore {
             source,
             node_count,
@@ -564,7 +575,8 @@ impl NodeStore {
             vertex_count,
             page_first_node,
             page_first_triangle,
-            block_first_page,
+            block_slot: vec![NIL; blocks],
+            block_shift: shift,
             page_state: vec![PageState::Absent; page_count],
             page_slot: vec![NIL; page_count],
             pages: Vec::new(),
@@ -583,7 +595,7 @@ impl NodeStore {
             refusals: 0,
             refused_recently: 0,
             loader,
-            awaited: vec![-1.0; page_count],
+            awaited: vec![NOT_AWAITED; page_count],
             pending_pages: 0,
             page_errors: Vec::new(),
             loaded: Vec::new(),
@@ -701,8 +713,10 @@ impl NodeStore {
     /// Makes room for `bytes` more of the cut's own arrays, as for a page: by evicting
     /// unpinned pages that have had their frame. False (and counted as a refusal, so the
     /// effective threshold rises) when it cannot.
-    pub(crate) fn make_room_for_cut(&mut self, bytes: u64) -> bool {
-        let room = self.make_room(bytes, &[]);
+    /// The pages of `unfolding`'s children are kept: the unfold that asked needs them.
+    pub(crate) fn make_room_for_cut(&mut self, bytes: u64, unfolding: u32) -> bool {
+        let keep = self.children_pages(unfolding).unwrap_or_default();
+        let room = self.make_room(bytes, &keep);
         if !room {
             self.refuse();
         }
@@ -719,8 +733,30 @@ impl NodeStore {
         self.evictable_bytes -= page.bytes;
         self.page_bytes -= page.bytes;
         self.free_page_slots.push(slot);
+        for block in self.blocks_inside(index) {
+            self.block_slot[block] = NIL;
+        }
         self.page_state[index as usize] = PageState::Absent;
         self.pages_evicted += 1;
+    }
+
+    /// The blocks of node ids that lie wholly inside page `index`.
+    fn blocks_inside(&self, index: u32) -> std::ops::Range<usize> {
+        let first = self.page_first_node[index as usize];
+        let end = self
+            .page_first_node
+            .get(index as usize + 1)
+            .copied()
+            .unwrap_or(self.node_count)
+            .min(self.node_count);
+        let shift = self.block_shift;
+        let begin = first.div_ceil(1 << shift) as usize;
+        // A block ends at the next multiple of its size, or at the last node.
+        let mut stop = (end >> shift) as usize;
+        if end == self.node_count && end & ((1 << shift) - 1) != 0 {
+            stop += 1;
+        }
+        begin..stop.max(begin)
     }
 
     /// Number of nodes in the tree.
@@ -768,14 +804,8 @@ impl NodeStore {
         if id >= self.node_count {
             return None;
         }
-        let block = (id >> BLOCK_SHIFT) as usize;
-        let first = self.block_first_page[block] as usize;
-        let last = self
-            .block_first_page
-            .get(block + 1)
-            .map_or(self.page_first_node.len() - 1, |&p| p as usize);
-        let within = &self.page_first_node[first..=last.max(first)];
-        Some((first + within.partition_point(|&f| f <= id) - 1) as u32)
+        // Page 0 starts at node 0 (checked at open), so some page starts at or before `id`.
+        Some((self.page_first_node.partition_point(|&f| f <= id) - 1) as u32)
     }
 
     /// The page holding triangle `index`, if any.
@@ -792,6 +822,14 @@ impl NodeStore {
     /// Where resident node `id` lives, or `None` if its page is not resident.
     #[inline]
     fn place(&self, id: u32) -> Option<Place> {
+        let fast = *self.block_slot.get((id >> self.block_shift) as usize)?;
+        if fast != NIL {
+            let first = self.resident(fast).first_node;
+            return Some(Place {
+                slot: fast,
+                local: id - first,
+            });
+        }
         let page = self.page_of(id)?;
         let slot = self.page_slot[page as usize];
         (slot != NIL).then(|| Place {
@@ -940,6 +978,16 @@ impl NodeStore {
                 evictable += 1;
             }
         }
+        for (block, &slot) in self.block_slot.iter().enumerate() {
+            let page = self.pages.get(slot as usize).and_then(Option::as_ref);
+            let expected = self
+                .page_of((block as u32) << self.block_shift)
+                .filter(|&p| self.blocks_inside(p).contains(&block))
+                .map_or(NIL, |p| self.page_slot[p as usize]);
+            if slot != expected || (slot != NIL && page.is_none()) {
+                return Err(format!("block {block} of node ids points at slot {slot}"));
+            }
+        }
         if bytes != self.page_bytes
             || evictable_bytes != self.evictable_bytes
             || evictable != self.evictable.len()
@@ -1043,7 +1091,7 @@ impl NodeStore {
             if awaited >= 0.0 && priority < 2.0 * awaited.max(f32::MIN_POSITIVE) {
                 continue;
             }
-            let fresh = awaited < 0.0;
+            let fresh = awaited == NOT_AWAITED;
             if fresh {
                 self.pending_pages += 1;
             }
@@ -1053,6 +1101,34 @@ impl NodeStore {
             }
         }
         arriving
+    }
+
+    /// Asks the background loader, ahead of need, for the pages of `id`'s children that are
+    /// neither resident nor asked for, with `priority` below zero (closer to zero: sooner;
+    /// below every page a node is waiting for). Nothing with synchronous loading.
+    pub fn prefetch_children(&mut self, id: u32, priority: f32) {
+        if self.loader.is_none() {
+            return;
+        }
+        let Some(pages) = self.children_pages(id) else {
+            return;
+        };
+        let priority = priority.clamp(-1.0, -f32::MIN_POSITIVE);
+        for page in pages {
+            let p = page as usize;
+            if self.page_state[p] == PageState::Absent && self.awaited[p] == NOT_AWAITED {
+                self.awaited[p] = priority;
+                self.pending_pages += 1;
+                if let Some(loader) = &self.loader {
+                    loader.request(page, priority, true);
+                }
+            }
+        }
+    }
+
+    /// Whether pages are loaded by background threads.
+    pub fn loads_in_background(&self) -> bool {
+        self.loader.is_some()
     }
 
     /// Takes in the pages the background loader has delivered since the last call, without
@@ -1082,10 +1158,11 @@ impl NodeStore {
 
     fn deliver(&mut self, index: u32, result: Result<Page, VdtError>) {
         let p = index as usize;
-        if self.awaited[p] >= 0.0 {
-            self.awaited[p] = -1.0;
+        let awaited = std::mem::replace(&mut self.awaited[p], NOT_AWAITED);
+        if awaited != NOT_AWAITED {
             self.pending_pages -= 1;
         }
+        let needed = awaited >= 0.0;
         if self.page_state[p] != PageState::Absent {
             return; // Loaded synchronously meanwhile.
         }
@@ -1093,10 +1170,12 @@ impl NodeStore {
             Ok(page) => {
                 let bytes = ResidentPage::bytes_for(page.nodes.len(), page.triangles.len());
                 if self.make_room(bytes, &[]) {
-                    self.install(index, &page);
-                } else {
+                    self.install(index, &page, !needed);
+                } else if needed {
                     self.refuse();
                 }
+                // A page fetched ahead of need that does not fit is dropped: no node waits
+                // for it, so the threshold need not rise.
             }
             Err(error) => {
                 self.page_state[p] = PageState::Failed;
@@ -1400,7 +1479,7 @@ impl NodeStore {
             Ok(()) => {
                 let bytes = ResidentPage::bytes_for(scratch.nodes.len(), scratch.triangles.len());
                 if self.make_room(bytes, keep) || !refusable {
-                    self.install(index, &scratch);
+                    self.install(index, &scratch, false);
                     Ok(())
                 } else {
                     self.refuse();
@@ -1413,10 +1492,13 @@ impl NodeStore {
         outcome
     }
 
-    /// Makes a decoded page resident, unpinned.
-    fn install(&mut self, index: u32, page: &Page) {
+    /// Makes a decoded page resident, unpinned. A page fetched ahead of need goes to the
+    /// front of the eviction order (stamp 0) until a node of it joins the cut: it must not
+    /// push out pages the cut has used, nor be kept from eviction as a page that just
+    /// arrived for a waiting node is.
+    fn install(&mut self, index: u32, page: &Page, ahead_of_need: bool) {
         let mut resident = ResidentPage::from_page(index, page);
-        resident.stamp = self.tick;
+        resident.stamp = if ahead_of_need { 0 } else { self.tick };
         self.tick += 1;
         let bytes = resident.bytes;
         self.evictable.insert((resident.stamp, index));
@@ -1433,6 +1515,9 @@ impl NodeStore {
             }
         };
         self.page_slot[index as usize] = slot;
+        for block in self.blocks_inside(index) {
+            self.block_slot[block] = slot;
+        }
         self.page_state[index as usize] = PageState::Resident;
         self.pages_loaded += 1;
         self.loaded
