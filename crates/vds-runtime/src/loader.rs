@@ -18,6 +18,9 @@ use vds_format::{Page, VdtError};
 
 use crate::store::PageSource;
 
+/// Decoded pages that may wait per worker for the store to take them in.
+pub(crate) const WAITING: usize = 32;
+
 /// A decoded page, or why it could not be read.
 pub(crate) type Loaded = (u32, Result<Page, VdtError>);
 
@@ -78,11 +81,12 @@ impl Loader {
             }),
             wake: Condvar::new(),
         });
-        // Decoded pages wait here until the store takes them in, at most two per worker: a
-        // store that does not poll (a viewer waiting for input) stops the workers instead of
-        // letting decoded pages pile up outside its memory budget.
+        // Decoded pages wait here until the store takes them in, at most WAITING per
+        // worker: a store that does not poll (a viewer waiting for input) stops the workers
+        // instead of letting decoded pages pile up outside its memory budget, and one that
+        // polls once a frame still takes in a frame's worth of pages from each worker.
         let threads = threads.max(1);
-        let (sender, results) = sync_channel(2 * threads);
+        let (sender, results) = sync_channel(WAITING * threads);
         let mut loader = Loader {
             shared,
             results: Some(results),

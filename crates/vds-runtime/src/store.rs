@@ -257,6 +257,10 @@ impl NodeLabel {
 /// "None" for slots, list links and page slots.
 const NIL: u32 = u32::MAX;
 
+/// Frames an unpinned page must go unused before a page fetched ahead of need may take its
+/// place (one second at 60 Hz).
+const STALE_FRAMES: usize = 60;
+
 /// The `awaited` priority of a page nobody asked for.
 const NOT_AWAITED: f32 = f32::NEG_INFINITY;
 
@@ -412,7 +416,7 @@ pub struct MemoryStats {
     pub pages_loaded: u64,
     /// Pages evicted since it opened.
     pub pages_evicted: u64,
-    /// Pages asked of the background loader and not yet delivered.
+    /// Pages asked of the background loader for waiting nodes and not yet delivered.
     pub pages_pending: u32,
     /// Pages, and growth steps of the cut's arrays, that were needed and did not fit in the
     /// budget, since the store opened.
@@ -482,6 +486,12 @@ pub struct NodeStore {
     budget: u64,
     /// A counter that orders arrivals and unpinnings.
     tick: u64,
+    /// `tick` at the start of each of the last [`STALE_FRAMES`] frames.
+    recent_frames: std::collections::VecDeque<u64>,
+    /// Pages stamped before this tick have not been used for [`STALE_FRAMES`] frames.
+    stale_before: u64,
+    /// The decoded size of an average page of the file, for fetching ahead of need.
+    typical_page_bytes: u64,
     /// Pages stamped at or after this tick are not evicted to make room (see the type's
     /// documentation).
     protect_from: u64,
@@ -497,8 +507,10 @@ pub struct NodeStore {
     /// [`NOT_AWAITED`] when it is not awaited. Pages asked for ahead of need
     /// ([`NodeStore::prefetch_children`]) have priorities below zero, needed ones zero or more.
     awaited: Vec<f32>,
-    /// Pages asked of the loader and not yet delivered.
+    /// Pages asked of the loader for waiting nodes and not yet delivered.
     pending_pages: u32,
+    /// Pages asked of the loader ahead of need and not yet delivered.
+    pending_ahead: u32,
     /// Errors of pages the background loader could not read, not yet taken.
     page_errors: Vec<VdtError>,
     /// Node id ranges of the pages loaded since the last [`NodeStore::take_loaded`].
@@ -588,6 +600,12 @@ impl NodeStore {
             cut_bytes: 0,
             budget: default_memory_budget(),
             tick: 1,
+            recent_frames: Default::default(),
+            stale_before: 0,
+            typical_page_bytes: ResidentPage::bytes_for(
+                (node_count as usize).div_ceil(page_count),
+                (triangle_count as usize).div_ceil(page_count),
+            ),
             protect_from: 0,
             frame_start: 0,
             pages_loaded: 0,
@@ -597,6 +615,7 @@ impl NodeStore {
             loader,
             awaited: vec![NOT_AWAITED; page_count],
             pending_pages: 0,
+            pending_ahead: 0,
             page_errors: Vec::new(),
             loaded: Vec::new(),
             scratch: empty_page(),
@@ -671,6 +690,44 @@ impl NodeStore {
     pub fn begin_frame(&mut self) {
         self.protect_from = self.frame_start;
         self.frame_start = self.tick;
+        if self.recent_frames.len() == STALE_FRAMES {
+            self.stale_before = self.recent_frames.pop_front().unwrap_or(0);
+        }
+        self.recent_frames.push_back(self.tick);
+    }
+
+    /// Whether a page fetched ahead of need could be taken in now: there is room, or an
+    /// unpinned page the cut has not used for [`STALE_FRAMES`] frames to give it. Pages
+    /// fetched ahead and not yet used never make room for others fetched ahead, so that
+    /// fetching ahead cannot churn the cache; when it is full of pages the cut used lately,
+    /// fetching ahead waits.
+    fn room_ahead_of_need(&self, bytes: u64) -> bool {
+        self.resident_bytes() + bytes <= self.limit()
+            || self
+                .evictable
+                .range((1, 0)..)
+                .next()
+                .is_some_and(|&(stamp, _)| stamp < self.stale_before)
+    }
+
+    /// Makes room for a page fetched ahead of need by evicting stale pages only (see
+    /// [`NodeStore::room_ahead_of_need`]).
+    fn make_room_ahead_of_need(&mut self, bytes: u64) -> bool {
+        while self.resident_bytes() + bytes > self.limit() {
+            match self.evictable.range((1, 0)..).next() {
+                Some(&(stamp, page)) if stamp < self.stale_before => self.evict(page),
+                _ => return false,
+            }
+        }
+        true
+    }
+
+    /// What arrivals and the cut's growth are held to: a sixteenth of the budget stays free
+    /// for what a frame's changes add to the cut's journal and change sets before the frame
+    /// ends (they are counted, but grow by push, not by asking): the budget then holds at
+    /// every frame's end.
+    fn limit(&self) -> u64 {
+        self.budget - self.budget / 16
     }
 
     /// Evicts unpinned pages, oldest first, until the store is within its budget or only
@@ -692,10 +749,7 @@ impl NodeStore {
     /// Makes room for `bytes` more by evicting unpinned pages stamped before
     /// `protect_from`, oldest first, never the pages in `keep`. False if it cannot.
     fn make_room(&mut self, bytes: u64, keep: &[u32]) -> bool {
-        // A sixteenth of the budget stays free for what a frame's changes add to the cut's
-        // journal and change sets before the frame ends (they are counted, but grow by
-        // push, not by asking): the budget then holds at every frame's end.
-        let limit = self.budget - self.budget / 16;
+        let limit = self.limit();
         while self.resident_bytes() + bytes > limit {
             let candidate = self
                 .evictable
@@ -786,8 +840,9 @@ impl NodeStore {
         (memory.pages_resident, memory.pages_total)
     }
 
-    /// Pages asked of the background loader and not yet delivered (0 when loading is
-    /// synchronous).
+    /// Pages asked of the background loader for nodes that wait to unfold, not yet
+    /// delivered (0 when loading is synchronous). Pages fetched ahead of need are not counted:
+    /// no node waits for them.
     pub fn pending_pages(&self) -> u32 {
         self.pending_pages
     }
@@ -1092,8 +1147,10 @@ impl NodeStore {
                 continue;
             }
             let fresh = awaited == NOT_AWAITED;
-            if fresh {
+            if fresh || awaited < 0.0 {
+                // Asked for afresh, or fetched ahead and needed now.
                 self.pending_pages += 1;
+                self.pending_ahead -= u32::from(!fresh);
             }
             self.awaited[p] = priority;
             if let Some(loader) = &self.loader {
@@ -1114,11 +1171,14 @@ impl NodeStore {
             return;
         };
         let priority = priority.clamp(-1.0, -f32::MIN_POSITIVE);
+        if !self.room_ahead_of_need(self.typical_page_bytes) {
+            return;
+        }
         for page in pages {
             let p = page as usize;
             if self.page_state[p] == PageState::Absent && self.awaited[p] == NOT_AWAITED {
                 self.awaited[p] = priority;
-                self.pending_pages += 1;
+                self.pending_ahead += 1;
                 if let Some(loader) = &self.loader {
                     loader.request(page, priority, true);
                 }
@@ -1145,10 +1205,11 @@ impl NodeStore {
         count
     }
 
-    /// Waits until every page asked of the background loader has been delivered and takes
-    /// them in (what a test or a batch replay does to let loading settle).
+    /// Waits until every page asked of the background loader (ahead of need too) has been
+    /// delivered and takes them in (what a test or a batch replay does to let loading
+    /// settle).
     pub fn wait_for_pages(&mut self) {
-        while self.pending_pages > 0 {
+        while self.pending_pages + self.pending_ahead > 0 {
             let Some((index, result)) = self.loader.as_ref().and_then(|l| l.wait_next()) else {
                 return;
             };
@@ -1159,20 +1220,24 @@ impl NodeStore {
     fn deliver(&mut self, index: u32, result: Result<Page, VdtError>) {
         let p = index as usize;
         let awaited = std::mem::replace(&mut self.awaited[p], NOT_AWAITED);
-        if awaited != NOT_AWAITED {
-            self.pending_pages -= 1;
-        }
         let needed = awaited >= 0.0;
+        if needed {
+            self.pending_pages -= 1;
+        } else if awaited != NOT_AWAITED {
+            self.pending_ahead -= 1;
+        }
         if self.page_state[p] != PageState::Absent {
             return; // Loaded synchronously meanwhile.
         }
         match result {
             Ok(page) => {
                 let bytes = ResidentPage::bytes_for(page.nodes.len(), page.triangles.len());
-                if self.make_room(bytes, &[]) {
-                    self.install(index, &page, !needed);
+                if needed && self.make_room(bytes, &[]) {
+                    self.install(index, &page, false);
                 } else if needed {
                     self.refuse();
+                } else if self.make_room_ahead_of_need(bytes) {
+                    self.install(index, &page, true);
                 }
                 // A page fetched ahead of need that does not fit is dropped: no node waits
                 // for it, so the threshold need not rise.

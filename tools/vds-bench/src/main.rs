@@ -83,6 +83,9 @@ enum Commands {
         /// Frames of the fly-through.
         #[arg(long, default_value_t = 600)]
         frames: u32,
+        /// Memory budget of the loading runs (the resident comparison has none).
+        #[arg(long, default_value = "256MiB", value_parser = vds_runtime::size::parse_size)]
+        memory_budget: u64,
     },
     /// The runtime: adjust time along camera paths (bunny orbit, generated CAD scene
     /// fly-through) at t = 1 and 5 px, and view-independent fidelity vs simplify_sloppy.
@@ -175,6 +178,7 @@ fn main() -> Result<()> {
             threads,
             pace_ms,
             frames,
+            memory_budget,
         }) => {
             let threads = threads
                 .unwrap_or_else(vds_runtime::default_loading_threads)
@@ -182,7 +186,14 @@ fn main() -> Result<()> {
             if !(0.0..=10_000.0).contains(&pace_ms) {
                 bail!("--pace-ms must be from 0 to 10000, got {pace_ms}");
             }
-            return refine::run(&file, threshold, threads, pace_ms, frames.max(2));
+            return refine::run(
+                &file,
+                threshold,
+                threads,
+                pace_ms,
+                frames.max(2),
+                memory_budget,
+            );
         }
         Some(Commands::Latency) => {
             latency::run();

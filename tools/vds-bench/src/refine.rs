@@ -26,19 +26,20 @@ struct Settling {
     pages: u32,
     /// The first adjust alone.
     first_adjust: Duration,
+    /// The threshold the settled cut meets (raised when the budget cannot hold the cut).
+    effective_threshold: f32,
 }
 
 /// Adjusts for `camera` at `pace` until a frame defers nothing and nothing is pending.
 fn settle(runtime: &mut Runtime, camera: &Camera, goal: Goal, pace: Duration) -> Result<Settling> {
     let criteria = Criteria::default();
-    let (pages_before, _) = runtime.cut().store().pages_resident();
+    let pages_before = runtime.memory().pages_loaded;
     let start = Instant::now();
     let mut first_adjust = Duration::ZERO;
     for frame in 1..=100_000u32 {
         let adjust_start = Instant::now();
-        let stats = runtime
-            .adjust(&Viewpoint::Camera(*camera), &criteria, goal)?
-            .stats;
+        let adjusted = runtime.adjust(&Viewpoint::Camera(*camera), &criteria, goal)?;
+        let stats = adjusted.stats;
         if frame == 1 {
             first_adjust = adjust_start.elapsed();
         }
@@ -49,8 +50,9 @@ fn settle(runtime: &mut Runtime, camera: &Camera, goal: Goal, pace: Duration) ->
             return Ok(Settling {
                 elapsed: start.elapsed(),
                 frames: frame,
-                pages: runtime.cut().store().pages_resident().0 - pages_before,
+                pages: (runtime.memory().pages_loaded - pages_before) as u32,
                 first_adjust,
+                effective_threshold: adjusted.effective_threshold.unwrap_or(f32::NAN),
             });
         }
         if let Some(wait) = (pace * frame).checked_sub(start.elapsed()) {
@@ -61,19 +63,37 @@ fn settle(runtime: &mut Runtime, camera: &Camera, goal: Goal, pace: Duration) ->
 }
 
 /// Adjust times along `path`, paced.
-fn play(runtime: &mut Runtime, path: &CameraPath, goal: Goal, pace: Duration) -> Result<Vec<f64>> {
+/// What a fly-through did: adjust times, the most bytes held, the highest effective
+/// threshold, pages evicted.
+struct Played {
+    times: Vec<f64>,
+    most_bytes: u64,
+    highest_threshold: f32,
+    evicted: u64,
+}
+
+fn play(runtime: &mut Runtime, path: &CameraPath, goal: Goal, pace: Duration) -> Result<Played> {
     let criteria = Criteria::default();
     let mut times = Vec::with_capacity(path.cameras.len());
+    let (mut most_bytes, mut highest_threshold) = (0u64, 0.0f32);
+    let evicted_before = runtime.memory().pages_evicted;
     let start = Instant::now();
     for (i, camera) in path.cameras.iter().enumerate() {
         if let Some(wait) = (pace * i as u32).checked_sub(start.elapsed()) {
             std::thread::sleep(wait);
         }
         let t = Instant::now();
-        runtime.adjust(&Viewpoint::Camera(*camera), &criteria, goal)?;
+        let frame = runtime.adjust(&Viewpoint::Camera(*camera), &criteria, goal)?;
         times.push(t.elapsed().as_secs_f64() * 1e3);
+        most_bytes = most_bytes.max(frame.memory.resident_bytes);
+        highest_threshold = highest_threshold.max(frame.effective_threshold.unwrap_or(0.0));
     }
-    Ok(times)
+    Ok(Played {
+        times,
+        most_bytes,
+        highest_threshold,
+        evicted: runtime.memory().pages_evicted - evicted_before,
+    })
 }
 
 fn percentile(values: &[f64], p: f64) -> f64 {
@@ -97,7 +117,14 @@ fn evict(file: &Path) -> bool {
 }
 
 /// Runs the measurements on `file` at threshold `t` with `threads` loading threads.
-pub fn run(file: &Path, t: f32, threads: usize, pace_ms: f64, frames: u32) -> Result<()> {
+pub fn run(
+    file: &Path,
+    t: f32,
+    threads: usize,
+    pace_ms: f64,
+    frames: u32,
+    budget: u64,
+) -> Result<()> {
     let pace = Duration::from_secs_f64(pace_ms / 1e3);
     let goal = Goal::Threshold(t);
     let cold = evict(file);
@@ -110,6 +137,7 @@ pub fn run(file: &Path, t: f32, threads: usize, pace_ms: f64, frames: u32) -> Re
         Loading::Background { threads },
     )
     .with_context(|| file.display().to_string())?;
+    runtime.set_memory_budget(budget);
     let root = runtime.cut().node(0);
     let (center, radius) = (root.sphere_center, root.sphere_radius);
     let path = CameraPath::fly_through(center, radius, frames, 1920, 1080);
@@ -125,8 +153,9 @@ pub fn run(file: &Path, t: f32, threads: usize, pace_ms: f64, frames: u32) -> Re
 
     println!(
         "{}: {pages} pages, t = {t} px, {threads} loading thread(s), frames every {pace_ms:.1} ms, \
-         page cache {}",
+         memory budget {}, page cache {}",
         file.display(),
+        vds_runtime::size::format_size(budget),
         if cold { "evicted first" } else { "as it was" }
     );
     println!("  open to first frame {first_frame_ms:.1} ms (first adjust {first_adjust_ms:.2} ms)");
@@ -137,12 +166,13 @@ pub fn run(file: &Path, t: f32, threads: usize, pace_ms: f64, frames: u32) -> Re
         let seconds = s.elapsed.as_secs_f64();
         println!(
             "  fully refined {what}: {:.0} ms, {} frames, {} pages ({:.0} pages/s while \
-             refining at this pace, {:.0} per loading thread)",
+             refining at this pace, {:.0} per loading thread), at {} px",
             seconds * 1e3,
             s.frames,
             s.pages,
             f64::from(s.pages) / seconds.max(1e-9),
             f64::from(s.pages) / seconds.max(1e-9) / threads as f64,
+            s.effective_threshold,
         );
     }
 
@@ -156,6 +186,7 @@ pub fn run(file: &Path, t: f32, threads: usize, pace_ms: f64, frames: u32) -> Re
         CornerTracking::Incidence,
         Loading::Background { threads },
     )?;
+    loading.set_memory_budget(budget);
     let background = play(&mut loading, &path, goal, pace)?;
     // ...and the same path with every page decoded first.
     let vdt = vds_format::VdtFile::open(file)?;
@@ -163,16 +194,21 @@ pub fn run(file: &Path, t: f32, threads: usize, pace_ms: f64, frames: u32) -> Re
     resident.set_memory_budget(u64::MAX);
     resident.load_every_page()?;
     let synchronous = play(&mut resident, &path, goal, pace)?;
-    for (what, times) in [
-        ("background loading", &background),
+    for (what, played) in [
+        ("background loading within the budget", &background),
         ("every page resident", &synchronous),
     ] {
+        let times = &played.times;
         println!(
-            "  fly-through, {} frames, {what}: adjust median {:.3} ms, p99 {:.3} ms, max {:.3} ms",
+            "  fly-through, {} frames, {what}: adjust median {:.3} ms, p99 {:.3} ms, max {:.3} ms; \
+             at most {} held, effective threshold at most {} px, {} pages evicted",
             times.len(),
             percentile(times, 0.5),
             percentile(times, 0.99),
             percentile(times, 1.0),
+            vds_runtime::size::format_size(played.most_bytes),
+            played.highest_threshold,
+            played.evicted,
         );
     }
     Ok(())
