@@ -154,6 +154,8 @@ pub struct Cut {
     /// Scratch of `unfold_node`: the children's first leaf ranks, and the subtris' corners.
     child_starts: Vec<u32>,
     subtri_scratch: Vec<[u32; 3]>,
+    /// The slot array's length at the last `take_changes`.
+    drawn_len: u32,
 }
 
 impl Cut {
@@ -177,6 +179,7 @@ impl Cut {
             before: Default::default(),
             child_starts: Vec::new(),
             subtri_scratch: Vec::new(),
+            drawn_len: 0,
         }
     }
 
@@ -473,9 +476,16 @@ impl Cut {
         if !self.store.make_room_for_cut(bytes as u64, id) {
             return false;
         }
-        self.slots.reserve_exact(slot_growth);
-        self.active_list.reserve_exact(entry_growth);
-        self.active_shapes.reserve_exact(entry_growth);
+        // `reserve_exact` counts from the length, the growth from the capacity.
+        let (slots_to, entries_to) = (
+            self.slots.capacity() + slot_growth,
+            self.active_list.capacity() + entry_growth,
+        );
+        self.slots.reserve_exact(slots_to - self.slots.len());
+        self.active_list
+            .reserve_exact(entries_to - self.active_list.len());
+        self.active_shapes
+            .reserve_exact(entries_to - self.active_shapes.len());
         self.store.set_cut_bytes(self.own_bytes());
         true
     }
@@ -564,6 +574,12 @@ impl Cut {
                 changes.added += 1;
             }
         }
+        // Slots past the array's length at the last call hold, in a renderer's mirror,
+        // whatever was there before compaction cut the array short: each is rewritten.
+        for slot in self.drawn_len.min(self.slots.len() as u32)..self.slots.len() as u32 {
+            self.dirty_bits[slot as usize / 64] |= 1 << (slot % 64);
+        }
+        self.drawn_len = self.slots.len() as u32;
         for (word_index, word) in self.dirty_bits.iter_mut().enumerate() {
             let mut bits = std::mem::take(word);
             while bits != 0 {
@@ -579,6 +595,10 @@ impl Cut {
         shrink_if_sparse(&mut self.active_list, self.active_node_count as usize);
         shrink_if_sparse(&mut self.active_shapes, self.active_node_count as usize);
         shrink_if_sparse(&mut self.free_slots, 0);
+        if self.now_in_slot.capacity() > 4 * touched.max(1024) {
+            self.now_in_slot.shrink_to(2 * touched);
+            self.before.shrink_to(2 * touched);
+        }
         self.dirty_bits.shrink_to(self.slots.len().div_ceil(64));
         self.store.set_cut_bytes(self.own_bytes());
         self.epoch = self.epoch.wrapping_add(1);

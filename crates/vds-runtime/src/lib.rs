@@ -76,15 +76,15 @@ pub struct Frame {
     pub memory: MemoryStats,
 }
 
-/// How much the effective threshold grows per frame while the cut does not fit.
-const PRESSURE_GROWTH: f32 = 1.25;
-/// How much it shrinks back per frame once the cut's pages take under [`RELIEF_SHARE`] of
-/// the budget. A threshold `s` times smaller asks for about `s²` times the triangles, so the
-/// pinned share after a step back is below `RELIEF_SHARE · 1.1²` = 85 %: the cut still
-/// fits, and the threshold settles instead of oscillating.
-const RELIEF_STEP: f32 = 1.1;
-/// See [`RELIEF_STEP`].
-const RELIEF_SHARE: f64 = 0.7;
+/// The share of the budget the effective threshold steers the pinned bytes towards.
+const TARGET_SHARE: f64 = 0.8;
+/// The share under which the threshold comes back down.
+const RELIEF_SHARE: f64 = 0.6;
+/// Bounds of one frame's step of the threshold, up and down.
+const STEP_UP: (f64, f64) = (1.05, 1.5);
+const STEP_DOWN: (f64, f64) = (1.02, 1.2);
+/// Frames in a row with refusals after which the threshold rises whatever their kind.
+const REFUSING_FRAMES: u32 = 8;
 /// The largest factor the threshold is raised by.
 const MAX_THRESHOLD_SCALE: f32 = 1e6;
 
@@ -94,6 +94,9 @@ pub struct Runtime {
     adjuster: Adjuster,
     /// Effective threshold over the requested one (1 while the budget holds the cut).
     threshold_scale: f32,
+    /// Frames in a row in which the budget refused something, and the refusal count then.
+    refusing_frames: u32,
+    refusals_seen: u64,
 }
 
 impl Runtime {
@@ -117,6 +120,8 @@ impl Runtime {
             cut: Cut::new(NodeStore::with_loading(source, loading)?, tracking),
             adjuster: Adjuster::default(),
             threshold_scale: 1.0,
+            refusing_frames: 0,
+            refusals_seen: 0,
         })
     }
 
@@ -206,19 +211,37 @@ impl Runtime {
         })
     }
 
-    /// Raises the effective threshold while pages the cut needed were refused or the
-    /// pinned pages alone are over the budget (Cesium's memory-adjusted screen-space error),
-    /// and lowers it back step by step once the cut takes well under the budget.
+    /// Raises the effective threshold while the cut does not fit (Cesium's memory-adjusted
+    /// screen-space error): while the pinned bytes alone are over the budget, or a page or
+    /// growth step the cut needed was refused that would not have fitted even with every
+    /// unpinned page evicted, or refusals of any kind went on for [`REFUSING_FRAMES`] frames
+    /// in a row. (A refusal that would have fitted is, at first, the budget waiting a frame
+    /// for pages that just arrived to be used, not a cut too large; if it goes on, the pages
+    /// the cut needs are evicting each other.) Below [`RELIEF_SHARE`] of the budget the
+    /// threshold comes back down.
+    ///
+    /// Each step is proportional: a threshold `s` times larger asks for about `1/s²` the
+    /// triangles, so the step is the square root of how far the pinned bytes are from
+    /// [`TARGET_SHARE`] of the budget, within [`STEP_UP`] or [`STEP_DOWN`], and the
+    /// threshold settles near the cut that fits instead of overshooting it.
     fn respond_to_pressure(&mut self) {
         let store = &mut self.cut.store;
         let refused = store.take_refused();
-        if refused > 0 || store.over_budget_pinned() {
-            self.threshold_scale =
-                (self.threshold_scale * PRESSURE_GROWTH).min(MAX_THRESHOLD_SCALE);
-        } else if self.threshold_scale > 1.0
-            && (store.pinned_total() as f64) < RELIEF_SHARE * store.memory_budget() as f64
-        {
-            self.threshold_scale = (self.threshold_scale / RELIEF_STEP).max(1.0);
+        let refusals = store.memory().refusals;
+        if refusals > std::mem::replace(&mut self.refusals_seen, refusals) {
+            self.refusing_frames += 1;
+        } else {
+            self.refusing_frames = 0;
+        }
+        let pinned = store.pinned_total() as f64;
+        let budget = store.memory_budget() as f64;
+        let off_target = (pinned / (TARGET_SHARE * budget)).sqrt();
+        if store.over_budget_pinned() || refused > 0 || self.refusing_frames >= REFUSING_FRAMES {
+            let step = off_target.clamp(STEP_UP.0, STEP_UP.1) as f32;
+            self.threshold_scale = (self.threshold_scale * step).min(MAX_THRESHOLD_SCALE);
+        } else if self.threshold_scale > 1.0 && pinned < RELIEF_SHARE * budget {
+            let step = (1.0 / off_target.max(1e-9)).clamp(STEP_DOWN.0, STEP_DOWN.1) as f32;
+            self.threshold_scale = (self.threshold_scale / step).max(1.0);
         }
     }
 

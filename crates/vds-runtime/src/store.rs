@@ -257,9 +257,16 @@ impl NodeLabel {
 /// "None" for slots, list links and page slots.
 const NIL: u32 = u32::MAX;
 
+/// Pages asked for ahead of need at most at once.
+const MAX_AHEAD: u32 = 16;
+
 /// Frames an unpinned page must go unused before a page fetched ahead of need may take its
 /// place (one second at 60 Hz).
 const STALE_FRAMES: usize = 60;
+
+/// An empty page range, for "keep no page".
+#[allow(clippy::reversed_empty_ranges)]
+const NO_PAGES: std::ops::RangeInclusive<u32> = 1..=0;
 
 /// The `awaited` priority of a page nobody asked for.
 const NOT_AWAITED: f32 = f32::NEG_INFINITY;
@@ -680,7 +687,8 @@ impl NodeStore {
         self.pinned_total() > self.budget
     }
 
-    /// Pages refused for the budget since the last call.
+    /// Pages (and growth steps of the cut) refused since the last call that would not have
+    /// fitted even with every unpinned page evicted: the cut outgrowing the budget.
     pub fn take_refused(&mut self) -> u32 {
         std::mem::take(&mut self.refused_recently)
     }
@@ -688,6 +696,8 @@ impl NodeStore {
     /// Marks the start of a frame: pages that arrived or were unpinned since the start of
     /// the previous one are kept from eviction through this frame.
     pub fn begin_frame(&mut self) {
+        // Whoever wanted the last frame's arrivals has taken them by now.
+        self.loaded.clear();
         self.protect_from = self.frame_start;
         self.frame_start = self.tick;
         if self.recent_frames.len() == STALE_FRAMES {
@@ -748,13 +758,13 @@ impl NodeStore {
 
     /// Makes room for `bytes` more by evicting unpinned pages stamped before
     /// `protect_from`, oldest first, never the pages in `keep`. False if it cannot.
-    fn make_room(&mut self, bytes: u64, keep: &[u32]) -> bool {
+    fn make_room(&mut self, bytes: u64, keep: &std::ops::RangeInclusive<u32>) -> bool {
         let limit = self.limit();
         while self.resident_bytes() + bytes > limit {
             let candidate = self
                 .evictable
-                .iter()
-                .find(|(stamp, page)| *stamp < self.protect_from && !keep.contains(page))
+                .range(..(self.protect_from, 0))
+                .find(|(_, page)| !keep.contains(page))
                 .map(|&(_, page)| page);
             match candidate {
                 Some(page) => self.evict(page),
@@ -769,10 +779,10 @@ impl NodeStore {
     /// effective threshold rises) when it cannot.
     /// The pages of `unfolding`'s children are kept: the unfold that asked needs them.
     pub(crate) fn make_room_for_cut(&mut self, bytes: u64, unfolding: u32) -> bool {
-        let keep = self.children_pages(unfolding).unwrap_or_default();
+        let keep = self.children_pages(unfolding).unwrap_or(NO_PAGES);
         let room = self.make_room(bytes, &keep);
         if !room {
-            self.refuse();
+            self.refuse(bytes);
         }
         room
     }
@@ -877,6 +887,9 @@ impl NodeStore {
     /// Where resident node `id` lives, or `None` if its page is not resident.
     #[inline]
     fn place(&self, id: u32) -> Option<Place> {
+        if id >= self.node_count {
+            return None;
+        }
         let fast = *self.block_slot.get((id >> self.block_shift) as usize)?;
         if fast != NIL {
             let first = self.resident(fast).first_node;
@@ -1093,24 +1106,25 @@ impl NodeStore {
         self.resident(p.slot).checked[(p.local / 64) as usize] & (1 << (p.local % 64)) != 0
     }
 
-    /// The pages holding `id`'s first and last child (the same page, usually), for a node
-    /// with children.
-    fn children_pages(&self, id: u32) -> Option<[u32; 2]> {
+    /// The pages holding `id`'s children (one page, usually), for a node with children.
+    ///
+    /// Every page from the first child's to the last child's: a hostile file can put a page
+    /// of a few nodes between two siblings, so the range, not its two ends, is what the
+    /// children need.
+    fn children_pages(&self, id: u32) -> Option<std::ops::RangeInclusive<u32>> {
         let hot = self.hot(id);
         if hot.child_count == 0 {
             return None;
         }
         let last = hot.first_child + hot.child_count - 1;
-        Some([self.page_of(hot.first_child)?, self.page_of(last)?])
+        Some(self.page_of(hot.first_child)?..=self.page_of(last)?)
     }
 
     /// Whether `id`'s children's pages are resident, without reading any. With synchronous
     /// loading an unfold reads them itself, so this is about residency alone.
     pub fn children_resident(&self, id: u32) -> bool {
-        self.children_pages(id).is_none_or(|pages| {
-            pages
-                .iter()
-                .all(|&p| self.page_state[p as usize] == PageState::Resident)
+        self.children_pages(id).is_none_or(|mut pages| {
+            pages.all(|p| self.page_state[p as usize] == PageState::Resident)
         })
     }
 
@@ -1170,8 +1184,16 @@ impl NodeStore {
         let Some(pages) = self.children_pages(id) else {
             return;
         };
-        let priority = priority.clamp(-1.0, -f32::MIN_POSITIVE);
-        if !self.room_ahead_of_need(self.typical_page_bytes) {
+        let priority = if priority.is_nan() {
+            -1.0
+        } else {
+            priority.clamp(-1.0, -f32::MIN_POSITIVE)
+        };
+        // Room for what is already on its way too, and never more than a few pages at once:
+        // a frame's worth of near-threshold nodes must not queue hundreds of pages that
+        // will not fit.
+        let in_flight = u64::from(self.pending_ahead + 1) * self.typical_page_bytes;
+        if self.pending_ahead >= MAX_AHEAD || !self.room_ahead_of_need(in_flight) {
             return;
         }
         for page in pages {
@@ -1232,10 +1254,10 @@ impl NodeStore {
         match result {
             Ok(page) => {
                 let bytes = ResidentPage::bytes_for(page.nodes.len(), page.triangles.len());
-                if needed && self.make_room(bytes, &[]) {
+                if needed && self.make_room(bytes, &NO_PAGES) {
                     self.install(index, &page, false);
                 } else if needed {
-                    self.refuse();
+                    self.refuse(bytes);
                 } else if self.make_room_ahead_of_need(bytes) {
                     self.install(index, &page, true);
                 }
@@ -1249,9 +1271,18 @@ impl NodeStore {
         }
     }
 
-    fn refuse(&mut self) {
+    /// Whether room for `bytes` could be made by evicting every unpinned page, protected or
+    /// not: a refusal that could not is the cut outgrowing the budget; one that could is
+    /// the budget waiting for pages that arrived lately to be used.
+    fn could_fit(&self, bytes: u64) -> bool {
+        self.pinned_total() + bytes <= self.limit()
+    }
+
+    fn refuse(&mut self, bytes: u64) {
         self.refusals += 1;
-        self.refused_recently += 1;
+        if !self.could_fit(bytes) {
+            self.refused_recently += 1;
+        }
     }
 
     /// Node `id`, which must be resident ([`NodeStore::load_node`]).
@@ -1410,7 +1441,7 @@ impl NodeStore {
     pub fn load_node(&mut self, id: u32) -> Result<(), VdtError> {
         match self.page_of(id) {
             Some(index) if self.page_state[index as usize] == PageState::Resident => Ok(()),
-            Some(index) => match self.load_page(index, &[], false) {
+            Some(index) => match self.load_page(index, &NO_PAGES, false) {
                 Err(LoadError::File(e)) => Err(e),
                 _ => Ok(()),
             },
@@ -1430,10 +1461,9 @@ impl NodeStore {
         let Some(pages) = self.children_pages(id) else {
             return Ok(());
         };
-        let own = self.page_of(id).expect("a resident node has a page");
-        for (k, &page) in pages.iter().enumerate() {
+        for page in pages.clone() {
             if self.page_state[page as usize] != PageState::Resident {
-                self.load_page(page, &[own, pages[1 - k]], true)?;
+                self.load_page(page, &pages, true)?;
             }
         }
         if self.is_checked(id) {
@@ -1537,7 +1567,12 @@ impl NodeStore {
     /// Reads page `index` on this thread and installs it, evicting unpinned pages (never
     /// those in `keep`) to make room. When room cannot be made: refused if `refusable`,
     /// installed over the budget otherwise.
-    fn load_page(&mut self, index: u32, keep: &[u32], refusable: bool) -> Result<(), LoadError> {
+    fn load_page(
+        &mut self,
+        index: u32,
+        keep: &std::ops::RangeInclusive<u32>,
+        refusable: bool,
+    ) -> Result<(), LoadError> {
         let mut scratch = std::mem::replace(&mut self.scratch, empty_page());
         let result = self.source.read_page_into(index, &mut scratch);
         let outcome = match result {
@@ -1547,7 +1582,7 @@ impl NodeStore {
                     self.install(index, &scratch, false);
                     Ok(())
                 } else {
-                    self.refuse();
+                    self.refuse(bytes);
                     Err(LoadError::OverBudget)
                 }
             }
@@ -1595,7 +1630,7 @@ impl NodeStore {
     pub fn load_every_page(&mut self) -> Result<(), VdtError> {
         for index in 0..self.page_state.len() as u32 {
             if self.page_state[index as usize] != PageState::Resident
-                && let Err(LoadError::File(e)) = self.load_page(index, &[], false)
+                && let Err(LoadError::File(e)) = self.load_page(index, &NO_PAGES, false)
             {
                 return Err(e);
             }

@@ -255,7 +255,7 @@ fn replays_orbits_flights_and_path_files_without_a_gpu() {
     );
     assert!(header(&orbit).ends_with(
         "resident_bytes,pages_resident,pages_loaded,pages_evicted,pages_pending,effective_threshold,\
-         rss_anon_bytes"
+         rss_anon_bytes,pinned_bytes,refusals"
     ));
     let triangles = |row: &Vec<String>| row[2].parse::<u32>().unwrap();
     assert!(orbit[1..].iter().all(|row| triangles(row) > 0));

@@ -50,8 +50,10 @@ struct Args {
     /// With a path replay: one CSV row per frame (frame, adjust_ms, active_triangles,
     /// added, removed, changed, nodes_visited, unfolds, folds, deferred_unfolds,
     /// resident_bytes, pages_resident, pages_loaded and pages_evicted since the start,
-    /// pages_pending, effective_threshold, and rss_anon_bytes: the process's anonymous
-    /// resident memory from /proc/self/status, empty where there is none).
+    /// pages_pending, effective_threshold, rss_anon_bytes: the process's anonymous
+    /// resident memory from /proc/self/status, empty where there is none; pinned_bytes: of
+    /// resident_bytes, the pages the cut holds; refusals: pages and growth steps the budget
+    /// refused since the start).
     #[arg(long, value_name = "OUT.csv", requires = "replay")]
     stats: Option<PathBuf>,
     /// With a path replay: start frames at most this often, in milliseconds (a display's
@@ -514,7 +516,7 @@ fn replay(
     let mut rows = String::from(
         "frame,adjust_ms,active_triangles,added,removed,changed,nodes_visited,unfolds,folds,\
          deferred_unfolds,resident_bytes,pages_resident,pages_loaded,pages_evicted,pages_pending,\
-         effective_threshold,rss_anon_bytes\n",
+         effective_threshold,rss_anon_bytes,pinned_bytes,refusals\n",
     );
     let mut adjust_ms = Vec::with_capacity(path.cameras.len());
     let mut errors = 0usize;
@@ -538,7 +540,7 @@ fn replay(
         let (loaded, evicted) = (memory.pages_loaded, memory.pages_evicted);
         let (stats, changes) = (&frame.stats, &frame.changes);
         rows += &format!(
-            "{i},{ms:.4},{},{},{},{},{},{},{},{},{},{},{loaded},{evicted},{},{},{}\n",
+            "{i},{ms:.4},{},{},{},{},{},{},{},{},{},{},{loaded},{evicted},{},{},{},{},{}\n",
             runtime.cut().active_triangle_count(),
             changes.added,
             changes.removed,
@@ -554,6 +556,8 @@ fn replay(
                 .effective_threshold
                 .map_or_else(String::new, |t| format!("{t}")),
             rss_anon_bytes().map_or_else(String::new, |b| b.to_string()),
+            memory.pinned_bytes,
+            memory.refusals,
         );
     }
     if let Some(stats) = &args.stats {
