@@ -230,7 +230,7 @@ enum PageState {
 
 /// What the cut keeps of one node while the node's page is resident: its label, its count of
 /// active children, its place in the cut's active list and the head of its incidence list.
-/// Nodes of pages that are not resident read as [`NodeLabel::INACTIVE`].
+/// Nodes of pages that are not resident read as inactive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NodeLabel {
     /// Inactive, boundary or active. Changed only through [`NodeStore::set_state`], which
@@ -448,8 +448,8 @@ fn physical_memory() -> Option<u64> {
 ///
 /// Nothing here is sized by the model but a few tables with an entry per page of the file
 /// (where a page starts, its slot, its state) and the node → page table of one entry per
-/// block of node ids ([`block_shift`]). Every per-node and per-triangle record lives in the resident
-/// page that holds it ([`ResidentPage`]), found through those tables.
+/// block of node ids (`block_shift`). Every per-node and per-triangle record lives in the resident
+/// page that holds it (`ResidentPage`), found through those tables.
 ///
 /// ## Memory budget and eviction
 /// The store holds at most its budget in bytes ([`NodeStore::set_memory_budget`]): resident
