@@ -1,8 +1,9 @@
 //! The GPU mirror of a cut and the pipeline that draws it.
 //!
-//! Five bindings (see `shaders/cut.wgsl`): per-frame uniforms, vertex records (`vec4` proxy
+//! Six bindings (see `shaders/cut.wgsl`): per-frame uniforms, vertex records (`vec4` proxy
 //! and error radius, `vec2<u32>` depth and normal, `vec4` sphere) indexed by the vertex
-//! indices a [`crate::update::VertexPool`] hands out, and the slot array. Updates write only
+//! indices a [`crate::update::VertexPool`] hands out, the slot array, and the per-part looks
+//! ([`PartLook`]: colour, hidden, picked). Updates write only
 //! the runs a [`CutUpdate`] carries; the vertex buffers and the slot array grow by
 //! reallocation (the old contents copied on the GPU), and the slot array is split into chunks
 //! no larger than the adapter can bind.
@@ -18,12 +19,51 @@ use crate::{Gpu, RenderError};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Colouring {
     /// One pastel colour per part.
-    #[default]
     Parts,
     /// Blue (root) to red (deepest) by the depth of the triangle's deepest corner node.
     Depth,
     /// Blue to red by screen-space error, red at twice the threshold.
     Error,
+    /// The colour the file gives each part ([`PartLook::colour`]), the part palette for parts
+    /// without one.
+    #[default]
+    File,
+}
+
+/// The most section planes a frame clips by.
+pub const MAX_SECTIONS: usize = 3;
+
+/// A section (clipping) plane: everything where `normal · x + offset > 0` is cut away, the
+/// side the normal points to.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SectionPlane {
+    /// The plane's normal (any length; the test only needs its sign).
+    pub normal: [f32; 3],
+    /// The plane's offset: the plane is `normal · x + offset = 0`.
+    pub offset: f32,
+}
+
+/// How one part is drawn, beyond the frame's [`Style`].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PartLook {
+    /// Linear RGB in `0.0..=1.0`, shown by [`Colouring::File`]; none: the palette colour.
+    pub colour: Option<[f32; 3]>,
+    /// Not drawn at any level of detail.
+    pub hidden: bool,
+    /// Highlighted (the picked part).
+    pub picked: bool,
+}
+
+impl PartLook {
+    /// The shader's record (`parts` in `cut.wgsl`): linear RGBA8 with alpha 255 when the
+    /// colour is given, and the flags (1 hidden, 2 picked).
+    fn packed(&self) -> [u32; 2] {
+        let colour = self.colour.map_or(0, |c| {
+            let byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u32;
+            byte(c[0]) | byte(c[1]) << 8 | byte(c[2]) << 16 | 0xFF << 24
+        });
+        [colour, u32::from(self.hidden) | u32::from(self.picked) << 1]
+    }
 }
 
 /// How triangles are shaded.
@@ -51,9 +91,12 @@ pub struct Style {
     /// such a triangle is invisible, and its coarse stand-in (stretched to the proxy of a
     /// region folded for being off-screen) would only draw a sliver across the view.
     pub cull_outside: bool,
+    /// Section planes (at most [`MAX_SECTIONS`] apply): what lies on their positive side is
+    /// not drawn, and the inside of a cut solid shows as a flat cap colour.
+    pub sections: [Option<SectionPlane>; MAX_SECTIONS],
 }
 
-/// Mirrors `Frame` in `cut.wgsl` (208 bytes).
+/// Mirrors `Frame` in `cut.wgsl` (256 bytes).
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 #[repr(C)]
 struct FrameUniforms {
@@ -66,13 +109,19 @@ struct FrameUniforms {
     wireframe: u32,
     max_depth: f32,
     cull_outside: u32,
-    pad: [f32; 2],
+    part_count: u32,
+    section_count: u32,
     /// Outward frustum planes (near, right, left, top, bottom): `dot(n, x) + d` is the
     /// signed distance of `x` outside.
     planes: [[f32; 4]; 5],
+    /// Section planes in use, first `section_count`: `dot(n, x) + d > 0` is cut away.
+    sections: [[f32; 4]; MAX_SECTIONS],
 }
 
-const _: () = assert!(size_of::<FrameUniforms>() == 208);
+const _: () = assert!(size_of::<FrameUniforms>() == 256);
+
+/// The format of the picking target: part id plus one, and the world position's bits.
+pub const PICK_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
 
 /// The colour format of every target the pipeline draws to.
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
@@ -126,9 +175,11 @@ fn frustum_planes(camera: &Camera) -> [[f32; 4]; 5] {
     ]
 }
 
-/// The render pipeline and its bind group layout (created once).
+/// The render pipelines (the picture, and the picking pass into [`PICK_FORMAT`]) and their
+/// bind group layout (created once).
 pub struct CutPipeline {
     pipeline: wgpu::RenderPipeline,
+    pick: wgpu::RenderPipeline,
     layout: wgpu::BindGroupLayout,
 }
 
@@ -164,6 +215,7 @@ impl CutPipeline {
                 storage(2),
                 storage(3),
                 storage(4),
+                storage(5),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -171,43 +223,49 @@ impl CutPipeline {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("cut pipeline"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState {
-                topology: wgpu::PrimitiveTopology::TriangleList,
-                // CAD soup has no consistent winding: draw both sides.
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Greater),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &shader,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
-        CutPipeline { pipeline, layout }
+        let pipeline = |label, fragment, format| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(label),
+                layout: Some(&pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology: wgpu::PrimitiveTopology::TriangleList,
+                    // CAD soup has no consistent winding: draw both sides.
+                    cull_mode: None,
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Greater),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some(fragment),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        CutPipeline {
+            pipeline: pipeline("cut pipeline", "fs_main", format),
+            pick: pipeline("pick pipeline", "fs_pick", PICK_FORMAT),
+            layout,
+        }
     }
 }
 
@@ -257,6 +315,20 @@ pub struct GpuCut {
     chunks: Vec<SlotChunk>,
     slot_count: u32,
     max_depth: u32,
+    /// Per-part looks ([`PartLook::packed`]), at least one entry's room.
+    parts: wgpu::Buffer,
+    /// Entries of `parts` in use.
+    part_count: u32,
+}
+
+/// A buffer for `count` packed part looks (room for one at least: bindings cannot be empty).
+fn part_buffer(gpu: &Gpu, count: u32) -> wgpu::Buffer {
+    gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("part looks"),
+        size: u64::from(count.max(1)) * 8,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
 }
 
 impl GpuCut {
@@ -288,6 +360,32 @@ impl GpuCut {
             chunks: Vec::new(),
             slot_count: 0,
             max_depth: 0,
+            parts: part_buffer(gpu, 1),
+            part_count: 0,
+        }
+    }
+
+    /// Sets how each part is drawn, by part id (ids past `looks` take the default look:
+    /// palette colour, shown). A larger table than the last one reallocates its buffer.
+    pub fn set_parts(&mut self, gpu: &Gpu, pipeline: &CutPipeline, looks: &[PartLook]) {
+        let count = u32::try_from(looks.len()).unwrap_or(u32::MAX);
+        let packed: Vec<[u32; 2]> = looks.iter().map(PartLook::packed).collect();
+        if u64::from(count.max(1)) * 8 > self.parts.size() {
+            self.parts = part_buffer(gpu, count);
+            self.rebind(gpu, pipeline);
+        }
+        if !packed.is_empty() {
+            gpu.queue
+                .write_buffer(&self.parts, 0, bytemuck::cast_slice(&packed));
+        }
+        self.part_count = count;
+    }
+
+    /// Remakes every slot chunk's bind group over the current buffers.
+    fn rebind(&mut self, gpu: &Gpu, pipeline: &CutPipeline) {
+        for k in 0..self.chunks.len() {
+            let bind_group = self.bind_group(gpu, pipeline, &self.chunks[k].buffer);
+            self.chunks[k].bind_group = bind_group;
         }
     }
 
@@ -330,10 +428,7 @@ impl GpuCut {
         gpu.queue.submit([encoder.finish()]);
         [self.nodes, self.node_attrs, self.node_spheres] = grown;
         self.vertex_capacity = capacity;
-        for k in 0..self.chunks.len() {
-            let bind_group = self.bind_group(gpu, pipeline, &self.chunks[k].buffer);
-            self.chunks[k].bind_group = bind_group;
-        }
+        self.rebind(gpu, pipeline);
         Ok(())
     }
 
@@ -367,6 +462,7 @@ impl GpuCut {
             &self.node_attrs,
             slots,
             &self.node_spheres,
+            &self.parts,
         ];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
@@ -511,11 +607,49 @@ impl GpuCut {
 
     /// Sets the camera and style for the next draw.
     pub fn set_frame(&self, gpu: &Gpu, camera: &Camera, style: &Style) {
+        self.set_frame_window(gpu, camera, style, None);
+    }
+
+    /// [`GpuCut::set_frame`] for a target that shows only `window` (x, y, width, height in
+    /// the camera's pixels, y down) of the camera's view, stretched over the whole target:
+    /// the picking pass draws the pixels it reads this way, with the same rasterisation
+    /// sample points as the full view.
+    pub fn set_frame_window(
+        &self,
+        gpu: &Gpu,
+        camera: &Camera,
+        style: &Style,
+        window: Option<[u32; 4]>,
+    ) {
         let view = camera.view();
+        let mut world_to_clip = world_to_clip(camera);
+        if let Some([x, y, w, h]) = window {
+            // Clip-space scale and shift taking the window's NDC rectangle to [-1, 1]²:
+            // x' = (x − c_x·w_c)·W/w and likewise for y (NDC y points up, pixels down).
+            let (full_w, full_h) = (view.width as f32, view.height as f32);
+            let (w, h) = (w.max(1) as f32, h.max(1) as f32);
+            let centre_x = (2.0 * x as f32 + w) / full_w - 1.0;
+            let centre_y = 1.0 - (2.0 * y as f32 + h) / full_h;
+            let (scale_x, scale_y) = (full_w / w, full_h / h);
+            let window = Mat4::from_cols_array_2d(&[
+                [scale_x, 0.0, 0.0, 0.0],
+                [0.0, scale_y, 0.0, 0.0],
+                [0.0, 0.0, 1.0, 0.0],
+                [-centre_x * scale_x, -centre_y * scale_y, 0.0, 1.0],
+            ]);
+            world_to_clip = window * world_to_clip;
+        }
+        let mut sections = [[0.0; 4]; MAX_SECTIONS];
+        let mut section_count = 0;
+        for plane in style.sections.iter().flatten() {
+            let [x, y, z] = plane.normal;
+            sections[section_count] = [x, y, z, plane.offset];
+            section_count += 1;
+        }
         // Headlight from above the eye, so faces square to the view are not all equally lit.
         let light = (-view.forward + view.up * 0.35 + view.right * 0.2).normalize();
         let uniforms = FrameUniforms {
-            world_to_clip: world_to_clip(camera).to_cols_array_2d(),
+            world_to_clip: world_to_clip.to_cols_array_2d(),
             eye: [view.eye.x, view.eye.y, view.eye.z, view.focal_px],
             light: [light.x, light.y, light.z, 0.25],
             threshold_px: style.threshold_px,
@@ -524,8 +658,10 @@ impl GpuCut {
             wireframe: u32::from(style.wireframe),
             max_depth: self.max_depth as f32,
             cull_outside: u32::from(style.cull_outside),
-            pad: [0.0; 2],
+            part_count: self.part_count,
+            section_count: section_count as u32,
             planes: frustum_planes(camera),
+            sections,
         };
         gpu.queue
             .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
@@ -533,7 +669,21 @@ impl GpuCut {
 
     /// Records the draw into `pass`: one draw call per slot chunk.
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, pipeline: &CutPipeline) {
-        pass.set_pipeline(&pipeline.pipeline);
+        self.draw_with(pass, pipeline, &pipeline.pipeline);
+    }
+
+    /// Records the picking draw (into a [`PICK_FORMAT`] target) into `pass`.
+    pub fn draw_pick(&self, pass: &mut wgpu::RenderPass<'_>, pipeline: &CutPipeline) {
+        self.draw_with(pass, pipeline, &pipeline.pick);
+    }
+
+    fn draw_with(
+        &self,
+        pass: &mut wgpu::RenderPass<'_>,
+        _pipeline: &CutPipeline,
+        render: &wgpu::RenderPipeline,
+    ) {
+        pass.set_pipeline(render);
         let mut left = self.slot_count;
         for chunk in &self.chunks {
             let count = left.min(chunk.capacity);

@@ -6,6 +6,7 @@
 //!   [`VertexPool`], which gives GPU vertices only to the nodes the cut uses.
 //! - [`cut_renderer`]: buffers, uploads, the pipeline and `shaders/cut.wgsl`.
 //! - [`target`]: offscreen targets, readback, PNG files.
+//! - [`pick`]: what a pixel shows (part id and world position), by an id buffer.
 //!
 //! Positions are never re-uploaded per frame: a node's vertex record goes up when the cut
 //! starts to use it; per frame only those and the slots that changed are written. GPU memory
@@ -15,10 +16,15 @@
 
 pub mod cut_renderer;
 pub mod gpu;
+pub mod pick;
 pub mod target;
 pub mod update;
 
-pub use cut_renderer::{Colouring, CutPipeline, GpuCut, Shading, Style, world_to_clip};
+pub use cut_renderer::{
+    Colouring, CutPipeline, GpuCut, MAX_SECTIONS, PartLook, SectionPlane, Shading, Style,
+    world_to_clip,
+};
+pub use pick::{Hit, pick, pick_region};
 
 /// The colour format offscreen targets use (sRGB, so PNGs look as the window does).
 pub fn target_format() -> wgpu::TextureFormat {

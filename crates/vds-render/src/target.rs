@@ -306,7 +306,7 @@ fn wait(gpu: &Gpu) -> Result<(), RenderError> {
 }
 
 /// Maps `buffer` for reading, waits, and returns its bytes (the caller unmaps).
-fn map_read(gpu: &Gpu, buffer: &wgpu::Buffer) -> Result<Vec<u8>, RenderError> {
+pub(crate) fn map_read(gpu: &Gpu, buffer: &wgpu::Buffer) -> Result<Vec<u8>, RenderError> {
     let (sender, receiver) = std::sync::mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, .., move |result| {
         let _ = sender.send(result);

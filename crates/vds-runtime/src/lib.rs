@@ -20,6 +20,7 @@
 //! - [`reuse`]: margins that let a threshold test stand while the camera moves little.
 //! - [`camera_path`]: camera paths (orbit, fly-through) and their JSON form.
 //! - [`measure`]: exact screen-space deviation of the original vertices, for checks.
+//! - [`nearest`]: the original vertex nearest a point (measurements snap to it).
 //! - [`export`]: the cut as an OBJ or PLY mesh (`vds-cut`).
 //! - [`size`]: byte sizes on command lines (`--memory-budget 512MiB`).
 
@@ -32,6 +33,7 @@ pub mod cut;
 pub mod export;
 mod loader;
 pub mod measure;
+pub mod nearest;
 mod prefetch;
 pub mod reuse;
 pub mod size;

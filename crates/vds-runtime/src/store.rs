@@ -72,7 +72,7 @@ pub struct Node {
 }
 
 impl Node {
-    fn from_record(r: &NodeRecord) -> Node {
+    pub(crate) fn from_record(r: &NodeRecord) -> Node {
         let f = |v: &[vds_format::layout::F32]| [v[0].get(), v[1].get(), v[2].get()];
         Node {
             proxy: f(&r.proxy),
@@ -525,7 +525,7 @@ pub struct NodeStore {
     scratch: Page,
 }
 
-fn empty_page() -> Page {
+pub(crate) fn empty_page() -> Page {
     Page {
         first_node: 0,
         first_triangle: 0,
@@ -1636,6 +1636,12 @@ impl NodeStore {
             }
         }
         Ok(())
+    }
+
+    /// The file the store reads (shared with its loader threads), for searches of their
+    /// own such as [`crate::nearest::nearest_leaf`].
+    pub fn source(&self) -> std::sync::Arc<dyn PageSource> {
+        std::sync::Arc::clone(&self.source)
     }
 
     /// Calls `visit` with every page of the file in order, decoded and checked by the

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use vds_render::{CutPipeline, CutUpdate, Gpu, GpuCut, Offscreen, Style};
+use vds_render::{CutPipeline, CutUpdate, Gpu, GpuCut, Hit, Offscreen, PartLook, Style};
 use vds_runtime::CameraPath;
 
 use crate::model::Model;
@@ -33,6 +33,18 @@ pub struct Headless {
     /// Stop adjusting after this frame and keep drawing the frozen cut along the path (the
     /// paper's "what did VDS do" views).
     pub freeze_after: Option<usize>,
+    /// How each part is drawn (colour, hidden, picked), by part id.
+    pub part_looks: Vec<PartLook>,
+    /// Pixels (x, y; y down) to pick on the first frame.
+    pub probes: Vec<(u32, u32)>,
+}
+
+/// What a headless run returns.
+pub struct Run {
+    /// One row per frame.
+    pub rows: Vec<FrameRow>,
+    /// What the first frame shows at each of [`Headless::probes`].
+    pub hits: Vec<Option<Hit>>,
 }
 
 /// One row of the per-frame table.
@@ -128,8 +140,8 @@ impl Mirror {
     }
 }
 
-/// Runs `headless` over `model` and returns the rows.
-pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>> {
+/// Runs `headless` over `model` and returns the rows and the first frame's picks.
+pub fn run_model(mut model: Model, headless: &Headless) -> Result<Run> {
     // Errors of the simplifier (a page that fails to load or decode) name the model.
     let name = model.name.clone();
     let gpu = Gpu::headless()?;
@@ -157,12 +169,24 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
     };
 
     let mut rows = Vec::new();
+    let mut hits = Vec::new();
+    let probe = |gpu_cut: &GpuCut, camera: &vds_runtime::Camera| -> Result<Vec<Option<Hit>>> {
+        headless
+            .probes
+            .iter()
+            .map(|&(x, y)| {
+                vds_render::pick(&gpu, gpu_cut, &pipeline, camera, &headless.style, x, y)
+                    .map_err(anyhow::Error::from)
+            })
+            .collect()
+    };
     if headless.brute_force {
         let mesh = model
             .mesh
             .take()
             .context("brute force needs the original mesh")?;
         let mut gpu_cut = GpuCut::new(&gpu);
+        gpu_cut.set_parts(&gpu, &pipeline, &headless.part_looks);
         let update = CutUpdate::whole_mesh(&mesh.positions, &mesh.triangles, &mesh.triangle_parts);
         let upload = gpu_cut.apply(&gpu, &pipeline, &update)?;
         for (i, camera) in headless.path.cameras.iter().enumerate() {
@@ -170,6 +194,9 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
             gpu_cut.set_frame(&gpu, camera, &headless.style);
             let gpu_ms = target.render(&gpu, &gpu_cut, &pipeline)?;
             let image = target.read(&gpu)?;
+            if i == 0 {
+                hits = probe(&gpu_cut, camera)?;
+            }
             let row = FrameRow {
                 frame: i,
                 upload_bytes: if i == 0 { upload } else { 0 },
@@ -185,10 +212,11 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
             finish_frame(headless, &image, &row, csv.as_mut())?;
             rows.push(row);
         }
-        return Ok(rows);
+        return Ok(Run { rows, hits });
     }
 
     let mut gpu_cut = GpuCut::new(&gpu);
+    gpu_cut.set_parts(&gpu, &pipeline, &headless.part_looks);
     let mut mirror = headless.verify.then(Mirror::default);
     let mut simplifier = Some(Simplifier::new(model.runtime, headless.verify));
     let asynchronous = headless
@@ -242,6 +270,9 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
         gpu_cut.set_frame(&gpu, camera, &headless.style);
         let gpu_ms = target.render(&gpu, &gpu_cut, &pipeline)?;
         let image = target.read(&gpu)?;
+        if i == 0 {
+            hits = probe(&gpu_cut, camera)?;
+        }
         let row = FrameRow {
             frame: i,
             adjust: figures,
@@ -258,7 +289,7 @@ pub fn run_model(mut model: Model, headless: &Headless) -> Result<Vec<FrameRow>>
         file.flush()
             .with_context(|| format!("writing {}", path.display()))?;
     }
-    Ok(rows)
+    Ok(Run { rows, hits })
 }
 
 fn finish_frame(

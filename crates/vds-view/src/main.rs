@@ -5,11 +5,19 @@
 //! offscreen instead: PNGs and a CSV of per-frame figures. Exit codes: 0 success, 1 failure
 //! (named, with the file it is about), 2 bad command line (every number is checked for its
 //! range, and NaN or infinity for none, before anything is opened).
+//!
+//! A design review's state starts from the command line in both modes: `--hide` and
+//! `--isolate` (part names or assembly paths, shell globs), `--section` planes and the
+//! colouring; headless, `--pick` and `--measure` print what the first frame shows at given
+//! pixels as JSON.
 
 mod controls;
+mod demo;
 mod headless;
 mod hud;
 mod model;
+mod parts;
+mod probe;
 mod simplify;
 mod window;
 
@@ -17,7 +25,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use clap::{Parser, ValueEnum};
-use vds_render::{Colouring, Shading, Style};
+use vds_render::{Colouring, MAX_SECTIONS, SectionPlane, Shading, Style};
 use vds_runtime::{CameraPath, Criteria, FrustumMode, Gaze, Goal, PathSource};
 
 use crate::headless::Headless;
@@ -70,9 +78,30 @@ struct Args {
     /// Draw the original mesh instead of the cut (for comparison).
     #[arg(long)]
     brute_force: bool,
-    /// Triangle colouring.
-    #[arg(long, value_enum, default_value_t = ColouringArg::Parts)]
+    /// Triangle colouring: the file's part colours (palette colours for parts without
+    /// one), a palette colour per part, node depth, or screen-space error.
+    #[arg(long, value_enum, default_value_t = ColouringArg::File)]
     colouring: ColouringArg,
+    /// Hide the parts whose name or assembly path matches this shell glob (`*` also
+    /// crosses `/`), with everything below them; repeatable.
+    #[arg(long, value_name = "NAME_GLOB")]
+    hide: Vec<String>,
+    /// Show only the parts matching this glob and what lies below them; repeatable (the
+    /// union is shown). Applied before --hide.
+    #[arg(long, value_name = "NAME_GLOB")]
+    isolate: Vec<String>,
+    /// A section plane "nx,ny,nz,d": everything where nx·x + ny·y + nz·z + d > 0 (the side
+    /// the normal points to) is cut away; up to three.
+    #[arg(long, value_name = "NX,NY,NZ,D", value_parser = parse_section)]
+    section: Vec<SectionPlane>,
+    /// Headless: print, as JSON, the part drawn at pixel X,Y of the first frame (x from the
+    /// left, y from the top) and the picked world position.
+    #[arg(long, value_name = "X,Y", value_parser = parse_pixel, requires = "headless")]
+    pick: Option<(u32, u32)>,
+    /// Headless: pick two pixels of the first frame and print, as JSON, the distance between
+    /// the original vertices nearest the picked points.
+    #[arg(long, value_name = "X1,Y1,X2,Y2", value_parser = parse_pixel_pair, requires = "headless")]
+    measure: Option<[(u32, u32); 2]>,
     /// Shading.
     #[arg(long, value_enum, default_value_t = ShadingArg::Faceted)]
     shading: ShadingArg,
@@ -136,6 +165,7 @@ impl LoadingArg {
 
 #[derive(Clone, Copy, ValueEnum)]
 enum ColouringArg {
+    File,
     Parts,
     Depth,
     Error,
@@ -184,6 +214,65 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     }
 }
 
+/// `X,Y`: a pixel, each coordinate at most 16383.
+fn parse_pixel(text: &str) -> Result<(u32, u32), String> {
+    let numbers = numbers::<u32>(text, 2)?;
+    if numbers.iter().any(|&v| v > 16383) {
+        return Err(format!(
+            "expected pixel coordinates below 16384, got {text:?}"
+        ));
+    }
+    Ok((numbers[0], numbers[1]))
+}
+
+/// `X1,Y1,X2,Y2`: two pixels.
+fn parse_pixel_pair(text: &str) -> Result<[(u32, u32); 2], String> {
+    let numbers = numbers::<u32>(text, 4)?;
+    if numbers.iter().any(|&v| v > 16383) {
+        return Err(format!(
+            "expected pixel coordinates below 16384, got {text:?}"
+        ));
+    }
+    Ok([(numbers[0], numbers[1]), (numbers[2], numbers[3])])
+}
+
+/// `nx,ny,nz,d`: finite numbers, the normal not zero.
+fn parse_section(text: &str) -> Result<SectionPlane, String> {
+    let v = numbers::<f32>(text, 4)?;
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("expected finite numbers, got {text:?}"));
+    }
+    let length = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if !(length > 0.0 && length.is_finite()) {
+        return Err(format!("the plane's normal must not be zero, got {text:?}"));
+    }
+    // Normalised, so that the panel's offset slider moves in world units.
+    Ok(SectionPlane {
+        normal: [v[0] / length, v[1] / length, v[2] / length],
+        offset: v[3] / length,
+    })
+}
+
+/// Exactly `count` comma-separated numbers.
+fn numbers<T: std::str::FromStr>(text: &str, count: usize) -> Result<Vec<T>, String>
+where
+    T::Err: std::fmt::Display,
+{
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    if parts.len() != count {
+        return Err(format!(
+            "expected {count} comma-separated numbers, got {text:?}"
+        ));
+    }
+    parts
+        .iter()
+        .map(|p| {
+            p.parse::<T>()
+                .map_err(|e| format!("{p:?} in {text:?}: {e}"))
+        })
+        .collect()
+}
+
 impl Args {
     fn settings(&self) -> Settings {
         Settings {
@@ -212,6 +301,7 @@ impl Args {
     fn style(&self) -> Style {
         Style {
             colouring: match self.colouring {
+                ColouringArg::File => Colouring::File,
                 ColouringArg::Parts => Colouring::Parts,
                 ColouringArg::Depth => Colouring::Depth,
                 ColouringArg::Error => Colouring::Error,
@@ -223,7 +313,36 @@ impl Args {
             wireframe: self.wireframe,
             threshold_px: self.threshold,
             cull_outside: !matches!(self.frustum, FrustumArg::Off) && !self.brute_force,
+            sections: std::array::from_fn(|k| self.section.get(k).copied()),
         }
+    }
+
+    /// Applies `--isolate` and `--hide` to `parts`.
+    fn review(&self, parts: &mut parts::Parts) -> Result<()> {
+        let matching = |parts: &parts::Parts, glob: &str| -> Result<Vec<u32>> {
+            let ids = parts.matching(glob)?;
+            if ids.is_empty() {
+                bail!(
+                    "no part's name or path matches {glob:?} (the model has {} parts; \
+                     `vds-info --parts FILE` lists them)",
+                    parts.len()
+                );
+            }
+            Ok(ids)
+        };
+        if !self.isolate.is_empty() {
+            let mut shown = Vec::new();
+            for glob in &self.isolate {
+                shown.extend(matching(parts, glob)?);
+            }
+            parts.isolate(&shown);
+        }
+        for glob in &self.hide {
+            for id in matching(parts, glob)? {
+                parts.set_hidden(id, true);
+            }
+        }
+        Ok(())
     }
 }
 
@@ -236,6 +355,10 @@ fn main() {
 }
 
 fn run(args: &Args) -> Result<()> {
+    if args.section.len() > MAX_SECTIONS {
+        eprintln!("vds-view: at most {MAX_SECTIONS} --section planes");
+        std::process::exit(2);
+    }
     if !args.headless {
         if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
             bail!(
@@ -248,7 +371,8 @@ fn run(args: &Args) -> Result<()> {
             );
         }
         let loading = args.loading.unwrap_or(LoadingArg::Background).loading();
-        let model = model::open(args.file.as_deref(), false, loading, args.memory_budget)?;
+        let mut model = model::open(args.file.as_deref(), false, loading, args.memory_budget)?;
+        args.review(&mut model.parts)?;
         return window::run(
             model,
             args.settings(),
@@ -258,12 +382,15 @@ fn run(args: &Args) -> Result<()> {
         );
     }
     let loading = args.loading.unwrap_or(LoadingArg::Synchronous).loading();
-    let model = model::open(
+    let mut model = model::open(
         args.file.as_deref(),
         args.brute_force,
         loading,
         args.memory_budget,
     )?;
+    args.review(&mut model.parts)?;
+    let review = model.parts.clone();
+    let pages = model.runtime.cut().store().source();
     let root = model.runtime.cut().node(0);
     let loop_frames = args.path_frames.or(args.frames).unwrap_or(120) as u32;
     let source = PathSource::from_flags(args.camera_path.as_deref(), args.fly);
@@ -299,14 +426,29 @@ fn run(args: &Args) -> Result<()> {
         brute_force: args.brute_force,
         verify: args.verify,
         freeze_after: args.freeze_after,
+        part_looks: model.parts.looks(),
+        probes: args
+            .pick
+            .into_iter()
+            .chain(args.measure.into_iter().flatten())
+            .collect(),
     };
     if !args.compare {
-        let summary = Summary::run(model, &headless)?;
+        let (summary, hits) = Summary::run(model, &headless)?;
+        if let Some(pixel) = args.pick {
+            let pick = probe::pick_json(&review, pixel, hits[0]);
+            println!("{}", serde_json::json!({ "pick": pick }));
+        }
+        if let Some(pixels) = args.measure {
+            let hits = &hits[usize::from(args.pick.is_some())..];
+            let measure = probe::measure_json(&review, &*pages, pixels, [hits[0], hits[1]])?;
+            println!("{}", serde_json::json!({ "measure": measure }));
+        }
         println!("{summary}");
         return Ok(());
     }
     // Same cameras, same process: first the cut, then the whole model.
-    let vds = Summary::run(model, &headless)?;
+    let (vds, _) = Summary::run(model, &headless)?;
     println!("{vds}");
     let model = model::open(args.file.as_deref(), true, loading, args.memory_budget)?;
     let brute_force = Headless {
@@ -315,7 +457,7 @@ fn run(args: &Args) -> Result<()> {
         stats: None,
         ..headless
     };
-    let brute = Summary::run(model, &brute_force)?;
+    let (brute, _) = Summary::run(model, &brute_force)?;
     println!("{brute}");
     println!(
         "brute force / vds: CPU frame {:.2}×{}",
@@ -346,10 +488,13 @@ struct Summary {
 }
 
 impl Summary {
-    fn run(model: model::Model, headless: &Headless) -> Result<Summary> {
+    fn run(
+        model: model::Model,
+        headless: &Headless,
+    ) -> Result<(Summary, Vec<Option<vds_render::Hit>>)> {
         let (name, triangles) = (model.name.clone(), model.triangles);
-        let rows = headless::run_model(model, headless)?;
-        Ok(Summary::of(name, triangles, headless, rows))
+        let run = headless::run_model(model, headless)?;
+        Ok((Summary::of(name, triangles, headless, run.rows), run.hits))
     }
 
     fn of(

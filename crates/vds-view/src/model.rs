@@ -8,8 +8,7 @@ use anyhow::{Context, Result};
 use vds_format::VdtFile;
 use vds_runtime::{CornerTracking, Loading, Runtime};
 
-/// The bundled demo: the CAx-IF AS1 assembly (18 solids), see `testdata/README.md`.
-const DEMO_OBJ: &[u8] = include_bytes!("../../../testdata/as1_assembly.obj");
+use crate::parts::Parts;
 
 /// An opened model.
 pub struct Model {
@@ -21,6 +20,8 @@ pub struct Model {
     pub triangles: u64,
     /// The original mesh, for brute-force comparison draws (kept only when asked for).
     pub mesh: Option<vds_import::Scene>,
+    /// The assembly's parts, from the file's metadata.
+    pub parts: Parts,
 }
 
 /// Opens `path` (or the demo when `None`). `keep_mesh` keeps the original triangles for
@@ -48,6 +49,7 @@ pub fn open(
                 error => anyhow::Error::new(error).context(path.display().to_string()),
             })?;
             let triangles = file.header().triangle_count.get();
+            let parts = Parts::of(file.metadata());
             let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
                 .with_context(|| path.display().to_string())?;
             runtime.set_memory_budget(budget);
@@ -60,21 +62,14 @@ pub fn open(
                 name: path.display().to_string(),
                 triangles,
                 mesh,
+                parts,
             });
         }
         Some(path) => (
             vds_import::load_file(path, &Default::default())?,
             path.display().to_string(),
         ),
-        None => {
-            let mut soup = vds_import::MeshSoup::default();
-            vds_import::read_bytes(DEMO_OBJ, vds_import::Format::Obj, "as1", &mut soup)
-                .map_err(|e| anyhow::anyhow!("the bundled demo model: {e:?}"))?;
-            (
-                vds_import::weld(soup, vds_import::Weld::Exact),
-                "bundled demo (AS1 assembly)".to_string(),
-            )
-        }
+        None => (crate::demo::scene()?, crate::demo::NAME.to_string()),
     };
     let mut scene = scene;
     let bytes = vds_build::encode_scene(
@@ -84,6 +79,7 @@ pub fn open(
     )
     .with_context(|| format!("building the tree of {name}"))?;
     let file = VdtFile::from_bytes(bytes).with_context(|| format!("the tree of {name}"))?;
+    let parts = Parts::of(file.metadata());
     let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
         .with_context(|| format!("the tree of {name}"))?;
     runtime.set_memory_budget(budget);
@@ -92,6 +88,7 @@ pub fn open(
         name,
         triangles: scene.triangles.len() as u64,
         mesh: keep_mesh.then_some(scene),
+        parts,
     })
 }
 

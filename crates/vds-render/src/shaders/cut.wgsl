@@ -4,7 +4,13 @@
 // becomes a zero-area triangle. Each vertex reads only its own corner's record (on the software rasteriser
 // the vertex fetches dominate, and slots are in no spatial order): the face normal comes from
 // screen-space derivatives of the position, and per-triangle colours from the provoking
-// (first) vertex. Mirrors `FrameUniforms` and `GpuNode` in the Rust code.
+// (first) vertex. Mirrors `FrameUniforms`, `GpuNode` and `PartLook::packed` in the Rust code.
+//
+// Per-part looks (`parts`, indexed by the slot's part id): the file's colour, hidden, picked.
+// A hidden part's triangles collapse like free slots at every level of detail, since every
+// triangle of every level carries the part id of the original triangles it stands for.
+// Section planes discard fragments on their positive side; where a section opens a solid, its
+// inside (back faces) shows in a flat colour so that the cut reads as solid.
 
 struct Frame {
     world_to_clip: mat4x4<f32>,
@@ -13,17 +19,21 @@ struct Frame {
     // xyz: unit direction towards the light; w: ambient term.
     light: vec4<f32>,
     threshold_px: f32,
-    // 0: part colours, 1: node depth, 2: screen-space error.
+    // 0: part palette, 1: node depth, 2: screen-space error, 3: the file's colours.
     colouring: u32,
     // 0: faceted, 1: smooth (node normals).
     shading: u32,
     wireframe: u32,
     max_depth: f32,
     cull_outside: u32,
-    _pad0: f32,
-    _pad1: f32,
+    // Entries of `parts`; ids at or past it take the default look.
+    part_count: u32,
+    // Section planes in use (the first `section_count` of `sections`).
+    section_count: u32,
     // Outward frustum planes: dot(n, x) + d > 0 outside.
     planes: array<vec4<f32>, 5>,
+    // Section planes: dot(n, x) + d > 0 is cut away.
+    sections: array<vec4<f32>, 3>,
 };
 
 @group(0) @binding(0) var<uniform> frame: Frame;
@@ -31,6 +41,11 @@ struct Frame {
 @group(0) @binding(2) var<storage, read> node_attrs: array<vec2<u32>>;
 @group(0) @binding(3) var<storage, read> slots: array<vec4<u32>>;
 @group(0) @binding(4) var<storage, read> node_spheres: array<vec4<f32>>;
+// Per part: x = linear RGBA8 colour (alpha 0: the file gives none), y = flags.
+@group(0) @binding(5) var<storage, read> parts: array<vec2<u32>>;
+
+const PART_HIDDEN: u32 = 1u;
+const PART_PICKED: u32 = 2u;
 
 // True when the sphere (centre, radius) lies entirely outside one frustum plane.
 fn outside(sphere: vec4<f32>) -> bool {
@@ -48,6 +63,7 @@ struct VertexOut {
     @location(1) smooth_normal: vec3<f32>,
     @location(2) world: vec3<f32>,
     @location(3) barycentric: vec3<f32>,
+    @location(4) @interpolate(flat) part: u32,
 };
 
 fn hash(x: u32) -> u32 {
@@ -77,6 +93,14 @@ fn part_colour(part: u32) -> vec3<f32> {
     return mix(vec3<f32>(light), base, 0.5);
 }
 
+// The look of a part: its table entry, or none (palette colour, shown) past the table.
+fn part_look(part: u32) -> vec2<u32> {
+    if (part < frame.part_count) {
+        return parts[part];
+    }
+    return vec2<u32>(0u, 0u);
+}
+
 fn decode_normal(packed: u32) -> vec3<f32> {
     let x = f32(bitcast<i32>(packed << 16u) >> 16u) / 32767.0;
     let y = f32(bitcast<i32>(packed) >> 16u) / 32767.0;
@@ -101,11 +125,12 @@ fn vs_main(@builtin(vertex_index) index: u32) -> VertexOut {
     let slot = slots[index / 3u];
     let k = index % 3u;
     out.barycentric = vec3<f32>(f32(k == 0u), f32(k == 1u), f32(k == 2u));
+    let look = part_look(slot.w);
     // A triangle with a corner node entirely off-screen is off-screen at full detail: do not
     // draw its coarse stand-in (see `Style::cull_outside`). All three vertices decide alike.
     let culled = frame.cull_outside != 0u && slot.x != 0xFFFFFFFFu
         && (outside(node_spheres[slot.x]) || outside(node_spheres[slot.y]) || outside(node_spheres[slot.z]));
-    if (slot.x == 0xFFFFFFFFu || culled) {
+    if (slot.x == 0xFFFFFFFFu || culled || (look.y & PART_HIDDEN) != 0u) {
         // A free slot: all three corners on one point inside the clip volume, so the
         // rasteriser drops a zero-area triangle. (A triangle outside the volume would be
         // culled too, but makes software rasterisers such as llvmpipe send the whole draw
@@ -130,13 +155,43 @@ fn vs_main(@builtin(vertex_index) index: u32) -> VertexOut {
     } else if (frame.colouring == 2u) {
         out.colour = ramp(screen_error(corner) / max(frame.threshold_px, 1e-6) * 0.5);
     } else {
-        out.colour = part_colour(slot.w);
+        let file = unpack4x8unorm(look.x);
+        if (frame.colouring == 3u && file.a > 0.0) {
+            out.colour = file.rgb;
+        } else {
+            out.colour = part_colour(slot.w);
+        }
     }
+    if ((look.y & PART_PICKED) != 0u) {
+        // The picked part: pulled towards a saturated orange, still shaded.
+        out.colour = mix(out.colour, vec3<f32>(1.0, 0.45, 0.05), 0.65);
+    }
+    out.part = slot.w;
     return out;
 }
 
+// True when a section plane cuts `world` away.
+fn sectioned(world: vec3<f32>) -> bool {
+    for (var i = 0u; i < frame.section_count; i = i + 1u) {
+        let plane = frame.sections[i];
+        if (dot(plane.xyz, world) + plane.w > 0.0) {
+            return true;
+        }
+    }
+    return false;
+}
+
 @fragment
-fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
+fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    if (sectioned(in.world)) {
+        discard;
+    }
+    if (frame.section_count > 0u && !front) {
+        // Inside a sectioned solid: a flat, darker cap colour, unlit, so the section's
+        // outline reads as a solid face. (Winding decides what is inside: CAD exports wind
+        // solids outwards; soup with mixed winding shows some caps on outer faces.)
+        return vec4<f32>(in.colour * 0.45, 1.0);
+    }
     var n = cross(dpdx(in.world), dpdy(in.world));
     let l = length(n);
     n = select(vec3<f32>(0.0, 0.0, 1.0), n / l, l > 0.0);
@@ -157,4 +212,14 @@ fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
         colour = mix(colour, vec3<f32>(0.08, 0.08, 0.1), on_edge * 0.85);
     }
     return vec4<f32>(colour, 1.0);
+}
+
+// The picking pass: the part id (plus one; 0 is the background) and the world position of
+// the frontmost drawn fragment, under the same visibility rules as `fs_main`.
+@fragment
+fn fs_pick(in: VertexOut) -> @location(0) vec4<u32> {
+    if (sectioned(in.world)) {
+        discard;
+    }
+    return vec4<u32>(in.part + 1u, bitcast<u32>(in.world.x), bitcast<u32>(in.world.y), bitcast<u32>(in.world.z));
 }
