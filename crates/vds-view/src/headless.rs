@@ -37,6 +37,8 @@ pub struct Headless {
     pub part_looks: Vec<PartLook>,
     /// Pixels (x, y; y down) to pick on the first frame.
     pub probes: Vec<(u32, u32)>,
+    /// A PNG file for the first frame alone.
+    pub first_image: Option<PathBuf>,
 }
 
 /// What a headless run returns.
@@ -301,6 +303,9 @@ fn finish_frame(
     if let Some(out) = &headless.out {
         let path = out.join(format!("frame-{:05}.png", row.frame));
         image.write_png(&path)?;
+    }
+    if let (Some(path), 0) = (&headless.first_image, row.frame) {
+        image.write_png(path)?;
     }
     if let (Some(csv), Some(path)) = (csv, &headless.stats) {
         writeln!(csv, "{}", row.csv()).with_context(|| format!("writing {}", path.display()))?;

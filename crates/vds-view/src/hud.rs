@@ -9,6 +9,7 @@ use vds_render::{Colouring, Gpu, Shading, Style};
 use vds_runtime::{FrustumMode, Gaze, Goal};
 use winit::window::Window;
 
+use crate::review::Review;
 use crate::simplify::{AdjustFigures, Settings};
 
 /// What the panel shows and edits.
@@ -63,6 +64,11 @@ impl Panel {
         }
     }
 
+    /// True while a text field has the keyboard (keys are not shortcuts then).
+    pub fn wants_keyboard(&self) -> bool {
+        self.context.egui_wants_keyboard_input()
+    }
+
     /// Feeds a window event to egui; true when egui used it (the camera should not).
     pub fn on_event(&mut self, window: &Window, event: &winit::event::WindowEvent) -> bool {
         self.input.on_window_event(window, event).consumed
@@ -83,6 +89,7 @@ impl Panel {
         view: &wgpu::TextureView,
         size: [u32; 2],
         model: &mut PanelModel,
+        review: &mut Review,
     ) {
         let raw = self.input.take_egui_input(window);
         let output = self.context.run_ui(raw, |ui| {
@@ -90,6 +97,7 @@ impl Panel {
                 .default_pos([12.0, 12.0])
                 .resizable(false)
                 .show(ui.ctx(), |ui| contents(ui, model));
+            review.show(ui.ctx());
         });
         self.input
             .handle_platform_output(window, output.platform_output);
@@ -236,6 +244,7 @@ fn contents(ui: &mut egui::Ui, model: &mut PanelModel) {
     let style = &mut model.style;
     ui.checkbox(&mut style.wireframe, "wireframe");
     ui.horizontal(|ui| {
+        ui.selectable_value(&mut style.colouring, Colouring::File, "file");
         ui.selectable_value(&mut style.colouring, Colouring::Parts, "parts");
         ui.selectable_value(&mut style.colouring, Colouring::Depth, "depth");
         ui.selectable_value(&mut style.colouring, Colouring::Error, "error");

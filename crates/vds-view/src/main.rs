@@ -18,6 +18,7 @@ mod hud;
 mod model;
 mod parts;
 mod probe;
+mod review;
 mod simplify;
 mod window;
 
@@ -361,14 +362,7 @@ fn run(args: &Args) -> Result<()> {
     }
     if !args.headless {
         if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
-            bail!(
-                "no display: neither DISPLAY nor WAYLAND_DISPLAY is set. To render without a \
-                 window, use --headless (for example: vds-view {}--headless --orbit --frames \
-                 60 --out frames --stats stats.csv)",
-                args.file
-                    .as_ref()
-                    .map_or(String::new(), |f| format!("{} ", f.display()))
-            );
+            return picture_without_display(args);
         }
         let loading = args.loading.unwrap_or(LoadingArg::Background).loading();
         let mut model = model::open(args.file.as_deref(), false, loading, args.memory_budget)?;
@@ -427,6 +421,7 @@ fn run(args: &Args) -> Result<()> {
         verify: args.verify,
         freeze_after: args.freeze_after,
         part_looks: model.parts.looks(),
+        first_image: None,
         probes: args
             .pick
             .into_iter()
@@ -466,6 +461,65 @@ fn run(args: &Args) -> Result<()> {
             (Some(b), Some(v)) => format!(", GPU {:.2}×", b / v),
             _ => String::new(),
         }
+    );
+    Ok(())
+}
+
+/// Without a display: one picture of the model (the bundled demo when no file is given),
+/// seen from above at three quarters, written to the current directory.
+fn picture_without_display(args: &Args) -> Result<()> {
+    let loading = args.loading.unwrap_or(LoadingArg::Synchronous).loading();
+    let mut model = model::open(args.file.as_deref(), false, loading, args.memory_budget)?;
+    args.review(&mut model.parts)?;
+    let root = model.runtime.cut().node(0);
+    let mut camera = vds_runtime::Camera::framing(
+        root.sphere_center,
+        root.sphere_radius,
+        [0.7, -1.0, 0.8],
+        args.size.0,
+        args.size.1,
+    );
+    if args.file.is_none() {
+        // The demo assembly stands on its plate in the xy plane.
+        camera.up = [0.0, 0.0, 1.0];
+    }
+    let png = PathBuf::from(match &args.file {
+        None => "vds-view-demo.png".to_string(),
+        Some(file) => format!(
+            "{}.png",
+            file.file_stem()
+                .map_or("vds-view".into(), |s| s.to_string_lossy())
+        ),
+    });
+    let name = model.name.clone();
+    let headless = Headless {
+        path: CameraPath {
+            cameras: vec![camera],
+        },
+        out: None,
+        stats: None,
+        settings: args.settings(),
+        style: args.style(),
+        asynchronous: false,
+        brute_force: false,
+        verify: false,
+        freeze_after: None,
+        part_looks: model.parts.looks(),
+        probes: Vec::new(),
+        first_image: Some(png.clone()),
+    };
+    let (summary, _) = Summary::run(model, &headless)?;
+    let shown = std::path::absolute(&png).unwrap_or(png);
+    println!(
+        "no display (neither DISPLAY nor WAYLAND_DISPLAY is set): rendered {name} to {}",
+        shown.display()
+    );
+    println!("{summary}");
+    println!(
+        "for more frames: vds-view {}--headless --orbit --frames 60 --out frames --stats stats.csv",
+        args.file
+            .as_ref()
+            .map_or(String::new(), |f| format!("{} ", f.display()))
     );
     Ok(())
 }

@@ -22,6 +22,13 @@ pub struct Model {
     pub mesh: Option<vds_import::Scene>,
     /// The assembly's parts, from the file's metadata.
     pub parts: Parts,
+    /// The model's bounds along x, y and z: `[min, max]` each.
+    pub bounds: [[f32; 2]; 3],
+}
+
+/// The bounds a file's metadata states, per axis.
+fn bounds_of(metadata: &vds_format::Metadata) -> [[f32; 2]; 3] {
+    std::array::from_fn(|k| [metadata.bounds_min[k], metadata.bounds_max[k]])
 }
 
 /// Opens `path` (or the demo when `None`). `keep_mesh` keeps the original triangles for
@@ -50,6 +57,7 @@ pub fn open(
             })?;
             let triangles = file.header().triangle_count.get();
             let parts = Parts::of(file.metadata());
+            let bounds = bounds_of(file.metadata());
             let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
                 .with_context(|| path.display().to_string())?;
             runtime.set_memory_budget(budget);
@@ -63,6 +71,7 @@ pub fn open(
                 triangles,
                 mesh,
                 parts,
+                bounds,
             });
         }
         Some(path) => (
@@ -80,6 +89,7 @@ pub fn open(
     .with_context(|| format!("building the tree of {name}"))?;
     let file = VdtFile::from_bytes(bytes).with_context(|| format!("the tree of {name}"))?;
     let parts = Parts::of(file.metadata());
+    let bounds = bounds_of(file.metadata());
     let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
         .with_context(|| format!("the tree of {name}"))?;
     runtime.set_memory_budget(budget);
@@ -89,6 +99,7 @@ pub fn open(
         triangles: scene.triangles.len() as u64,
         mesh: keep_mesh.then_some(scene),
         parts,
+        bounds,
     })
 }
 

@@ -37,20 +37,31 @@ pub struct Measurement {
     pub distance: f32,
 }
 
+impl Measurement {
+    /// The measurement between two snapped ends.
+    pub fn between(a: NearestLeaf, b: NearestLeaf) -> Measurement {
+        let distance = (0..3)
+            .map(|k| f64::from(a.position[k] - b.position[k]).powi(2))
+            .sum::<f64>()
+            .sqrt() as f32;
+        Measurement {
+            ends: [a, b],
+            distance,
+        }
+    }
+}
+
+/// The original vertex nearest a picked point.
+pub fn snap(source: &dyn PageSource, hit: Hit) -> Result<Option<NearestLeaf>> {
+    nearest_leaf(source, hit.world).context("snapping a measured point to the model's vertices")
+}
+
 /// Snaps both picked points to the original vertices nearest them.
 pub fn measure(source: &dyn PageSource, hits: [Hit; 2]) -> Result<Option<Measurement>> {
-    let snap = |hit: Hit| nearest_leaf(source, hit.world).context("snapping a measured point");
-    let (Some(a), Some(b)) = (snap(hits[0])?, snap(hits[1])?) else {
+    let (Some(a), Some(b)) = (snap(source, hits[0])?, snap(source, hits[1])?) else {
         return Ok(None);
     };
-    let distance = (0..3)
-        .map(|k| f64::from(a.position[k] - b.position[k]).powi(2))
-        .sum::<f64>()
-        .sqrt() as f32;
-    Ok(Some(Measurement {
-        ends: [a, b],
-        distance,
-    }))
+    Ok(Some(Measurement::between(a, b)))
 }
 
 /// The JSON of a measurement between `pixels`: both picks, their snapped vertices and the

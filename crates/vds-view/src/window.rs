@@ -4,8 +4,13 @@
 //!
 //! Keys: Tab orbit/fly · WASD QE fly · drag look/turn · wheel zoom/speed · +/- threshold or
 //! budget · B threshold/budget · C silhouettes · V backfaces · F frustum mode · G gaze ·
-//! Y asynchronous · Z freeze the cut · X wireframe · N smooth/faceted · 1 2 3 colour by
-//! part / depth / error · R reframe · Esc quit.
+//! Y asynchronous · Z freeze the cut · X wireframe · N smooth/faceted · 1 2 3 4 colour by
+//! part / depth / error / file · R reframe · Esc quit. Review (`review.rs`): click picks a
+//! part · H hide it · I isolate it · U show all · M measure (two clicks) · K first section
+//! on/off · [ ] move it.
+//!
+//! When neither the camera nor any setting changed and the last adjust changed nothing with
+//! no page on its way, the window does no adjust and no redraw: it sleeps until an event.
 
 use std::collections::HashSet;
 use std::sync::Arc;
@@ -23,6 +28,7 @@ use winit::window::{Window, WindowId};
 use crate::controls::{Controls, Mode};
 use crate::hud::{Panel, PanelModel};
 use crate::model::Model;
+use crate::review::Review;
 use crate::simplify::{AdjustFigures, AsyncSimplifier, Batch, Settings, Simplifier};
 
 /// Opens the window and runs until it closes.
@@ -36,7 +42,15 @@ pub fn run(
     let event_loop = EventLoop::new().context("opening the display")?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let root = model.runtime.cut().node(0);
+    let pages = model.runtime.cut().store().source();
+    let review = Review::new(model.parts, style.sections, model.bounds);
     let mut app = App {
+        review,
+        pages,
+        press: None,
+        click: None,
+        last_view: None,
+        idle: false,
         name: model.name.clone(),
         controls: Controls::framing(root.sphere_center, root.sphere_radius),
         home: Controls::framing(root.sphere_center, root.sphere_radius),
@@ -93,6 +107,18 @@ struct Hud {
 }
 
 struct App {
+    /// Parts, picks, measurements and sections.
+    review: Review,
+    /// The file, for snapping measurements to its vertices.
+    pages: Arc<dyn vds_runtime::PageSource>,
+    /// Where the left button went down (a release close by is a click).
+    press: Option<(f64, f64)>,
+    /// A click to pick at in the next frame (physical pixels).
+    click: Option<(u32, u32)>,
+    /// The camera, settings and style of the last adjust.
+    last_view: Option<(vds_runtime::Camera, Settings, Style)>,
+    /// Nothing to do until the next event.
+    idle: bool,
     name: String,
     controls: Controls,
     home: Controls,
@@ -212,7 +238,31 @@ impl App {
             gaze.direction = camera.view().forward.into();
         }
         self.hud.upload_bytes = 0;
-        if !self.frozen {
+        let style = Style {
+            cull_outside: settings.criteria.frustum != FrustumMode::Off,
+            threshold_px: match settings.goal {
+                Goal::Threshold(t) => t,
+                Goal::Budget(_) => 1.0,
+            },
+            sections: self.review.planes(),
+            ..self.style
+        };
+        let a = &self.hud.adjust;
+        let unchanged = self.last_view == Some((camera, settings, style));
+        let settled = unchanged && a.added + a.removed + a.changed == 0 && a.pages_pending == 0;
+        let flying = [
+            KeyCode::KeyW,
+            KeyCode::KeyA,
+            KeyCode::KeyS,
+            KeyCode::KeyD,
+            KeyCode::KeyQ,
+            KeyCode::KeyE,
+        ]
+        .iter()
+        .any(|k| self.keys.contains(k));
+        self.idle = settled && !flying && self.click.is_none();
+        self.last_view = Some((camera, settings, style));
+        if !self.frozen && !settled {
             let batches = match &mut self.engine {
                 Some(Engine::Sync(simplifier)) => vec![simplifier.step(&camera, &settings)?],
                 Some(Engine::Async(worker)) => {
@@ -226,14 +276,36 @@ impl App {
         let Some(state) = &mut self.state else {
             return Ok(());
         };
-        let style = Style {
-            cull_outside: settings.criteria.frustum != FrustumMode::Off,
-            threshold_px: match settings.goal {
-                Goal::Threshold(t) => t,
-                Goal::Budget(_) => 1.0,
-            },
-            ..self.style
-        };
+        if self.review.take_looks_changed() {
+            state
+                .gpu_cut
+                .set_parts(&state.gpu, &state.pipeline, &self.review.parts.looks());
+        }
+        if let Some((x, y)) = self.click.take() {
+            let hit = vds_render::pick(
+                &state.gpu,
+                &state.gpu_cut,
+                &state.pipeline,
+                &camera,
+                &style,
+                x,
+                y,
+            )?;
+            if self.review.measuring {
+                let vertex = match hit {
+                    Some(hit) => crate::probe::snap(&*self.pages, hit)?,
+                    None => None,
+                };
+                self.review.measured(vertex);
+            } else {
+                self.review.picked(hit);
+                // Upload the highlight now rather than next frame.
+                state
+                    .gpu_cut
+                    .set_parts(&state.gpu, &state.pipeline, &self.review.parts.looks());
+                self.review.take_looks_changed();
+            }
+        }
         state.gpu_cut.set_frame(&state.gpu, &camera, &style);
         let texture = match state.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t)
@@ -280,6 +352,7 @@ impl App {
             &view,
             size,
             &mut model,
+            &mut self.review,
         );
         state.gpu.queue.submit([encoder.finish()]);
         state.window.pre_present_notify();
@@ -399,6 +472,14 @@ impl App {
             KeyCode::Digit1 => self.style.colouring = Colouring::Parts,
             KeyCode::Digit2 => self.style.colouring = Colouring::Depth,
             KeyCode::Digit3 => self.style.colouring = Colouring::Error,
+            KeyCode::Digit4 => self.style.colouring = Colouring::File,
+            KeyCode::KeyH => self.review.hide_picked(),
+            KeyCode::KeyI => self.review.isolate_picked(),
+            KeyCode::KeyU => self.review.show_all(),
+            KeyCode::KeyM => self.review.measuring = !self.review.measuring,
+            KeyCode::KeyK => self.review.toggle_first_section(),
+            KeyCode::BracketLeft => self.review.move_first_section(-0.02),
+            KeyCode::BracketRight => self.review.move_first_section(0.02),
             KeyCode::KeyR => self.controls = self.home,
             _ => {}
         }
@@ -420,6 +501,9 @@ impl ApplicationHandler for App {
     }
 
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
+        if !matches!(event, WindowEvent::RedrawRequested) {
+            self.idle = false;
+        }
         let mut for_panel = false;
         if let Some(state) = &mut self.state {
             let consumed = state.panel.on_event(&state.window, &event);
@@ -453,7 +537,11 @@ impl ApplicationHandler for App {
                 }
             }
             WindowEvent::KeyboardInput { event, .. } => {
-                if let PhysicalKey::Code(code) = event.physical_key {
+                let typing = self
+                    .state
+                    .as_ref()
+                    .is_some_and(|s| s.panel.wants_keyboard());
+                if let (PhysicalKey::Code(code), false) = (event.physical_key, typing) {
                     match event.state {
                         ElementState::Pressed => {
                             if !event.repeat {
@@ -473,6 +561,20 @@ impl ApplicationHandler for App {
                 ..
             } => {
                 self.dragging = state == ElementState::Pressed;
+                match state {
+                    ElementState::Pressed => self.press = self.last_cursor,
+                    ElementState::Released => {
+                        // A release within a few pixels of the press is a click, not a drag.
+                        if let (Some((px, py)), Some((x, y))) =
+                            (self.press.take(), self.last_cursor)
+                            && (x - px).abs() + (y - py).abs() < 4.0
+                            && x >= 0.0
+                            && y >= 0.0
+                        {
+                            self.click = Some((x as u32, y as u32));
+                        }
+                    }
+                }
             }
             WindowEvent::CursorMoved { position, .. } => {
                 if let (true, Some((x, y))) = (self.dragging, self.last_cursor) {
@@ -498,9 +600,15 @@ impl ApplicationHandler for App {
         }
     }
 
-    fn about_to_wait(&mut self, _: &ActiveEventLoop) {
-        if let Some(state) = &self.state {
-            state.window.request_redraw();
+    fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
+        // Idle: wait for the next event (which asks for a redraw) instead of polling.
+        if self.idle {
+            event_loop.set_control_flow(ControlFlow::Wait);
+        } else {
+            event_loop.set_control_flow(ControlFlow::Poll);
+            if let Some(state) = &self.state {
+                state.window.request_redraw();
+            }
         }
     }
 }
