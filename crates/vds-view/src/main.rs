@@ -472,9 +472,10 @@ fn picture_without_display(args: &Args) -> Result<()> {
     let mut model = model::open(args.file.as_deref(), false, loading, args.memory_budget)?;
     args.review(&mut model.parts)?;
     let root = model.runtime.cut().node(0);
+    // The bounding sphere of a CAD assembly is loose around it: frame three quarters of it.
     let mut camera = vds_runtime::Camera::framing(
         root.sphere_center,
-        root.sphere_radius,
+        root.sphere_radius * 0.75,
         [0.7, -1.0, 0.8],
         args.size.0,
         args.size.1,
