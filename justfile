@@ -1,8 +1,8 @@
 # Convenience recipes; each is a plain cargo command that works without `just` too.
 
-# Build the bundled demo assembly's vertex tree and print what was built.
+# The viewer on the bundled demo (a window, or a PNG without a display).
 demo *ARGS:
-    cargo run --release -p vds-build -- {{ARGS}}
+    cargo run --release -p vds-view -- {{ARGS}}
 
 # The whole test suite (what CI runs after fmt and clippy).
 test:
