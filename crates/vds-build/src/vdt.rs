@@ -306,6 +306,7 @@ fn tree_from_pages<B: AsRef<[u8]>>(
             })
             .collect(),
         stats: Default::default(),
+        warnings: Vec::new(),
     };
     Ok((tree, scene))
 }

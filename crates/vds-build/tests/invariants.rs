@@ -39,6 +39,7 @@ fn unwelded_scene(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Scene {
         positions,
         triangles,
         stats: Default::default(),
+        warnings: Vec::new(),
     }
 }
 

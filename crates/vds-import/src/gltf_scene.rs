@@ -5,8 +5,10 @@
 //! such as `Engine` or `Block`), so the parts keep the assembly's tree: a part's parent is
 //! the part of its nearest ancestor node. Names are the node's own (the path
 //! `Engine/Block/Bolt_12` is the chain of parents). A part's colour is its primitives'
-//! material `baseColorFactor`, weighted by their triangles; textures are not read, and a
-//! primitive without a material adds no colour.
+//! material `baseColorFactor` (times the mean of its base-colour texture, when it has one:
+//! [`crate::texture`]), weighted by their triangles; a primitive without a material adds no
+//! colour. A texture that cannot be read is a warning, and its material's factor stands
+//! alone.
 //!
 //! Buffer URIs resolve inside the model's folder (see [`crate::uri`]), external buffers are
 //! read only up to their `byteLength`, and the instance tree is counted before it is
@@ -91,17 +93,116 @@ pub fn read_gltf(
     let buffers = load_buffers(&document, blob, options)?;
     let mut on_path = vec![false; document.nodes().len()];
     let mut ancestors = Vec::new();
+    let mut textures = Textures {
+        options,
+        buffers: &buffers,
+        means: rustc_hash::FxHashMap::default(),
+        warnings: Vec::new(),
+    };
     for root in roots {
         walk(
             &root,
             DMat4::IDENTITY,
             &mut ancestors,
             &mut on_path,
-            &buffers,
+            &mut textures,
             soup,
         )?;
     }
+    soup.warnings.extend(textures.warnings);
     Ok(())
+}
+
+/// The most bytes one texture file may hold (real base-colour textures are a few MiB).
+const MAX_IMAGE_FILE_BYTES: u64 = 256 << 20;
+
+/// Base-colour textures' means, each image decoded once, and the images that could not be.
+struct Textures<'a> {
+    options: &'a GltfOptions<'a>,
+    buffers: &'a [Buffer],
+    /// By image index: the mean linear RGBA, or none for an image that could not be read.
+    means: rustc_hash::FxHashMap<usize, Option<[f64; 4]>>,
+    warnings: Vec<String>,
+}
+
+impl Textures<'_> {
+    /// The colour of `material`: its factor, times its base-colour texture's mean.
+    fn colour(&mut self, material: &gltf::Material) -> [f64; 4] {
+        let pbr = material.pbr_metallic_roughness();
+        let factor = pbr.base_color_factor().map(f64::from);
+        let Some(info) = pbr.base_color_texture() else {
+            return factor;
+        };
+        let image = info.texture().source();
+        let index = image.index();
+        if !self.means.contains_key(&index) {
+            let mean = match self
+                .image_bytes(&image)
+                .and_then(|b| crate::texture::average(&b))
+            {
+                Ok(mean) => Some(mean),
+                Err(why) => {
+                    let name = match image.source() {
+                        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
+                            format!(" ({uri})")
+                        }
+                        _ => String::new(),
+                    };
+                    self.warnings.push(format!(
+                        "image {index}{name}: {why}; its materials' colours are their \
+                         baseColorFactor alone"
+                    ));
+                    None
+                }
+            };
+            self.means.insert(index, mean);
+        }
+        match self.means[&index] {
+            Some(mean) => std::array::from_fn(|k| factor[k] * mean[k]),
+            None => factor,
+        }
+    }
+
+    /// The encoded bytes of `image`: a buffer view, a `data:` URI or a file beside the model.
+    fn image_bytes(&self, image: &gltf::Image) -> Result<Vec<u8>, String> {
+        match image.source() {
+            gltf::image::Source::View { view, .. } => {
+                let buffer = self
+                    .buffers
+                    .get(view.buffer().index())
+                    .ok_or("its buffer view names no buffer")?;
+                let start = view.offset();
+                let end = start
+                    .checked_add(view.length())
+                    .filter(|&end| end <= buffer.len)
+                    .ok_or("its buffer view reaches past its buffer")?;
+                Ok(buffer.as_slice()[start..end].to_vec())
+            }
+            gltf::image::Source::Uri { uri, .. } => {
+                if let Some(rest) = uri.strip_prefix("data:") {
+                    let (_, payload) = rest
+                        .split_once(";base64,")
+                        .ok_or("data URI is not base64")?;
+                    return base64::engine::general_purpose::STANDARD
+                        .decode(payload)
+                        .map_err(|e| format!("bad base64: {e}"));
+                }
+                let path = uri::resolve(uri, self.options.folder, self.options.allow_external_uris)
+                    .map_err(|reason| format!("refused: {reason}"))?;
+                let inside = (!self.options.allow_external_uris)
+                    .then_some(self.options.folder)
+                    .flatten();
+                let file = uri::open_buffer_file(&path, inside)?;
+                if file.size > MAX_IMAGE_FILE_BYTES {
+                    return Err(format!(
+                        "{} bytes, more than the {MAX_IMAGE_FILE_BYTES} a texture may hold",
+                        file.size
+                    ));
+                }
+                file.read_prefix(MAX_IMAGE_FILE_BYTES)
+            }
+        }
+    }
 }
 
 /// gltf-json 1.4's validation indexes `accessors` with a primitive's POSITION index before
@@ -471,9 +572,10 @@ fn walk<'a>(
     parent: DMat4,
     ancestors: &mut Vec<Ancestor<'a>>,
     on_path: &mut [bool],
-    buffers: &[Buffer],
+    textures: &mut Textures<'_>,
     soup: &mut MeshSoup,
 ) -> Result<(), FormatError> {
+    let buffers = textures.buffers;
     let at = || Location::Element {
         kind: "node".into(),
         index: node.index() as u64,
@@ -501,8 +603,8 @@ fn walk<'a>(
             read_primitive(&mesh, &primitive, &world, buffers, part, soup)?;
             let material = primitive.material();
             if material.index().is_some() {
-                let rgba = material.pbr_metallic_roughness().base_color_factor();
-                color.add_weighted(rgba.map(f64::from), (soup.triangles.len() - first) as u64);
+                let rgba = textures.colour(&material);
+                color.add_weighted(rgba, (soup.triangles.len() - first) as u64);
             }
         }
         if soup.triangles.len() > before {
@@ -524,7 +626,7 @@ fn walk<'a>(
         part: own_part,
     });
     for child in node.children() {
-        walk(&child, world, ancestors, on_path, buffers, soup)?;
+        walk(&child, world, ancestors, on_path, textures, soup)?;
     }
     ancestors.pop();
     on_path[node.index()] = false;

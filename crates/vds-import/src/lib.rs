@@ -19,6 +19,7 @@ mod ply;
 mod soup;
 mod source;
 mod stl;
+mod texture;
 mod uri;
 mod weld;
 
@@ -45,6 +46,9 @@ pub struct Scene {
     pub parts: Vec<PartInfo>,
     /// What import and welding did.
     pub stats: ImportStats,
+    /// What could not be read but cost only colours (a missing material library or
+    /// texture), each naming its file.
+    pub warnings: Vec<String>,
 }
 
 /// What an input says about a part besides its name.
@@ -168,6 +172,9 @@ pub fn read_file(
         Format::Stl => stl::read_stl(&bytes, &name, &mut file_soup),
     };
     result.map_err(|e| e.in_file(path))?;
+    for warning in &mut file_soup.warnings {
+        *warning = format!("{}: {warning}", path.display());
+    }
     if file_soup.triangles.is_empty() {
         return Err(ImportError::NoTriangles {
             path: path.to_path_buf(),

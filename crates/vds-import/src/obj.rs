@@ -49,34 +49,64 @@ pub struct MaterialFiles<'a> {
     pub allow_external: bool,
 }
 
+/// The material libraries one OBJ file has loaded so far: which, how many bytes, and what
+/// could not be read.
+#[derive(Default)]
+struct Libraries {
+    read: Vec<std::path::PathBuf>,
+    bytes: u64,
+    warnings: Vec<String>,
+}
+
 impl MaterialFiles<'_> {
-    /// Loads one library for `tobj`, within the budget `loaded` keeps (the files read so far
-    /// and their bytes); any failure is tobj's `OpenFileFailed`, which costs only colours.
+    /// Loads one library for `tobj`, within the budget `loaded` keeps; a library that cannot
+    /// be read is a warning and tobj's `OpenFileFailed`, which costs only colours.
     fn load(
         &self,
         name: &std::path::Path,
-        loaded: &std::cell::RefCell<(Vec<std::path::PathBuf>, u64)>,
+        loaded: &std::cell::RefCell<Libraries>,
     ) -> tobj::MTLLoadResult {
-        let failed = || tobj::LoadError::OpenFileFailed;
-        let name = name.to_str().ok_or_else(failed)?;
-        let path = crate::uri::resolve(name, Some(self.folder), self.allow_external)
-            .map_err(|_| failed())?;
         let mut loaded = loaded.borrow_mut();
-        if loaded.0.contains(&path) || loaded.0.len() >= MAX_MTL_FILES {
+        match self.read(name, &mut loaded) {
+            Ok(Some(bytes)) => tobj::load_mtl_buf(&mut &bytes[..]),
             // Already merged (or over the statement limit): nothing more to add.
-            return Ok((Vec::new(), Default::default()));
+            Ok(None) => Ok((Vec::new(), Default::default())),
+            Err(why) => {
+                loaded.warnings.push(format!(
+                    "material library {}: {why}; its materials give no colours",
+                    name.display()
+                ));
+                Err(tobj::LoadError::OpenFileFailed)
+            }
         }
-        loaded.0.push(path.clone());
+    }
+
+    /// The bytes of library `name`, or none when it was read before or the file names too
+    /// many.
+    fn read(
+        &self,
+        name: &std::path::Path,
+        loaded: &mut Libraries,
+    ) -> Result<Option<Vec<u8>>, String> {
+        let name = name.to_str().ok_or("the name is not UTF-8")?;
+        let path = crate::uri::resolve(name, Some(self.folder), self.allow_external)
+            .map_err(|reason| format!("refused ({reason})"))?;
+        if loaded.read.contains(&path) || loaded.read.len() >= MAX_MTL_FILES {
+            return Ok(None);
+        }
+        loaded.read.push(path.clone());
         let inside = (!self.allow_external).then_some(self.folder);
-        let file = crate::uri::open_buffer_file(&path, inside).map_err(|_| failed())?;
-        if loaded.1.saturating_add(file.size) > MAX_MTL_BYTES {
-            return Err(failed());
+        let file = crate::uri::open_buffer_file(&path, inside).map_err(|e| e.to_string())?;
+        if loaded.bytes.saturating_add(file.size) > MAX_MTL_BYTES {
+            return Err(format!(
+                "the libraries of one file may hold at most {MAX_MTL_BYTES} bytes"
+            ));
         }
         let bytes = file
-            .read_prefix(MAX_MTL_BYTES - loaded.1)
-            .map_err(|_| failed())?;
-        loaded.1 += bytes.len() as u64;
-        tobj::load_mtl_buf(&mut &bytes[..])
+            .read_prefix(MAX_MTL_BYTES - loaded.bytes)
+            .map_err(|e| e.to_string())?;
+        loaded.bytes += bytes.len() as u64;
+        Ok(Some(bytes))
     }
 }
 
@@ -231,12 +261,14 @@ pub fn read_obj(
     };
     let data = &*prepare(data)?;
     let mut reader = ObjReader::new(data);
-    let libraries = std::cell::RefCell::new((Vec::new(), 0u64));
+    let libraries = std::cell::RefCell::new(Libraries::default());
     let loaded = tobj::load_obj_buf(&mut reader, &options, |name| match materials {
         Some(files) => files.load(name, &libraries),
         // Bytes from memory: never touch the file system.
         None => Err(tobj::LoadError::OpenFileFailed),
     });
+    soup.warnings
+        .extend(std::mem::take(&mut libraries.borrow_mut().warnings));
     let (models, materials) = match loaded {
         Ok((models, materials)) => (models, materials.unwrap_or_default()),
         Err(tobj::LoadError::FaceVertexOutOfBounds) => return Err(locate_bad_face_index(data)),

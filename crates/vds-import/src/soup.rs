@@ -24,6 +24,9 @@ pub struct MeshSoup {
     pub parts: Vec<crate::PartInfo>,
     /// Faces with fewer than three corners that readers skipped.
     pub short_faces_dropped: u64,
+    /// What was read without being needed for the geometry and could not be (a material
+    /// library, a texture): each costs colours, not the import.
+    pub warnings: Vec<String>,
 }
 
 impl MeshSoup {
@@ -94,6 +97,7 @@ impl MeshSoup {
                 color: p.color,
             }));
         self.short_faces_dropped += other.short_faces_dropped;
+        self.warnings.extend(other.warnings);
     }
 }
 

@@ -34,6 +34,7 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         part_names,
         parts,
         short_faces_dropped,
+        warnings,
     } = soup;
     let input_vertices = positions.len() as u64;
     let input_triangles = triangles.len() as u64;
@@ -135,6 +136,7 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         triangle_parts,
         part_names,
         parts,
+        warnings,
     }
 }
 

@@ -22,6 +22,9 @@ impl TempDir {
         std::fs::write(&path, bytes).unwrap();
         path
     }
+    fn join(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
 }
 
 impl Drop for TempDir {
@@ -294,4 +297,134 @@ fn appended_files_keep_their_parents_relative_to_their_own_parts() {
     assert_eq!(scene.part_names, ["a", "top", "leaf"]);
     let parents: Vec<Option<u32>> = scene.parts.iter().map(|p| p.parent).collect();
     assert_eq!(parents, [None, None, Some(1)]);
+}
+
+/// A PNG of `texels` repeated over `width` × `height`.
+fn png(width: u32, height: u32, texels: &[[u8; 4]]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(&mut out, width, height);
+    encoder.set_color(png::ColorType::Rgba);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header().unwrap();
+    let data: Vec<u8> = (0..(width * height) as usize)
+        .flat_map(|i| texels[i % texels.len()])
+        .collect();
+    writer.write_image_data(&data).unwrap();
+    writer.finish().unwrap();
+    out
+}
+
+#[test]
+fn gltf_three_materials_textures_and_a_nested_transform() {
+    use base64::Engine as _;
+    let dir = TempDir::new("gltf-three");
+    let mut bin = Vec::new();
+    for c in [0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+        bin.extend(c.to_le_bytes());
+    }
+    dir.write("model.bin", bin);
+    // External texture: half black, half white, averaging to 0.5 in linear light.
+    dir.write(
+        "tex.png",
+        png(4, 4, &[[0, 0, 0, 255], [255, 255, 255, 255]]),
+    );
+    // Embedded texture: sRGB 188 grey, linear ≈ 0.5029.
+    let embedded =
+        base64::engine::general_purpose::STANDARD.encode(png(2, 2, &[[188, 188, 188, 255]]));
+    let mesh =
+        |m: u32| format!(r#"{{"primitives":[{{"attributes":{{"POSITION":0}},"material":{m}}}]}}"#);
+    let path = dir.write(
+        "model.gltf",
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
+            "nodes":[{{"name":"Root","children":[1,2]}},
+                     {{"name":"Plain","mesh":0}},
+                     {{"name":"Sub","translation":[5,0,0],"children":[3,4]}},
+                     {{"name":"Textured","mesh":1}},
+                     {{"name":"Lost","mesh":2}}],
+            "materials":[{{"pbrMetallicRoughness":{{"baseColorFactor":[0.2,0.4,0.6,1.0]}}}},
+                         {{"pbrMetallicRoughness":{{"baseColorFactor":[1.0,0.5,1.0,1.0],"baseColorTexture":{{"index":0}}}}}},
+                         {{"pbrMetallicRoughness":{{"baseColorFactor":[0.3,0.3,0.3,1.0],"baseColorTexture":{{"index":1}}}}}},
+                         {{"pbrMetallicRoughness":{{"baseColorTexture":{{"index":2}}}}}}],
+            "textures":[{{"source":0}},{{"source":1}},{{"source":2}}],
+            "images":[{{"uri":"tex.png"}},{{"uri":"missing.png"}},{{"uri":"data:image/png;base64,{embedded}"}}],
+            "meshes":[{},{},{}],
+            "buffers":[{{"byteLength":36,"uri":"model.bin"}}],
+            "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":36}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}]}}"#,
+            mesh(0),
+            mesh(1),
+            mesh(2)
+        ),
+    );
+    let scene = load(&path);
+    assert_eq!(
+        scene.part_names,
+        ["Root", "Plain", "Sub", "Textured", "Lost"]
+    );
+    let parents: Vec<Option<u32>> = scene.parts.iter().map(|p| p.parent).collect();
+    assert_eq!(parents, [None, Some(0), Some(0), Some(2), Some(2)]);
+    assert!(
+        close(scene.parts[1].color, [0.2, 0.4, 0.6, 1.0]),
+        "{:?}",
+        scene.parts[1]
+    );
+    // The texture's mean times the factor.
+    assert!(
+        close(scene.parts[3].color, [0.5, 0.25, 0.5, 1.0]),
+        "{:?}",
+        scene.parts[3]
+    );
+    // The missing texture: the factor alone, and a warning naming the image.
+    assert!(
+        close(scene.parts[4].color, [0.3, 0.3, 0.3, 1.0]),
+        "{:?}",
+        scene.parts[4]
+    );
+    assert_eq!(scene.warnings.len(), 1, "{:?}", scene.warnings);
+    assert!(
+        scene.warnings[0].contains("missing.png") && scene.warnings[0].contains("model.gltf"),
+        "{:?}",
+        scene.warnings
+    );
+    // The nested node's transform moved its triangles.
+    let shifted = scene
+        .triangles
+        .iter()
+        .zip(&scene.triangle_parts)
+        .filter(|(_, p)| **p >= 3)
+        .flat_map(|(t, _)| t.iter().map(|&v| scene.positions[v as usize][0]))
+        .fold(f32::MAX, f32::min);
+    assert_eq!(shifted, 5.0);
+
+    // The embedded texture, on its own.
+    let embedded_only = dir.write(
+        "embedded.gltf",
+        std::fs::read_to_string(&path)
+            .unwrap()
+            .replace(r#""material":0}]}"#, r#""material":3}]}"#),
+    );
+    let scene = load(&embedded_only);
+    let grey = 0.5029;
+    assert!(
+        scene.parts[1]
+            .color
+            .is_some_and(|c| c[..3].iter().all(|v| (v - grey).abs() < 1e-3)),
+        "{:?}",
+        scene.parts[1]
+    );
+}
+
+#[test]
+fn obj_missing_material_library_is_a_warning_naming_it() {
+    let dir = TempDir::new("obj-warning");
+    let scene = load(&dir.write("model.obj", TWO_GROUPS));
+    assert_eq!(scene.warnings.len(), 1, "{:?}", scene.warnings);
+    assert!(
+        scene.warnings[0].contains("parts.mtl") && scene.warnings[0].contains("model.obj"),
+        "{:?}",
+        scene.warnings
+    );
+    dir.write("parts.mtl", MATERIALS);
+    assert!(load(&dir.join("model.obj")).warnings.is_empty());
 }

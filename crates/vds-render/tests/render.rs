@@ -231,6 +231,7 @@ fn golden_images_of_the_bunny_and_a_generated_scene() {
             .collect(),
         parts: Vec::new(),
         stats: Default::default(),
+        warnings: Vec::new(),
     };
     let (_, cad) = build(cad);
     for (name, bytes, from) in [

@@ -60,6 +60,7 @@ impl Fixture {
                 .collect(),
             parts: Vec::new(),
             stats: Default::default(),
+            warnings: Vec::new(),
         })
     }
 

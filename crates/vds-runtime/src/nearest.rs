@@ -173,6 +173,7 @@ mod tests {
             part_names: vec!["grid".into()],
             parts: Vec::new(),
             stats: Default::default(),
+            warnings: Vec::new(),
         };
         // Small pages, so that the search crosses many of them.
         let options = vds_format::WriteOptions {

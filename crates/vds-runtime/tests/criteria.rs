@@ -48,6 +48,7 @@ fn sphere(segments: u32, rings: u32) -> Scene {
         part_names: vec!["sphere".into()],
         parts: Vec::new(),
         stats: Default::default(),
+        warnings: Vec::new(),
     }
 }
 
@@ -255,6 +256,7 @@ fn plate(n: u32, h: f32) -> Scene {
         part_names: vec!["plate".into()],
         parts: Vec::new(),
         stats: Default::default(),
+        warnings: Vec::new(),
     }
 }
 

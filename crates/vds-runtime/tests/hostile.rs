@@ -195,6 +195,7 @@ fn a_leaf_outside_its_parent_error_radius_fails_the_load() {
         part_names: vec!["triangle".into()],
         parts: Vec::new(),
         stats: Default::default(),
+        warnings: Vec::new(),
     };
     let bytes = lying_file(&mut scene, |tree| {
         assert!(tree.nodes[1..].iter().all(|n| n.is_leaf()));

@@ -27,6 +27,7 @@ fn generated(triangles: u64) -> (Vec<u8>, [f32; 3], f32) {
         part_names: (0..g.part_count).map(|p| format!("part{p}")).collect(),
         parts: Vec::new(),
         stats: Default::default(),
+        warnings: Vec::new(),
     };
     let (center, radius) = bounds(&scene.positions);
     (vdt_bytes(&mut scene), center, radius)

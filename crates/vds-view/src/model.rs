@@ -81,6 +81,9 @@ pub fn open(
         None => (crate::demo::scene()?, crate::demo::NAME.to_string()),
     };
     let mut scene = scene;
+    for warning in &scene.warnings {
+        eprintln!("vds-view: warning: {warning}");
+    }
     let bytes = vds_build::encode_scene(
         &mut scene,
         concat!("vds-view ", env!("CARGO_PKG_VERSION")),
@@ -120,5 +123,6 @@ fn mesh_of(runtime: &mut Runtime) -> Result<vds_import::Scene> {
         part_names: Vec::new(),
         parts: Vec::new(),
         stats: Default::default(),
+        warnings: Vec::new(),
     })
 }

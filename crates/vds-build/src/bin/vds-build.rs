@@ -175,6 +175,8 @@ struct Report {
     nodes: usize,
     depth: usize,
     degree_histogram: [u64; 9],
+    /// What could not be read but cost only colours (a material library, a texture).
+    warnings: Vec<String>,
     seconds: Phases,
     triangles_per_second: f64,
     peak_rss_bytes: Option<u64>,
@@ -351,6 +353,11 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
     let start = Instant::now();
     let bar = spinner(show_progress, "reading meshes");
     let mut scene = vds_import::load_files(inputs, &options)?;
+    if !args.quiet {
+        for warning in &scene.warnings {
+            eprintln!("vds-build: warning: {warning}");
+        }
+    }
     // A file stores positions on a grid; snap first so the tree's bounds are exact for it.
     let grid = output.map(|_| vds_build::snap_to_grid(&mut scene));
     let import_seconds = start.elapsed().as_secs_f64();
@@ -376,6 +383,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
         scene.part_names.len(),
         scene.stats,
     );
+    let warnings = std::mem::take(&mut scene.warnings);
     let (nodes, depth, degree_histogram) =
         (tree.node_count(), tree.max_depth(), tree.degree_histogram());
     let file_report = match output {
@@ -470,6 +478,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
         input_triangles: stats.input_triangles,
         welded_vertices: stats.welded_vertices,
         degenerate_triangles_dropped: stats.degenerate_triangles_dropped,
+        warnings,
         nodes,
         depth,
         degree_histogram,
