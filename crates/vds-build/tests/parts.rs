@@ -36,6 +36,7 @@ fn assembly() -> Scene {
             input_triangles: 3,
             ..Default::default()
         },
+        warnings: Vec::new(),
     }
 }
 

@@ -465,6 +465,7 @@ mod tests {
             part_names: (0..7).map(|k| format!("part {k}")).collect(),
             parts: vec![Default::default(); 7],
             short_faces_dropped: 0,
+            warnings: Vec::new(),
         };
         let (positions, triangles, parts) = reference_weld(&soup);
         assert!(

@@ -307,13 +307,12 @@ fn a_section_plane_removes_everything_on_its_side() {
         let looks = primary_looks(fixture.parts());
         let root = fixture.runtime().cut().node(0);
         for (normal, threshold) in [
-            ([1.0, 0.0, 0.0], 0.0),
+            ([1.0f32, 0.0, 0.0], 0.0),
             ([0.3, -0.8, 0.5], 1.0),
             ([0.0, 0.0, 1.0], 8.0),
         ] {
             let length =
-                (normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2] as f32)
-                    .sqrt();
+                (normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]).sqrt();
             let normal = normal.map(|v: f32| v / length);
             // Through the centre of the model.
             let offset = -(0..3)

@@ -79,15 +79,13 @@ impl Panel {
         self.context.egui_wants_pointer_input()
     }
 
-    /// Lays the panel out, edits `model`, and records its draw into `encoder` on top of
-    /// `view` (which already holds the frame).
+    /// Lays the panel and the review window out, edits `model` and `review`, and records
+    /// their draw into `encoder` on top of `view` (which already holds the frame of `size`).
     pub fn draw(
         &mut self,
         window: &Window,
         gpu: &Gpu,
-        encoder: &mut wgpu::CommandEncoder,
-        view: &wgpu::TextureView,
-        size: [u32; 2],
+        (encoder, view, size): (&mut wgpu::CommandEncoder, &wgpu::TextureView, [u32; 2]),
         model: &mut PanelModel,
         review: &mut Review,
     ) {

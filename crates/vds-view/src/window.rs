@@ -348,9 +348,7 @@ impl App {
         state.panel.draw(
             &state.window,
             &state.gpu,
-            &mut encoder,
-            &view,
-            size,
+            (&mut encoder, &view, size),
             &mut model,
             &mut self.review,
         );
