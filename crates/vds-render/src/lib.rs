@@ -6,7 +6,7 @@
 //!   [`VertexPool`], which gives GPU vertices only to the nodes the cut uses.
 //! - [`cut_renderer`]: buffers, uploads, the pipeline and `shaders/cut.wgsl`.
 //! - [`target`]: offscreen targets, readback, PNG files.
-//! - [`pick`]: what a pixel shows (part id and world position), by an id buffer.
+//! - [`mod@pick`]: what a pixel shows (part id and world position), by an id buffer.
 //!
 //! Positions are never re-uploaded per frame: a node's vertex record goes up when the cut
 //! starts to use it; per frame only those and the slots that changed are written. GPU memory
