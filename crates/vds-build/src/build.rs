@@ -551,6 +551,7 @@ fn inner_attributes(
         .map(|c| c as f32);
     let leaves = &leaf_positions[node.leaf_begin as usize..node.leaf_end as usize];
     let error_radius = round_up_f32(farthest_squared(widen(proxy), leaves).sqrt());
+    let surface_error = surface_error(&sum.quadric, widen(proxy)).min(error_radius);
     let center = sum.triangle_box.center().map(|c| c as f32);
     let sphere_radius = child_spheres
         .map(|c| distance(widen(center), widen(c.center)) + f64::from(c.radius))
@@ -564,6 +565,7 @@ fn inner_attributes(
     let bounds = NodeBounds {
         proxy,
         error_radius,
+        surface_error,
         sphere_center: sphere.center,
         sphere_radius: sphere.radius,
         cone_axis,
@@ -571,6 +573,19 @@ fn inner_attributes(
         cone_two_sided,
     };
     (bounds, sphere)
+}
+
+/// The root-mean-square plane distance of `proxy` under `quadric` ([`NodeBounds::surface_error`]),
+/// rounded up. The quadric's planes have unit normals and area weights, so the trace of its
+/// matrix is the total weight.
+#[inline(always)]
+fn surface_error(quadric: &Quadric, proxy: [f64; 3]) -> f32 {
+    let weight = quadric.a[0] + quadric.a[3] + quadric.a[5];
+    if weight > 0.0 {
+        round_up_f32((quadric.error(proxy).max(0.0) / weight).sqrt())
+    } else {
+        0.0
+    }
 }
 
 /// The cone to store, as axis, half-angle and two-sidedness: the one-sided cone, or the

@@ -42,6 +42,12 @@ pub struct NodeBounds {
     pub proxy: [f32; 3],
     /// Largest distance from the proxy to any supported original vertex (object units).
     pub error_radius: f32,
+    /// How far the surface moves when the node folds, as the quadric measures it: the
+    /// root-mean-square distance from the proxy to the planes of the triangles around each
+    /// supported vertex, weighted by area (each triangle once per supported corner). At most
+    /// the error radius, since each plane passes through a supported vertex; small where the
+    /// vertices slide along a flat region, large where a fold flattens a ridge or a thin part.
+    pub surface_error: f32,
     /// Centre of a sphere containing every triangle with a corner under this node.
     pub sphere_center: [f32; 3],
     /// Radius of that sphere.
@@ -62,6 +68,7 @@ impl NodeBounds {
     pub const EMPTY: NodeBounds = NodeBounds {
         proxy: [0.0; 3],
         error_radius: 0.0,
+        surface_error: 0.0,
         sphere_center: [0.0; 3],
         sphere_radius: 0.0,
         cone_axis: [0.0, 0.0, 1.0],

@@ -17,10 +17,11 @@ use crate::tree::{Node, NodeBounds, VertexTree};
 fn record(tree: &VertexTree, id: u32) -> NodeRecord {
     let f = |x: f32| F32::new(x);
     let node = &tree.nodes[id as usize];
-    let (proxy, error_radius, sphere, cone, two_sided) = match tree.bounds_of(id) {
+    let (proxy, error_radius, surface_error, sphere, cone, two_sided) = match tree.bounds_of(id) {
         Some(b) => (
             b.proxy,
             b.error_radius,
+            b.surface_error,
             [
                 b.sphere_center[0],
                 b.sphere_center[1],
@@ -39,6 +40,7 @@ fn record(tree: &VertexTree, id: u32) -> NodeRecord {
             let p = tree.proxy(id);
             (
                 p,
+                0.0,
                 0.0,
                 [p[0], p[1], p[2], 0.0],
                 [0.0, 0.0, 1.0, -1.0],
@@ -66,6 +68,7 @@ fn record(tree: &VertexTree, id: u32) -> NodeRecord {
         subtri_count: U32::new(node.subtri_end - node.subtri_begin),
         proxy: proxy.map(f),
         error_radius: f(error_radius),
+        surface_error: f(surface_error),
         sphere: sphere.map(f),
         cone: cone.map(f),
     }
@@ -237,6 +240,7 @@ fn tree_from_pages<B: AsRef<[u8]>>(
                 bounds.push(NodeBounds {
                     proxy,
                     error_radius: n.error_radius.get(),
+                    surface_error: n.surface_error.get(),
                     sphere_center: [sphere[0], sphere[1], sphere[2]],
                     sphere_radius: sphere[3],
                     cone_axis: [cone[0], cone[1], cone[2]],

@@ -8,6 +8,7 @@
 use vds_import::Scene;
 
 use crate::bounds::{NormalCone, triangle_normal};
+use crate::quadric::{cross, dot, sub};
 use crate::tree::{Node, VertexTree};
 
 /// A broken invariant.
@@ -258,6 +259,9 @@ fn verify_bounds(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
             axis: bounds.cone_axis.map(f64::from),
             half_angle: f64::from(bounds.cone_half_angle),
         };
+        // Σ area·distance² from the proxy to the incident planes, and Σ area, for the
+        // surface error.
+        let (mut squared, mut area) = (0.0f64, 0.0f64);
         for rank in node.leaf_begin..node.leaf_end {
             let vertex = tree.leaf_vertex[rank as usize];
             let d = distance(proxy, position(vertex));
@@ -289,7 +293,31 @@ fn verify_bounds(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
                 {
                     return Err(bound(format!("normal of triangle {t} is outside the cone")));
                 }
+                if let Some(normal) = triangle_normal(a, b, c) {
+                    let twice_area = cross(sub(b, a), sub(c, a));
+                    let weight = dot(twice_area, twice_area).sqrt() / 2.0;
+                    let d = dot(normal, sub(proxy, a));
+                    squared += weight * d * d;
+                    area += weight;
+                }
             }
+        }
+        let surface = if area > 0.0 {
+            (squared / area).sqrt()
+        } else {
+            0.0
+        };
+        let stored = f64::from(bounds.surface_error);
+        // The builder sums the same planes in another order and form: the quadric's
+        // expansion `pᵀAp + 2bᵀp + c` cancels terms of the order of `w·|p|²`, which can
+        // leave an absolute error of about 10⁻⁷·|p| in the root. The slack allows that.
+        let magnitude = proxy.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+        let slack = 1e-6 * (surface + f64::from(bounds.error_radius) + magnitude);
+        if !(stored + slack >= surface && bounds.surface_error <= bounds.error_radius) {
+            return Err(bound(format!(
+                "surface error {stored} is not the planes' RMS distance {surface} (error radius {})",
+                bounds.error_radius
+            )));
         }
     }
     Ok(())

@@ -21,7 +21,7 @@ use crate::grid::Grid;
 use crate::layout::{FLAG_TWO_SIDED_CONE, NO_NODE, NodeRecord, TriangleRecord};
 
 /// The streams of a page, in order (see `docs/format.md`).
-pub(crate) const STREAMS: usize = 15;
+pub(crate) const STREAMS: usize = 16;
 
 // Stream numbers.
 const CHILD_COUNT: usize = 0;
@@ -37,8 +37,9 @@ const INNER_POSITION: usize = 9;
 const BOUNDS: usize = 10;
 const CONE_AXIS: usize = 11;
 const CONE_ANGLE: usize = 12;
-const CORNERS: usize = 13;
-const PART: usize = 14;
+const SURFACE: usize = 13;
+const CORNERS: usize = 14;
+const PART: usize = 15;
 
 /// The axis prediction of a node whose parent lies in another page: the octahedral centre.
 const NO_AXIS: [u8; 2] = [128, 128];
@@ -120,6 +121,29 @@ fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
     ];
     let sin = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
     libm::atan2(sin, a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+}
+
+/// An inner node's surface error is stored as a fraction of its stored error radius, in
+/// 255ths, rounded up.
+const SURFACE_UNITS: f64 = 255.0;
+
+/// The surface-error byte of an inner node whose surface error is `surface` before its
+/// proxy moved by `moved` to where it is stored, with `error_radius` the radius as stored
+/// (which already holds that move). A plane's distance changes by at most the move.
+fn surface_byte(surface: f32, moved: f64, error_radius: f64) -> u8 {
+    let surface = f64::from(surface) + moved;
+    if error_radius <= 0.0 {
+        return 0;
+    }
+    let units = (surface / error_radius * SURFACE_UNITS).ceil();
+    // Also maps a NaN to the error radius itself, the bound that always holds.
+    if units >= 0.0 {
+        units.min(SURFACE_UNITS) as u8
+    } else if surface <= 0.0 {
+        0
+    } else {
+        u8::MAX
+    }
 }
 
 /// Half-angles are stored in units of π / 254, rounded up; 255 marks the empty cone.
@@ -324,6 +348,11 @@ pub fn encode_page_into(
             error_units as f64 * f64::from(grid.step) >= f64::from(n.error_radius.get()) + moved
         );
         put_varint(&mut s[BOUNDS], base_error);
+        s[SURFACE].push(surface_byte(
+            n.surface_error.get(),
+            moved,
+            error_units as f64 * f64::from(grid.step),
+        ));
         let unit = centre_unit(error_units);
         let centre = [n.sphere[0].get(), n.sphere[1].get(), n.sphere[2].get()];
         let mut centre_q = [0u32; 3];
@@ -582,6 +611,7 @@ pub fn decode_page(
             bounds,
             cone_axis,
             cone_angle,
+            surface,
             ..,
         ] = &mut streams[..]
         else {
@@ -682,6 +712,7 @@ pub fn decode_page(
                 subtri_count: U32::new(0),
                 proxy: proxy.map(f),
                 error_radius: f(0.0),
+                surface_error: f(0.0),
                 sphere: [proxy[0], proxy[1], proxy[2], 0.0].map(f),
                 cone: [0.0, 0.0, 1.0, -1.0].map(f),
             };
@@ -727,6 +758,11 @@ pub fn decode_page(
             .filter(|&end| end <= file_vertices)
             .ok_or_else(|| bad("leaf count"))?;
         let error_units = widened_error(base_error, unit as u64);
+        let error_radius = error_units as f32 * grid.step;
+        let surface_units = surface.byte().ok_or_else(|| bad("surface error"))?;
+        // At most the error radius (a byte of at most 255ths of it).
+        let surface_error = (f64::from(error_radius) * f64::from(surface_units) / SURFACE_UNITS)
+            .min(f64::from(error_radius)) as f32;
         let unit = centre_unit(error_units) as i64;
         let mut centre_q = [0u32; 3];
         for a in 0..3 {
@@ -774,7 +810,8 @@ pub fn decode_page(
             subtri_begin: U32::new(subtri_index),
             subtri_count: U32::new(subtri_count),
             proxy: proxy.map(f),
-            error_radius: f(error_units as f32 * grid.step),
+            error_radius: f(error_radius),
+            surface_error: f(surface_error),
             sphere: [
                 centre[0],
                 centre[1],
@@ -897,6 +934,7 @@ mod tests {
         n.child_count = (children.end - children.start) as u8;
         n.subtri_count = U32::new(subtris);
         n.error_radius = F32::new(2.0);
+        n.surface_error = F32::new(0.5);
         n.sphere = [1.0, 0.0, 0.0, 2.0].map(F32::new);
         n.cone = [0.0, 0.0, 1.0, 0.1].map(F32::new);
         n
@@ -1009,6 +1047,49 @@ mod tests {
                     "stream {stream}, value {value}"
                 );
             }
+        }
+    }
+
+    /// A decoded surface error bounds the written one plus the proxy's move, and stays
+    /// within the decoded error radius; the page's inner nodes come back so.
+    #[test]
+    fn surface_errors_decode_conservatively() {
+        for (surface, moved, radius) in [
+            (0.0f32, 0.0, 1.0),
+            (0.0, 0.01, 1.0),
+            (0.3, 0.0, 1.0),
+            (0.3, 0.02, 1.0),
+            (0.999, 0.001, 1.0),
+            (1.5, 0.0, 1.0),
+            (f32::NAN, 0.0, 1.0),
+        ] {
+            let byte = surface_byte(surface, moved, radius);
+            let decoded = radius * f64::from(byte) / SURFACE_UNITS;
+            assert!(decoded <= radius);
+            if surface.is_finite() {
+                assert!(
+                    decoded >= (f64::from(surface) + moved).min(radius),
+                    "{surface} {moved}: {decoded}"
+                );
+                assert!(decoded <= f64::from(surface) + moved + radius / SURFACE_UNITS);
+            } else {
+                assert_eq!(byte, u8::MAX);
+            }
+        }
+        let (grid, [(first, shape), _]) = pages();
+        let (mut nodes, mut triangles) = (Vec::new(), Vec::new());
+        decode_page(
+            &grid,
+            &first,
+            &shape,
+            &mut Scratch::default(),
+            &mut nodes,
+            &mut triangles,
+        )
+        .unwrap();
+        for n in nodes.iter().filter(|n| n.child_count > 0) {
+            assert!(n.surface_error.get() >= 0.0);
+            assert!(n.surface_error.get() <= n.error_radius.get());
         }
     }
 

@@ -14,12 +14,12 @@ use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 pub const VDT_MAGIC: [u8; 8] = *b"VDT\x00\r\n\x1a\n";
 
 /// The format version this crate writes.
-pub const VDT_VERSION: u32 = 5;
+pub const VDT_VERSION: u32 = 6;
 
-/// The oldest version this crate reads. Versions 1 to 3 were never released, and version 4
-/// files (no part records in the metadata) must be rebuilt (see `docs/format.md`,
-/// Compatibility).
-pub const OLDEST_READABLE_VERSION: u32 = 5;
+/// The oldest version this crate reads. Versions 1 to 3 were never released; version 4
+/// files (no part records in the metadata) and version 5 files (no surface errors in the
+/// pages) must be rebuilt (see `docs/format.md`, Compatibility).
+pub const OLDEST_READABLE_VERSION: u32 = 6;
 
 /// [`NodeRecord::flags`] bit: the node's cone of normals is two-sided (every normal `n`
 /// has `n` or `−n` within the half-angle of the axis).
@@ -130,6 +130,9 @@ pub struct NodeRecord {
     pub proxy: [F32; 3],
     /// Largest distance from the proxy to any vertex under the node.
     pub error_radius: F32,
+    /// Root-mean-square distance from the proxy to the planes of the triangles around the
+    /// vertices under the node, area-weighted; at most `error_radius` (0 for a leaf).
+    pub surface_error: F32,
     /// Bounding sphere of every triangle with a corner under the node: centre xyz, radius.
     pub sphere: [F32; 4],
     /// Cone of those triangles' normals: unit axis xyz, half-angle in radians (< 0: empty).
@@ -151,7 +154,7 @@ pub struct TriangleRecord {
 const _: () = assert!(size_of::<SectionRef>() == 24);
 const _: () = assert!(size_of::<Header>() == 128);
 const _: () = assert!(size_of::<PageEntry>() == 40);
-const _: () = assert!(size_of::<NodeRecord>() == 76);
+const _: () = assert!(size_of::<NodeRecord>() == 80);
 const _: () = assert!(size_of::<TriangleRecord>() == 16);
 
 /// Size of [`Header`] in bytes.

@@ -336,7 +336,8 @@ impl Adjuster {
         }
         while let Some(n) = self.stack.pop() {
             self.stats.visited += 1;
-            above = judge.priority(cut.store().tested(n)).min(above);
+            let surface = cut.store().surface_error(n);
+            above = judge.priority(cut.store().tested(n), surface).min(above);
             self.priorities.insert(n, above);
         }
         above

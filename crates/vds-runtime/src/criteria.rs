@@ -80,7 +80,30 @@ pub struct Criteria {
     pub gaze: Option<Gaze>,
     /// Refuse folds that would flip the normal of a surviving triangle (mesh folding).
     pub prevent_mesh_folds: bool,
+    /// Which error the budget mode ranks nodes by. The threshold mode always holds the
+    /// vertex bound (the screen-space guarantee).
+    pub bound: Bound,
 }
+
+/// The error a triangle budget spends its triangles against ([`Criteria::bound`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Bound {
+    /// How far the surface moves when a node folds, as the builder's quadric measures it
+    /// ([`crate::Node::surface_error`]): vertices sliding along a flat plate cost little, a
+    /// fold that flattens a ridge or shrinks a thin part costs much. The node's own
+    /// projected size still decides how near it is (its ball's distance from the eye), and a
+    /// 1/1024 share of the error radius breaks ties between flat regions.
+    #[default]
+    Surface,
+    /// The error radius: the largest distance any vertex moves (the paper's measure, which
+    /// the threshold mode guarantees).
+    Vertex,
+}
+
+/// The share of the error radius added to the surface error when ranking by it: flat
+/// regions (surface error near zero) are then refined largest first, after everything that
+/// changes the surface.
+const TIE_BREAK: f32 = 1.0 / 1024.0;
 
 impl Default for Criteria {
     fn default() -> Self {
@@ -90,6 +113,7 @@ impl Default for Criteria {
             frustum: FrustumMode::Fold,
             gaze: None,
             prevent_mesh_folds: false,
+            bound: Bound::Surface,
         }
     }
 }
@@ -342,13 +366,19 @@ impl Judge {
         }
     }
 
-    /// The priority of unfolding `n` in budget mode: its screen-space error in pixels divided
-    /// by the factor its criteria scale the threshold by (silhouette, gaze), so that
-    /// priorities rank nodes as a threshold would. Zero for nodes outside the frustum or
-    /// entirely backfacing; object-space error radius when view-independent.
-    pub fn priority(&self, n: Tested<'_>) -> f32 {
+    /// The priority of unfolding `n` (whose surface error is `surface_error`) in budget
+    /// mode: its screen-space error in pixels divided by the factor its criteria scale the
+    /// threshold by (silhouette, gaze), so that priorities rank nodes as a threshold would.
+    /// The error is the one [`Criteria::bound`] names, projected from the node's ball. Zero
+    /// for nodes outside the frustum or entirely backfacing; the object-space error when
+    /// view-independent.
+    pub fn priority(&self, n: Tested<'_>, surface_error: f32) -> f32 {
+        let ranked = match self.criteria.bound {
+            Bound::Vertex => n.hot.error_radius,
+            Bound::Surface => surface_error + TIE_BREAK * n.hot.error_radius,
+        };
         let Some(view) = &self.view else {
-            return n.hot.error_radius;
+            return ranked;
         };
         if self.criteria.frustum != FrustumMode::Off && self.outside(view, n) {
             return 0.0;
@@ -362,11 +392,12 @@ impl Judge {
             return 0.0;
         }
         let c = view.to_camera(Vec3::from(n.hot.proxy));
+        // Nearness from the whole ball, whichever error is ranked.
         let d = c.z - r;
         let error = if d <= 0.0 {
             f32::MAX
         } else {
-            screen_bound(view.focal_px, r, d, c)
+            screen_bound(view.focal_px, ranked, d, c)
         };
         let mut scale = self.gaze_factor(view, n);
         if let (Some(s), Facing::Silhouette) = (self.criteria.silhouette_factor, facing) {

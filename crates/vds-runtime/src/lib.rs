@@ -55,7 +55,7 @@ pub(crate) fn unit_random(mut seed: u64) -> impl FnMut() -> f32 {
 
 pub use adjust::{AdjustStats, Adjuster};
 pub use camera_path::{CameraPath, PathSource};
-pub use criteria::{Criteria, Decision, Facing, FrustumMode, Gaze, Goal, Judge, Viewpoint};
+pub use criteria::{Bound, Criteria, Decision, Facing, FrustumMode, Gaze, Goal, Judge, Viewpoint};
 pub use cut::{ActiveTriangle, Changes, CornerTracking, Cut, NIL, NodeState};
 pub use loader::default_threads as default_loading_threads;
 pub use store::{

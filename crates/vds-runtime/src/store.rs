@@ -42,6 +42,9 @@ pub struct Node {
     pub proxy: [f32; 3],
     /// Largest distance from the proxy to any original vertex under the node.
     pub error_radius: f32,
+    /// How far the surface moves when the node folds, as the builder's quadric measures it
+    /// (an estimate at most the error radius; `docs/format.md`, Bounds). 0 for a leaf.
+    pub surface_error: f32,
     /// Centre of a sphere holding every triangle with a corner under the node.
     pub sphere_center: [f32; 3],
     /// Radius of that sphere.
@@ -77,6 +80,7 @@ impl Node {
         Node {
             proxy: f(&r.proxy),
             error_radius: r.error_radius.get(),
+            surface_error: r.surface_error.get(),
             sphere_center: f(&r.sphere[..3]),
             sphere_radius: r.sphere[3].get(),
             cone_axis: f(&r.cone[..3]),
@@ -196,6 +200,7 @@ struct Topology {
     subtri_begin: u32,
     subtri_count: u32,
     cone_half_angle: f32,
+    surface_error: f32,
     depth: u16,
     cone_two_sided: bool,
 }
@@ -344,6 +349,7 @@ impl ResidentPage {
                 subtri_begin: node.subtri_begin,
                 subtri_count: node.subtri_count,
                 cone_half_angle: node.cone_half_angle,
+                surface_error: node.surface_error,
                 depth: node.depth,
                 cone_two_sided: node.cone_two_sided,
             });
@@ -1299,6 +1305,7 @@ impl NodeStore {
         Node {
             proxy: hot.proxy,
             error_radius: hot.error_radius,
+            surface_error: topology.surface_error,
             sphere_center: shape.center,
             sphere_radius: shape.radius,
             cone_axis: shape.cone_axis,
@@ -1313,6 +1320,14 @@ impl NodeStore {
             child_count: hot.child_count as u8,
             depth: topology.depth,
         }
+    }
+
+    /// Surface error of resident node `id` ([`Node::surface_error`]).
+    #[inline]
+    #[track_caller]
+    pub fn surface_error(&self, id: u32) -> f32 {
+        let p = self.expect_place(id);
+        self.resident(p.slot).topology[p.local as usize].surface_error
     }
 
     /// Parent of resident node `id` ([`NO_NODE`] for the root).

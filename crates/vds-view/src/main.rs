@@ -73,6 +73,11 @@ struct Args {
     /// Triangle budget instead of a threshold (at least 1).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     budget: Option<u32>,
+    /// What a --budget cut spends its triangles against: how far the surface moves (the
+    /// builder's quadric estimate), or how far any vertex moves (the error radius). A
+    /// threshold always holds the vertex bound.
+    #[arg(long, value_enum, default_value_t = BoundArg::Surface, requires = "budget")]
+    bound: BoundArg,
     /// Simplify on a separate thread (frames never wait for simplification).
     #[arg(long = "async")]
     asynchronous: bool,
@@ -176,6 +181,21 @@ enum ColouringArg {
 enum ShadingArg {
     Faceted,
     Smooth,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum BoundArg {
+    Surface,
+    Vertex,
+}
+
+impl From<BoundArg> for vds_runtime::Bound {
+    fn from(bound: BoundArg) -> Self {
+        match bound {
+            BoundArg::Surface => vds_runtime::Bound::Surface,
+            BoundArg::Vertex => vds_runtime::Bound::Vertex,
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -295,6 +315,7 @@ impl Args {
                     falloff: self.gaze_falloff,
                 }),
                 prevent_mesh_folds: false,
+                bound: self.bound.into(),
             },
         }
     }

@@ -6,10 +6,13 @@
 //!   build` throughput and peak memory. Each run is a fresh child process (this binary with
 //!   the hidden `one` subcommand), so peak RSS (`VmHWM`) belongs to that run alone.
 //! - `vds-bench cut`: the runtime along camera paths and its fidelity (see `cut.rs`).
+//! - `vds-bench fidelity`: view-independent cuts against meshoptimizer's `simplify` and
+//!   `simplify_sloppy` at equal triangle counts (see `fidelity.rs`).
 //! - `vds-bench latency`: the machine's memory latency, to compare machines (`latency.rs`).
 
 mod cut;
 mod distance;
+mod fidelity;
 mod first_touch;
 mod latency;
 mod refine;
@@ -56,6 +59,15 @@ enum Commands {
     /// Time dependent random memory reads at several working-set sizes (compare machines
     /// before comparing their figures).
     Latency,
+    /// View-independent budget cuts against meshoptimizer's `simplify` and `simplify_sloppy`
+    /// at equal triangle counts: two-sided sampled surface distance, mean and max. Default:
+    /// the bunny at 1,000 and 5,000, the AS1 assembly at 500 and 2,000, the dragon at 10,000
+    /// and 50,000 (from `--shared`).
+    Fidelity {
+        /// Mesh files, each followed by its targets: `bunny.obj:1000,5000` (default: the
+        /// table above).
+        meshes: Vec<String>,
+    },
     /// Time the first touch of fresh memory, page by page, and a fill of the same memory
     /// once mapped (on the dev VMs the first varies severalfold with what ran before).
     FirstTouch {
@@ -194,6 +206,33 @@ fn main() -> Result<()> {
                 frames.max(2),
                 memory_budget,
             );
+        }
+        Some(Commands::Fidelity { meshes }) => {
+            let meshes = if meshes.is_empty() {
+                [
+                    "bunny.obj:1000,5000",
+                    "as1_assembly.obj:500,2000",
+                    "dragon.ply.gz:10000,50000",
+                ]
+                .map(|m| args.shared.join(m).display().to_string())
+                .to_vec()
+            } else {
+                meshes
+            };
+            for mesh in &meshes {
+                let (file, targets) = mesh
+                    .rsplit_once(':')
+                    .with_context(|| format!("'{mesh}' is not FILE:COUNT,COUNT"))?;
+                let targets = targets
+                    .split(',')
+                    .map(|t| {
+                        t.parse::<usize>()
+                            .with_context(|| format!("bad count '{t}'"))
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                fidelity::run(Path::new(file), &targets)?;
+            }
+            return Ok(());
         }
         Some(Commands::Latency) => {
             latency::run();

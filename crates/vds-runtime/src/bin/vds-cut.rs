@@ -16,8 +16,8 @@ use clap::{Parser, ValueEnum};
 use serde::Serialize;
 use vds_runtime::export::{Mesh, MeshFormat, write_mesh};
 use vds_runtime::{
-    Camera, CameraPath, CornerTracking, Criteria, FrustumMode, Gaze, Goal, Loading, PathSource,
-    Runtime, Viewpoint, measure,
+    Bound, Camera, CameraPath, CornerTracking, Criteria, FrustumMode, Gaze, Goal, Loading,
+    PathSource, Runtime, Viewpoint, measure,
 };
 
 #[derive(Parser)]
@@ -120,6 +120,11 @@ struct Args {
     /// Refuse folds that would flip a triangle.
     #[arg(long)]
     prevent_folds: bool,
+    /// What a --budget cut spends its triangles against: how far the surface moves (the
+    /// builder's quadric estimate), or how far any vertex moves (the error radius, the
+    /// paper's measure). A --threshold cut always holds the vertex bound.
+    #[arg(long, value_enum, default_value_t = BoundArg::Surface)]
+    bound: BoundArg,
     /// Keep corners by lazy evaluation instead of incidence lists.
     #[arg(long)]
     lazy: bool,
@@ -135,6 +140,12 @@ struct Args {
 enum LoadingMode {
     Synchronous,
     Background,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum BoundArg {
+    Surface,
+    Vertex,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -359,6 +370,10 @@ fn run(args: &Args) -> Result<()> {
             falloff: args.gaze_falloff,
         }),
         prevent_mesh_folds: args.prevent_folds,
+        bound: match args.bound {
+            BoundArg::Surface => Bound::Surface,
+            BoundArg::Vertex => Bound::Vertex,
+        },
     };
     let goal = match (args.threshold, args.budget) {
         (Some(t), _) => Goal::Threshold(t),
