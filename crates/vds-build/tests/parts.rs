@@ -83,9 +83,9 @@ fn writer_refuses_part_records_a_reader_would_refuse() {
 }
 
 #[test]
-fn version_4_files_are_refused_naming_both_versions() {
+fn version_5_files_are_refused_naming_both_versions() {
     let mut bytes = encoded();
-    bytes[8..12].copy_from_slice(&4u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&5u32.to_le_bytes());
     let sum = xxhash_rust::xxh3::xxh3_64(&bytes[..120]);
     bytes[120..128].copy_from_slice(&sum.to_le_bytes());
     let error = VdtFile::from_bytes(bytes).err().unwrap();
@@ -93,16 +93,16 @@ fn version_4_files_are_refused_naming_both_versions() {
         matches!(
             error,
             VdtError::Version {
-                got: 4,
-                expected: 5,
-                oldest: 5
+                got: 5,
+                expected: 6,
+                oldest: 6
             }
         ),
         "{error}"
     );
     let message = error.to_string();
     assert!(
-        message.contains("version 4") && message.contains("version 5 only"),
+        message.contains("version 5") && message.contains("version 6 only"),
         "{message}"
     );
 }

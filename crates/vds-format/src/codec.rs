@@ -123,27 +123,61 @@ fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
     libm::atan2(sin, a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
 }
 
-/// An inner node's surface error is stored as a fraction of its stored error radius, in
-/// 255ths, rounded up.
-const SURFACE_UNITS: f64 = 255.0;
+/// An inner node's surface error is stored as a fraction of its stored error radius on a
+/// scale of half octaves: byte `u` in `1..=SURFACE_LEVELS` stands for `2^(−(16 − u)/2)` of
+/// the radius (the whole radius down to 1/181 of it), 0 for none; values round up. A finer
+/// scale (255ths) cost a byte per inner node that zstd could not shrink: the bunny's file
+/// went over 8 B per triangle.
+const SURFACE_LEVELS: u8 = 16;
+
+/// The share of the error radius that surface-error byte `u` (at most [`SURFACE_LEVELS`])
+/// stands for. Powers of ½ are exact; odd steps take one multiplication by 1/√2, so encoder
+/// and decoder agree on every machine.
+fn surface_share(u: u8) -> f64 {
+    if u == 0 {
+        return 0.0;
+    }
+    let steps = i32::from(SURFACE_LEVELS - u);
+    let share = 0.5f64.powi(steps / 2);
+    if steps % 2 == 1 {
+        share * std::f64::consts::FRAC_1_SQRT_2
+    } else {
+        share
+    }
+}
+
+/// The surface-error level predicted from a node's cone half-angle units: planes whose
+/// normals spread by a half-angle `α` lie about `sin α / 2` of the radius from a proxy
+/// among them (an empty cone predicts the middle level). Coded as a byte step from this,
+/// the levels take a little less than on their own.
+fn predicted_surface_level(angle_units: u8) -> u8 {
+    if angle_units == EMPTY_CONE {
+        return SURFACE_LEVELS / 2;
+    }
+    let half = (f64::from(angle_units) / ANGLE_UNITS * std::f64::consts::PI)
+        .min(std::f64::consts::FRAC_PI_2);
+    let share = 0.5 * half.sin();
+    (1..SURFACE_LEVELS)
+        .find(|&u| surface_share(u) >= share)
+        .unwrap_or(SURFACE_LEVELS)
+}
 
 /// The surface-error byte of an inner node whose surface error is `surface` before its
 /// proxy moved by `moved` to where it is stored, with `error_radius` the radius as stored
-/// (which already holds that move). A plane's distance changes by at most the move.
+/// (which already holds that move; a plane's distance changes by at most the move): the
+/// smallest level at or above the share. A NaN takes the whole radius, which always holds.
 fn surface_byte(surface: f32, moved: f64, error_radius: f64) -> u8 {
     let surface = f64::from(surface) + moved;
-    if error_radius <= 0.0 {
+    if surface.is_nan() {
+        return SURFACE_LEVELS;
+    }
+    if surface <= 0.0 || error_radius <= 0.0 {
         return 0;
     }
-    let units = (surface / error_radius * SURFACE_UNITS).ceil();
-    // Also maps a NaN to the error radius itself, the bound that always holds.
-    if units >= 0.0 {
-        units.min(SURFACE_UNITS) as u8
-    } else if surface <= 0.0 {
-        0
-    } else {
-        u8::MAX
-    }
+    let share = surface / error_radius;
+    (1..SURFACE_LEVELS)
+        .find(|&u| surface_share(u) >= share)
+        .unwrap_or(SURFACE_LEVELS)
 }
 
 /// Half-angles are stored in units of π / 254, rounded up; 255 marks the empty cone.
@@ -348,11 +382,11 @@ pub fn encode_page_into(
             error_units as f64 * f64::from(grid.step) >= f64::from(n.error_radius.get()) + moved
         );
         put_varint(&mut s[BOUNDS], base_error);
-        s[SURFACE].push(surface_byte(
+        let surface_level = surface_byte(
             n.surface_error.get(),
             moved,
             error_units as f64 * f64::from(grid.step),
-        ));
+        );
         let unit = centre_unit(error_units);
         let centre = [n.sphere[0].get(), n.sphere[1].get(), n.sphere[2].get()];
         let mut centre_q = [0u32; 3];
@@ -390,6 +424,7 @@ pub fn encode_page_into(
         s[CONE_AXIS].push(byte_step(encoded[0], predicted[0]));
         s[CONE_AXIS].push(byte_step(encoded[1], predicted[1]));
         s[CONE_ANGLE].push(units);
+        s[SURFACE].push(byte_step(surface_level, predicted_surface_level(units)));
     }
     // Triangles: corners relative to the owning node's first leaf, parts as deltas.
     let mut t = 0usize;
@@ -759,10 +794,6 @@ pub fn decode_page(
             .ok_or_else(|| bad("leaf count"))?;
         let error_units = widened_error(base_error, unit as u64);
         let error_radius = error_units as f32 * grid.step;
-        let surface_units = surface.byte().ok_or_else(|| bad("surface error"))?;
-        // At most the error radius (a byte of at most 255ths of it).
-        let surface_error = (f64::from(error_radius) * f64::from(surface_units) / SURFACE_UNITS)
-            .min(f64::from(error_radius)) as f32;
         let unit = centre_unit(error_units) as i64;
         let mut centre_q = [0u32; 3];
         for a in 0..3 {
@@ -793,6 +824,14 @@ pub fn decode_page(
         let e = [axis_byte(0)?, axis_byte(1)?];
         stored_axis.push(e);
         let angle_units = cone_angle.byte().ok_or_else(|| bad("cone"))?;
+        let surface_level = surface
+            .byte()
+            .map(|b| unbyte_step(b, predicted_surface_level(angle_units)))
+            .filter(|&u| u <= SURFACE_LEVELS)
+            .ok_or_else(|| bad("surface error"))?;
+        // At most the error radius (a share of at most 1 of it).
+        let surface_error = (f64::from(error_radius) * surface_share(surface_level))
+            .min(f64::from(error_radius)) as f32;
         let axis = unoctahedral(e);
         let half = if angle_units == EMPTY_CONE {
             -1.0
@@ -1064,18 +1103,24 @@ mod tests {
             (f32::NAN, 0.0, 1.0),
         ] {
             let byte = surface_byte(surface, moved, radius);
-            let decoded = radius * f64::from(byte) / SURFACE_UNITS;
-            assert!(decoded <= radius);
+            let decoded = radius * surface_share(byte);
+            assert!(byte <= SURFACE_LEVELS && decoded <= radius);
             if surface.is_finite() {
+                let wanted = (f64::from(surface) + moved).min(radius);
+                assert!(decoded >= wanted, "{surface} {moved}: {decoded}");
+                // Half an octave above at most, or the smallest level.
                 assert!(
-                    decoded >= (f64::from(surface) + moved).min(radius),
+                    decoded <= (wanted * std::f64::consts::SQRT_2).max(surface_share(1)) + 1e-12,
                     "{surface} {moved}: {decoded}"
                 );
-                assert!(decoded <= f64::from(surface) + moved + radius / SURFACE_UNITS);
             } else {
-                assert_eq!(byte, u8::MAX);
+                assert_eq!(byte, SURFACE_LEVELS);
             }
         }
+        for u in 1..=SURFACE_LEVELS {
+            assert!(surface_share(u - 1) < surface_share(u));
+        }
+        assert_eq!(surface_share(SURFACE_LEVELS), 1.0);
         let (grid, [(first, shape), _]) = pages();
         let (mut nodes, mut triangles) = (Vec::new(), Vec::new());
         decode_page(

@@ -1,5 +1,5 @@
-//! `vds-bench cut`: the runtime along camera paths, and the view-independent cut's fidelity
-//! against meshoptimizer's `simplify_sloppy` at equal triangle counts.
+//! `vds-bench cut`: the runtime along camera paths (and, unless told not to, the fidelity
+//! table of the bunny, `fidelity.rs`).
 //!
 //! Per frame: the adjust time (one thread), nodes visited, and triangles added, removed and
 //! changed as fractions of the active set. The first frame starts from the root and loads
@@ -241,84 +241,6 @@ pub fn paths_of_vdt(
             false,
             Timed::Adjusts,
         )?;
-    }
-    println!();
-    Ok(())
-}
-
-/// The symmetric mean surface distance between two meshes: points spread over each by area
-/// (200,000 per side), measured to the other; the mean of the two means, as a fraction of
-/// `diagonal`.
-fn mean_error(a: (&[[f32; 3]], &[[u32; 3]]), b: (&[[f32; 3]], &[[u32; 3]]), diagonal: f64) -> f64 {
-    use crate::distance::{NearestTriangle, mean_distance, surface_samples};
-    let corners = |(positions, triangles): (&[[f32; 3]], &[[u32; 3]])| -> Vec<[glam::DVec3; 3]> {
-        triangles
-            .iter()
-            .map(|t| t.map(|v| glam::Vec3::from(positions[v as usize]).as_dvec3()))
-            .collect()
-    };
-    let (ta, tb) = (corners(a), corners(b));
-    let (mut min, mut max) = (
-        glam::DVec3::splat(f64::INFINITY),
-        glam::DVec3::splat(f64::NEG_INFINITY),
-    );
-    for p in ta.iter().chain(&tb).flatten() {
-        min = min.min(*p);
-        max = max.max(*p);
-    }
-    let (sa, sb) = (surface_samples(&ta, 200_000), surface_samples(&tb, 200_000));
-    let (ga, gb) = (
-        NearestTriangle::new(ta, min, max),
-        NearestTriangle::new(tb, min, max),
-    );
-    (mean_distance(&sa, &gb) + mean_distance(&sb, &ga)) / 2.0 / diagonal
-}
-
-/// View-independent VDS cuts vs `simplify_sloppy` at equal triangle counts on `file`.
-pub fn fidelity(file: &Path) -> Result<()> {
-    let (bytes, scene) = vdt_bytes(file)?;
-    let mut min = [f32::INFINITY; 3];
-    let mut max = [f32::NEG_INFINITY; 3];
-    for p in &scene.positions {
-        for k in 0..3 {
-            min[k] = min[k].min(p[k]);
-            max[k] = max[k].max(p[k]);
-        }
-    }
-    let diagonal = glam::Vec3::from(max).distance(glam::Vec3::from(min)) as f64;
-    let indices: Vec<u32> = scene.triangles.iter().flatten().copied().collect();
-    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&scene.positions), 12, 0)?;
-    println!(
-        "fidelity on {} ({} triangles): mean symmetric surface distance, % of the diagonal",
-        file.display(),
-        scene.triangles.len()
-    );
-    for target in [1_000usize, 5_000, 15_000] {
-        let sloppy = meshopt::simplify_sloppy(&indices, &adapter, target * 3, 1.0, None);
-        let sloppy_triangles: Vec<[u32; 3]> =
-            sloppy.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
-        let count = sloppy_triangles.len() as u32;
-        let mut runtime = Runtime::new(
-            Box::new(VdtFile::from_bytes(bytes.clone())?),
-            CornerTracking::Incidence,
-        )?;
-        runtime.adjust(
-            &Viewpoint::Independent,
-            &Criteria::default(),
-            Goal::Budget(count),
-        )?;
-        let mesh = vds_runtime::export::Mesh::from_cut(runtime.cut_mut());
-        let original = (&scene.positions[..], &scene.triangles[..]);
-        let vds_error = mean_error(original, (&mesh.positions, &mesh.triangles), diagonal);
-        let sloppy_error = mean_error(original, (&scene.positions, &sloppy_triangles), diagonal);
-        println!(
-            "  ~{target:>6}: vds {:>6} triangles {:.4}%   simplify_sloppy {:>6} triangles {:.4}%   ratio vds/sloppy {:.2}",
-            mesh.triangles.len(),
-            vds_error * 100.0,
-            count,
-            sloppy_error * 100.0,
-            vds_error / sloppy_error
-        );
     }
     println!();
     Ok(())

@@ -100,7 +100,7 @@ enum Commands {
         memory_budget: u64,
     },
     /// The runtime: adjust time along camera paths (bunny orbit, generated CAD scene
-    /// fly-through) at t = 1 and 5 px, and view-independent fidelity vs simplify_sloppy.
+    /// fly-through) at t = 1 and 5 px, and the bunny's fidelity table (`vds-bench fidelity`).
     Cut {
         /// Frames per camera path.
         #[arg(long, default_value_t = 600)]
@@ -272,7 +272,7 @@ fn main() -> Result<()> {
                 }
             }
             if !no_fidelity {
-                cut::fidelity(&bunny)?;
+                fidelity::run(&bunny, &[1_000, 5_000, 15_000])?;
             }
             return Ok(());
         }
