@@ -156,7 +156,8 @@ fn predicted_surface_level(angle_units: u8) -> u8 {
     }
     let half = (f64::from(angle_units) / ANGLE_UNITS * std::f64::consts::PI)
         .min(std::f64::consts::FRAC_PI_2);
-    let share = 0.5 * half.sin();
+    // `libm`'s sine, not the system library's: the prediction reaches the file's bytes.
+    let share = 0.5 * libm::sin(half);
     (1..SURFACE_LEVELS)
         .find(|&u| surface_share(u) >= share)
         .unwrap_or(SURFACE_LEVELS)

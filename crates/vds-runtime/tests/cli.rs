@@ -56,6 +56,53 @@ fn exports_obj_and_ply_and_reports_json() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--bound` picks what a budget cut ranks by: both bounds fill the budget, they choose
+/// different cuts of the CAD assembly (whose flat plates the surface error lets fold), and the
+/// option is refused beside a threshold, which always holds the vertex bound.
+#[test]
+fn budget_cuts_rank_by_the_bound_asked_for() {
+    let dir = temp_dir("bound");
+    let file = dir.join("as1.vdt");
+    std::fs::write(&file, vdt_bytes(&mut load("as1_assembly.obj"))).unwrap();
+    let cut = |bound: &str| {
+        let out = dir.join(format!("{bound}.ply"));
+        let result = vds_cut()
+            .arg(&file)
+            .arg("-o")
+            .arg(&out)
+            .args([
+                "--budget",
+                "500",
+                "--view-independent",
+                "--json",
+                "--verify",
+            ])
+            .args(["--bound", bound])
+            .output()
+            .unwrap();
+        assert!(
+            result.status.success(),
+            "{}",
+            String::from_utf8_lossy(&result.stderr)
+        );
+        let report: serde_json::Value = serde_json::from_slice(&result.stdout).unwrap();
+        assert!(report["triangles"].as_u64().unwrap() <= 500);
+        std::fs::read(&out).unwrap()
+    };
+    assert_ne!(cut("surface"), cut("vertex"));
+    let result = vds_cut()
+        .arg(&file)
+        .arg("-o")
+        .arg(dir.join("threshold.ply"))
+        .args(["--threshold", "1", "--bound", "vertex"])
+        .output()
+        .unwrap();
+    assert_eq!(result.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&result.stderr).contains("--budget"));
+    assert!(!dir.join("threshold.ply").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn bad_inputs_fail_with_a_message_and_no_output() {
     let dir = temp_dir("bad");
