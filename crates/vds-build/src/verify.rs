@@ -288,12 +288,10 @@ fn verify_bounds(tree: &VertexTree, scene: &Scene) -> Result<(), TreeError> {
                         cone.contains(normal, ANGLE_SLACK)
                     }
                 };
-                if let Some(normal) = triangle_normal(a, b, c)
-                    && !inside(normal)
-                {
-                    return Err(bound(format!("normal of triangle {t} is outside the cone")));
-                }
                 if let Some(normal) = triangle_normal(a, b, c) {
+                    if !inside(normal) {
+                        return Err(bound(format!("normal of triangle {t} is outside the cone")));
+                    }
                     let twice_area = cross(sub(b, a), sub(c, a));
                     let weight = dot(twice_area, twice_area).sqrt() / 2.0;
                     let d = dot(normal, sub(proxy, a));

@@ -124,46 +124,68 @@ fn angle(a: [f32; 3], b: [f32; 3]) -> f64 {
 }
 
 /// An inner node's surface error is stored as a fraction of its stored error radius on a
-/// scale of half octaves: byte `u` in `1..=SURFACE_LEVELS` stands for `2^(−(16 − u)/2)` of
-/// the radius (the whole radius down to 1/181 of it), 0 for none; values round up. A finer
-/// scale (255ths) cost a byte per inner node that zstd could not shrink: the bunny's file
-/// went over 8 B per triangle.
+/// scale of half octaves: level `u` in `1..=SURFACE_LEVELS` stands for `2^(−(16 − u)/2)` of
+/// the radius (the whole radius down to 1/181 of it), 0 for none; values round up.
 const SURFACE_LEVELS: u8 = 16;
 
-/// The share of the error radius that surface-error byte `u` (at most [`SURFACE_LEVELS`])
-/// stands for. Powers of ½ are exact; odd steps take one multiplication by 1/√2, so encoder
-/// and decoder agree on every machine.
+/// The share of the error radius each surface-error level stands for, built at compile
+/// time. Powers of ½ are exact and odd steps take one multiplication by 1/√2, so encoder and
+/// decoder agree on every machine.
+const SURFACE_SHARES: [f64; SURFACE_LEVELS as usize + 1] = {
+    let mut shares = [0.0; SURFACE_LEVELS as usize + 1];
+    let mut u = 1;
+    while u <= SURFACE_LEVELS as usize {
+        let steps = SURFACE_LEVELS as usize - u;
+        let mut share = 1.0;
+        let mut k = 0;
+        while k < steps / 2 {
+            share *= 0.5;
+            k += 1;
+        }
+        if steps % 2 == 1 {
+            share *= std::f64::consts::FRAC_1_SQRT_2;
+        }
+        shares[u] = share;
+        u += 1;
+    }
+    shares
+};
+
+/// The share of the error radius that surface-error level `u` (at most [`SURFACE_LEVELS`])
+/// stands for.
 fn surface_share(u: u8) -> f64 {
-    if u == 0 {
-        return 0.0;
-    }
-    let steps = i32::from(SURFACE_LEVELS - u);
-    let share = 0.5f64.powi(steps / 2);
-    if steps % 2 == 1 {
-        share * std::f64::consts::FRAC_1_SQRT_2
-    } else {
-        share
-    }
+    SURFACE_SHARES[usize::from(u)]
 }
 
-/// The surface-error level predicted from a node's cone half-angle units: planes whose
-/// normals spread by a half-angle `α` lie about `sin α / 2` of the radius from a proxy
-/// among them (an empty cone predicts the middle level). Coded as a byte step from this,
-/// the levels take a little less than on their own.
-fn predicted_surface_level(angle_units: u8) -> u8 {
-    if angle_units == EMPTY_CONE {
-        return SURFACE_LEVELS / 2;
-    }
-    let half = (f64::from(angle_units) / ANGLE_UNITS * std::f64::consts::PI)
-        .min(std::f64::consts::FRAC_PI_2);
-    // `libm`'s sine, not the system library's: the prediction reaches the file's bytes.
-    let share = 0.5 * libm::sin(half);
+/// The smallest level whose share is at least `share` (> 0), or the whole radius.
+fn surface_level_at_least(share: f64) -> u8 {
     (1..SURFACE_LEVELS)
         .find(|&u| surface_share(u) >= share)
         .unwrap_or(SURFACE_LEVELS)
 }
 
-/// The surface-error byte of an inner node whose surface error is `surface` before its
+/// The surface-error level predicted from a node's cone half-angle units: planes whose
+/// normals spread by a half-angle `α` lie about `sin α / 2` of the radius from a proxy
+/// among them (an empty cone predicts the middle level). Coded as a byte step from this,
+/// the levels take a little less than on their own. The decoder asks once per inner node,
+/// so the 256 answers are computed once.
+fn predicted_surface_level(angle_units: u8) -> u8 {
+    static PREDICTIONS: std::sync::OnceLock<[u8; 256]> = std::sync::OnceLock::new();
+    PREDICTIONS.get_or_init(|| {
+        std::array::from_fn(|units| {
+            if units == usize::from(EMPTY_CONE) {
+                return SURFACE_LEVELS / 2;
+            }
+            let half = (units as f64 / ANGLE_UNITS * std::f64::consts::PI)
+                .min(std::f64::consts::FRAC_PI_2);
+            // `libm`'s sine, not the system library's: the prediction reaches the file's
+            // bytes.
+            surface_level_at_least(0.5 * libm::sin(half))
+        })
+    })[usize::from(angle_units)]
+}
+
+/// The surface-error level of an inner node whose surface error is `surface` before its
 /// proxy moved by `moved` to where it is stored, with `error_radius` the radius as stored
 /// (which already holds that move; a plane's distance changes by at most the move): the
 /// smallest level at or above the share. A NaN takes the whole radius, which always holds.
@@ -175,10 +197,7 @@ fn surface_byte(surface: f32, moved: f64, error_radius: f64) -> u8 {
     if surface <= 0.0 || error_radius <= 0.0 {
         return 0;
     }
-    let share = surface / error_radius;
-    (1..SURFACE_LEVELS)
-        .find(|&u| surface_share(u) >= share)
-        .unwrap_or(SURFACE_LEVELS)
+    surface_level_at_least(surface / error_radius)
 }
 
 /// Half-angles are stored in units of π / 254, rounded up; 255 marks the empty cone.

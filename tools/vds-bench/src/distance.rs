@@ -183,10 +183,17 @@ pub fn surface_samples(triangles: &[[DVec3; 3]], count: usize) -> Vec<DVec3> {
     samples
 }
 
-/// Mean distance from `samples` to the mesh.
-pub fn mean_distance(samples: &[DVec3], mesh: &NearestTriangle) -> f64 {
-    let sum: f64 = samples.par_iter().map(|&p| mesh.distance(p)).sum();
-    sum / samples.len().max(1) as f64
+/// Mean and largest distance from `samples` to the mesh, in one pass of nearest-point
+/// queries.
+pub fn distances(samples: &[DVec3], mesh: &NearestTriangle) -> (f64, f64) {
+    let (sum, max) = samples
+        .par_iter()
+        .map(|&p| {
+            let d = mesh.distance(p);
+            (d, d)
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)));
+    (sum / samples.len().max(1) as f64, max)
 }
 
 #[cfg(test)]
@@ -229,7 +236,7 @@ mod tests {
         let mesh = NearestTriangle::new(vec![t], DVec3::ZERO, DVec3::ONE);
         let samples = surface_samples(&[t], 1000);
         assert_eq!(samples.len(), 1000);
-        assert!(mean_distance(&samples, &mesh) < 1e-12);
+        assert!(distances(&samples, &mesh).0 < 1e-12);
         assert!((mesh.distance(DVec3::new(0.2, 0.2, 0.5)) - 0.5).abs() < 1e-12);
     }
 }

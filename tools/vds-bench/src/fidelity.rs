@@ -17,7 +17,7 @@ use glam::DVec3;
 use vds_format::VdtFile;
 use vds_runtime::{Bound, CornerTracking, Criteria, Goal, Runtime, Viewpoint};
 
-use crate::distance::{NearestTriangle, mean_distance, surface_samples};
+use crate::distance::{NearestTriangle, distances, surface_samples};
 
 /// Samples per surface and direction.
 const SAMPLES: usize = 200_000;
@@ -47,14 +47,6 @@ fn corners(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<[DVec3; 3]> {
         .collect()
 }
 
-fn max_distance(samples: &[DVec3], mesh: &NearestTriangle) -> f64 {
-    use rayon::prelude::*;
-    samples
-        .par_iter()
-        .map(|&p| mesh.distance(p))
-        .reduce(|| 0.0, f64::max)
-}
-
 impl Reference {
     fn new(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Reference {
         let original = corners(positions, triangles);
@@ -82,14 +74,8 @@ impl Reference {
         }
         let samples = surface_samples(&simplified, SAMPLES);
         let nearest = NearestTriangle::new(simplified, min, max);
-        let forward = (
-            mean_distance(&self.samples, &nearest),
-            max_distance(&self.samples, &nearest),
-        );
-        let back = (
-            mean_distance(&samples, &self.nearest),
-            max_distance(&samples, &self.nearest),
-        );
+        let forward = distances(&self.samples, &nearest);
+        let back = distances(&samples, &self.nearest);
         Error {
             mean: (forward.0 + back.0) / 2.0 / self.diagonal,
             max: forward.1.max(back.1) / self.diagonal,
