@@ -11,6 +11,7 @@ use rayon::prelude::*;
 use vds_import::Scene;
 
 use crate::bounds::{Aabb, NormalCone, round_up_f32};
+use crate::contraction::contract;
 use crate::isa::{Isa, dispatched};
 use crate::octree::cluster_with;
 use crate::prefault::filled;
@@ -38,24 +39,57 @@ impl BuildTimings {
     }
 }
 
-/// Builds the vertex tree of a scene.
+/// The algorithm that groups vertices into the tree's nodes; everything else about the tree
+/// (proxies, bounds, subtris) is computed the same way for each.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub enum Builder {
+    /// Tight-octree clustering ([`crate::octree`]): fast, parallel, the default.
+    #[default]
+    Octree,
+    /// Quadric-ordered pair contraction over mesh edges and proximity pairs
+    /// ([`crate::contraction`]): a binary tree whose budget cuts follow the quadric error,
+    /// more faithful per triangle, slower to build (one thread).
+    Qem,
+}
+
+impl Builder {
+    /// The name `vds-build --builder` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Builder::Octree => "octree",
+            Builder::Qem => "qem",
+        }
+    }
+}
+
+/// Builds the vertex tree of a scene with the default builder.
 pub fn build_tree(scene: &Scene) -> VertexTree {
     build_tree_timed(scene).0
 }
 
-/// Builds the vertex tree of a scene and reports how long each phase took.
+/// Builds the vertex tree of a scene with the default builder and reports how long each
+/// phase took.
 pub fn build_tree_timed(scene: &Scene) -> (VertexTree, BuildTimings) {
-    build_tree_with(scene, Isa::detect())
+    build_tree_by(scene, Builder::default())
 }
 
-/// [`build_tree_timed`] with the kernels compiled for `isa`.
-fn build_tree_with(scene: &Scene, isa: Isa) -> (VertexTree, BuildTimings) {
+/// Builds the vertex tree of a scene with `builder` and reports how long each phase took
+/// (the grouping is the `cluster` phase, whichever builder makes it).
+pub fn build_tree_by(scene: &Scene, builder: Builder) -> (VertexTree, BuildTimings) {
+    build_tree_with(scene, builder, Isa::detect())
+}
+
+/// [`build_tree_by`] with the kernels compiled for `isa`.
+fn build_tree_with(scene: &Scene, builder: Builder, isa: Isa) -> (VertexTree, BuildTimings) {
     let mut timings = BuildTimings::default();
     if scene.positions.is_empty() {
         return (VertexTree::default(), timings);
     }
     let start = Instant::now();
-    let clustering = cluster_with(&scene.positions, isa);
+    let clustering = match builder {
+        Builder::Octree => cluster_with(&scene.positions, isa),
+        Builder::Qem => contract(&scene.positions, &scene.triangles),
+    };
     timings.cluster = start.elapsed();
 
     // The adjacency and the leaf-rank tables are each one thread's scatter: built side by
@@ -706,8 +740,8 @@ mod tests {
             isa.is_wide(),
             "comparing the two compilations needs an x86-64 CPU with AVX2, BMI1/2 and LZCNT"
         );
-        let (wide, _) = build_tree_with(&scene, isa);
-        let (baseline, _) = build_tree_with(&scene, Isa::BASELINE);
+        let (wide, _) = build_tree_with(&scene, Builder::Octree, isa);
+        let (baseline, _) = build_tree_with(&scene, Builder::Octree, Isa::BASELINE);
         assert!(wide.nodes.len() > 5_000, "{} nodes", wide.nodes.len());
         assert!(wide.bounds.iter().any(|b| b.cone_two_sided));
         assert_eq!(wide, baseline);

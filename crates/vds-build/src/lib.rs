@@ -12,6 +12,7 @@
 
 pub mod bounds;
 mod build;
+pub mod contraction;
 mod isa;
 pub mod octree;
 mod prefault;
@@ -20,7 +21,7 @@ mod tree;
 mod vdt;
 mod verify;
 
-pub use build::{BuildTimings, build_tree, build_tree_timed};
+pub use build::{BuildTimings, Builder, build_tree, build_tree_by, build_tree_timed};
 pub use tree::{Node, NodeBounds, VertexTree};
 pub use vdt::{
     TreeNodes, VerifyError, encode_scene, part_records, snap_to_grid, tree_content, tree_from_file,

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use proptest::prelude::*;
-use vds_build::{VertexTree, build_tree, verify_tree};
+use vds_build::{Builder, VertexTree, build_tree, build_tree_by, verify_tree};
 use vds_import::{MeshSoup, Scene, Weld, weld};
 
 fn scene_from(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Scene {
@@ -43,12 +43,18 @@ fn unwelded_scene(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Scene {
     }
 }
 
-fn build_and_verify(scene: &Scene) -> VertexTree {
-    let tree = build_tree(scene);
+fn build_and_verify_by(scene: &Scene, builder: Builder) -> VertexTree {
+    let (tree, _) = build_tree_by(scene, builder);
     if let Err(error) = verify_tree(&tree, scene) {
-        panic!("invariant broken: {error}");
+        panic!("invariant broken ({} builder): {error}", builder.name());
     }
     tree
+}
+
+/// Builds the scene's tree with every builder and checks each; returns the default one's.
+fn build_and_verify(scene: &Scene) -> VertexTree {
+    build_and_verify_by(scene, Builder::Qem);
+    build_and_verify_by(scene, Builder::Octree)
 }
 
 fn shared(name: &str) -> PathBuf {
@@ -107,6 +113,21 @@ proptest! {
         prop_assume!(!scene.triangles.is_empty());
         build_and_verify(&scene);
     }
+}
+
+/// Proptest's minimal case from a CI run: two unwelded copies of one triangle whose far corner
+/// sits ~113 units from the origin. Each node of coincident copies has error radius 0 and stores
+/// surface error 0, while the checker's own plane distances round to ~10⁻¹⁵ there.
+#[test]
+fn coincident_copies_of_a_long_triangle() {
+    let base = [
+        [-63.261585, 94.98771, -0.5],
+        [0.0, 0.0, 0.0],
+        [0.0, 0.5, 0.5],
+    ];
+    let positions = [base, base].concat();
+    let scene = unwelded_scene(positions, vec![[0, 1, 2], [3, 4, 5]]);
+    build_and_verify(&scene);
 }
 
 #[test]
@@ -169,31 +190,39 @@ fn real_meshes_satisfy_all_invariants() {
 fn small_parts_merge_across_objects_under_one_root() {
     // The CAD assembly's 18 solids share one tree: some node mixes triangles of several parts.
     let scene = vds_import::load_file(shared("as1_assembly.obj"), &Default::default()).unwrap();
-    let tree = build_and_verify(&scene);
-    let mixed = tree.nodes.iter().enumerate().any(|(id, _)| {
-        let parts: std::collections::BTreeSet<u32> = tree
-            .subtris_of(id as u32)
-            .iter()
-            .map(|&t| scene.triangle_parts[t as usize])
-            .collect();
-        parts.len() > 1
-    });
-    assert!(mixed, "no node's subtris span two parts");
+    for builder in [Builder::Octree, Builder::Qem] {
+        let tree = build_and_verify_by(&scene, builder);
+        let mixed = tree.nodes.iter().enumerate().any(|(id, _)| {
+            let parts: std::collections::BTreeSet<u32> = tree
+                .subtris_of(id as u32)
+                .iter()
+                .map(|&t| scene.triangle_parts[t as usize])
+                .collect();
+            parts.len() > 1
+        });
+        assert!(
+            mixed,
+            "{}: no node's subtris span two parts",
+            builder.name()
+        );
+    }
 }
 
 #[test]
 fn identical_trees_on_one_two_and_three_threads() {
     let scene = vds_import::load_file(shared("bunny.obj"), &Default::default()).unwrap();
-    let on = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| build_tree(&scene))
-    };
-    let one = on(1);
-    assert!(one == on(2), "1 and 2 threads differ");
-    assert!(one == on(3), "1 and 3 threads differ");
+    for builder in [Builder::Octree, Builder::Qem] {
+        let on = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| build_tree_by(&scene, builder).0)
+        };
+        let one = on(1);
+        assert!(one == on(2), "{}: 1 and 2 threads differ", builder.name());
+        assert!(one == on(3), "{}: 1 and 3 threads differ", builder.name());
+    }
 }
 
 #[test]

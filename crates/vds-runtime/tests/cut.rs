@@ -6,6 +6,7 @@
 mod common;
 
 use common::*;
+use vds_build::Builder;
 use vds_runtime::{
     ActiveTriangle, Camera, CornerTracking, Criteria, FrustumMode, Goal, Judge, Runtime, Viewpoint,
     measure,
@@ -37,10 +38,10 @@ fn canonical(corners: [[f32; 3]; 3]) -> [[u32; 3]; 3] {
 
 #[test]
 fn unfolding_everything_gives_the_original_mesh_and_folding_everything_the_root() {
-    for name in MESHES {
+    for (name, builder) in MESHES.iter().flat_map(|&m| BUILDERS.map(|b| (m, b))) {
         for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
             let mut scene = load(name);
-            let bytes = vdt_bytes(&mut scene);
+            let bytes = vdt_bytes_by(&mut scene, builder);
             let mut runtime = runtime(&bytes, tracking);
             runtime.cut_mut().unfold_all().unwrap();
             runtime.cut_mut().check().unwrap();
@@ -79,7 +80,9 @@ fn unfolding_everything_gives_the_original_mesh_and_folding_everything_the_root(
 #[test]
 fn threshold_bounds_every_visible_vertex_on_random_cameras() {
     for name in MESHES {
-        assert_threshold_on_random_cameras(name, load(name));
+        for builder in BUILDERS {
+            assert_threshold_on_random_cameras(name, load(name), builder);
+        }
     }
 }
 
@@ -113,12 +116,13 @@ fn threshold_holds_for_models_at_the_largest_accepted_coordinates() {
                 adjust_within(&mut runtime, &camera, &no_backface(), t, &positions, &what);
             }
         }
-        assert_threshold_on_random_cameras(label, scene);
+        assert_threshold_on_random_cameras(label, scene, Builder::default());
     }
 }
 
-fn assert_threshold_on_random_cameras(name: &str, mut scene: vds_import::Scene) {
-    let bytes = vdt_bytes(&mut scene);
+fn assert_threshold_on_random_cameras(name: &str, mut scene: vds_import::Scene, builder: Builder) {
+    let name = &format!("{name} ({} builder)", builder.name());
+    let bytes = vdt_bytes_by(&mut scene, builder);
     let (center, radius) = bounds(&scene.positions);
     let mut runtime = runtime(&bytes, CornerTracking::Incidence);
     let positions = runtime.leaf_positions().unwrap();
@@ -187,9 +191,13 @@ fn apply(mirror: &mut Vec<Option<ActiveTriangle>>, runtime: &mut Runtime, dirty:
 
 #[test]
 fn incremental_adjusts_match_a_recomputation_and_the_journal_replays_them() {
-    for name in ["bunny.obj", "as1_assembly.obj"] {
-        let mut scene = load(name);
-        let bytes = vdt_bytes(&mut scene);
+    for (name, builder) in ["bunny.obj", "as1_assembly.obj"]
+        .iter()
+        .flat_map(|&m| BUILDERS.map(|b| (m, b)))
+    {
+        let name = &format!("{name} ({} builder)", builder.name());
+        let mut scene = load(name.split(' ').next().unwrap());
+        let bytes = vdt_bytes_by(&mut scene, builder);
         let (center, radius) = bounds(&scene.positions);
         let mut eager = runtime(&bytes, CornerTracking::Incidence);
         let mut lazy = runtime(&bytes, CornerTracking::Lazy);
@@ -245,8 +253,14 @@ fn incremental_adjusts_match_a_recomputation_and_the_journal_replays_them() {
 
 #[test]
 fn budget_is_never_exceeded_and_the_next_unfold_would_exceed_it() {
+    for builder in BUILDERS {
+        budget_is_never_exceeded_with(builder);
+    }
+}
+
+fn budget_is_never_exceeded_with(builder: Builder) {
     let mut scene = load("bunny.obj");
-    let bytes = vdt_bytes(&mut scene);
+    let bytes = vdt_bytes_by(&mut scene, builder);
     let (center, radius) = bounds(&scene.positions);
     let mut runtime = runtime(&bytes, CornerTracking::Incidence);
     let mut rng = Rng(3);

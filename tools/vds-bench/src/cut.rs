@@ -11,15 +11,16 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use vds_build::Builder;
 use vds_format::{VdtFile, WriteOptions, encode};
 use vds_runtime::{CameraPath, CornerTracking, Criteria, Goal, Runtime, Viewpoint};
 
 /// The `.vdt` bytes of a mesh file, built in memory, and the scene as imported and snapped.
-pub fn vdt_bytes(file: &Path) -> Result<(Vec<u8>, vds_import::Scene)> {
+pub fn vdt_bytes(file: &Path, builder: Builder) -> Result<(Vec<u8>, vds_import::Scene)> {
     let mut scene = vds_import::load_file(file, &Default::default())
         .with_context(|| format!("reading {}", file.display()))?;
     let grid = vds_build::snap_to_grid(&mut scene);
-    let tree = vds_build::build_tree(&scene);
+    let tree = vds_build::build_tree_by(&scene, builder).0;
     let metadata = vds_format::Metadata {
         part_names: scene.part_names.clone(),
         ..Default::default()
@@ -165,7 +166,7 @@ fn play(
 /// Runtime figures for one mesh along `path`, at t = 1 and 5 px: both corner strategies with
 /// resident pages and incidence lists with cold pages, or only the first (`resident_only`).
 pub fn paths(name: &str, file: &Path, frames: u32, fly: bool, resident_only: bool) -> Result<()> {
-    let (bytes, _) = vdt_bytes(file)?;
+    let (bytes, _) = vdt_bytes(file, Builder::default())?;
     paths_of_vdt(name, &bytes, frames, fly, resident_only)
 }
 

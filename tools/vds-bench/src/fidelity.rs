@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use anyhow::Result;
 use glam::DVec3;
+use vds_build::Builder;
 use vds_format::VdtFile;
 use vds_runtime::{Bound, CornerTracking, Criteria, Goal, Runtime, Viewpoint};
 
@@ -98,30 +99,42 @@ fn cell(count: usize, error: Error) -> String {
     )
 }
 
-/// Prints the fidelity table of one mesh file at the given triangle counts: the cut ranked
-/// by surface error (the default) and by vertex error, and both peers.
+/// Prints the fidelity table of one mesh file at the given triangle counts: the cut of each
+/// builder's tree ranked by surface error (the default) and the octree's by vertex error,
+/// and both peers.
 pub fn run(file: &Path, targets: &[usize]) -> Result<()> {
-    let started = Instant::now();
-    let (bytes, scene) = crate::cut::vdt_bytes(file)?;
-    let build = started.elapsed();
+    let builders = [Builder::Octree, Builder::Qem];
+    let mut built = Vec::new();
+    for builder in builders {
+        let started = Instant::now();
+        let (bytes, scene) = crate::cut::vdt_bytes(file, builder)?;
+        built.push((bytes, scene, started.elapsed()));
+    }
+    let scene = &built[0].1;
     let reference = Reference::new(&scene.positions, &scene.triangles);
     let indices: Vec<u32> = scene.triangles.iter().flatten().copied().collect();
     let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&scene.positions), 12, 0)?;
+    let times: Vec<String> = builders
+        .iter()
+        .zip(&built)
+        .map(|(b, (_, _, time))| format!("{} {:.2} s", b.name(), time.as_secs_f64()))
+        .collect();
     println!(
-        "{} ({} triangles; import + tree + encode {:.2} s): triangles, mean % and max % of the diagonal",
+        "{} ({} triangles; import + tree + encode: {}): triangles, mean % and max % of the diagonal",
         file.display(),
         scene.triangles.len(),
-        build.as_secs_f64()
+        times.join(", ")
     );
     println!(
-        "  {:>7}  {:>24}  {:>24}  {:>24}  {:>24}  {:>9} {:>9}",
+        "  {:>7}  {:>24}  {:>24}  {:>24}  {:>24}  {:>24}  {:>9} {:>9}",
         "target",
-        "vds --bound surface",
-        "vds --bound vertex",
+        "octree, surface",
+        "octree, vertex",
+        "qem, surface",
         "simplify",
         "simplify_sloppy",
-        "vds/simp",
-        "vds/slop"
+        "qem/simp",
+        "qem/slop"
     );
     for &target in targets {
         let simplify = triangles_of(&meshopt::simplify(
@@ -142,9 +155,9 @@ pub fn run(file: &Path, targets: &[usize]) -> Result<()> {
         // The cut gets the smaller of the peers' counts, so neither peer is compared with more
         // triangles than the cut had.
         let budget = simplify.len().min(sloppy.len()).max(1) as u32;
-        let cut = |bound: Bound| -> Result<(usize, Error)> {
+        let cut = |bytes: &[u8], bound: Bound| -> Result<(usize, Error)> {
             let mut runtime = Runtime::new(
-                Box::new(VdtFile::from_bytes(bytes.clone())?),
+                Box::new(VdtFile::from_bytes(bytes.to_vec())?),
                 CornerTracking::Incidence,
             )?;
             let criteria = Criteria {
@@ -158,18 +171,20 @@ pub fn run(file: &Path, targets: &[usize]) -> Result<()> {
                 reference.error(&mesh.positions, &mesh.triangles),
             ))
         };
-        let (surface_count, surface) = cut(Bound::Surface)?;
-        let (vertex_count, vertex) = cut(Bound::Vertex)?;
+        let (octree_count, octree) = cut(&built[0].0, Bound::Surface)?;
+        let (vertex_count, vertex) = cut(&built[0].0, Bound::Vertex)?;
+        let (qem_count, qem) = cut(&built[1].0, Bound::Surface)?;
         let peer = reference.error(&scene.positions, &simplify);
         let clustered = reference.error(&scene.positions, &sloppy);
         println!(
-            "  {target:>7}  {}  {}  {}  {}  {:>9.2} {:>9.2}",
-            cell(surface_count, surface),
+            "  {target:>7}  {}  {}  {}  {}  {}  {:>9.2} {:>9.2}",
+            cell(octree_count, octree),
             cell(vertex_count, vertex),
+            cell(qem_count, qem),
             cell(simplify.len(), peer),
             cell(sloppy.len(), clustered),
-            surface.mean / peer.mean,
-            surface.mean / clustered.mean
+            qem.mean / peer.mean,
+            qem.mean / clustered.mean
         );
     }
     println!();

@@ -74,6 +74,11 @@ struct Args {
     /// from 0 up to (not including) 1 (default: exact).
     #[arg(long, value_name = "EPS", value_parser = weld_fraction)]
     weld: Option<f32>,
+    /// How vertices are grouped into the tree: `octree` (tight-octree clustering, fast,
+    /// parallel) or `qem` (quadric-ordered pair contraction: budget cuts closer to the
+    /// original per triangle, several times slower, one thread).
+    #[arg(long, value_enum, default_value_t = BuilderArg::Octree)]
+    builder: BuilderArg,
     /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_THREADS))]
     threads: Option<usize>,
@@ -102,6 +107,24 @@ struct Args {
     /// build read other files; other URI schemes are never fetched.
     #[arg(long)]
     allow_external_uris: bool,
+}
+
+/// `--builder`'s values ([`vds_build::Builder`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum BuilderArg {
+    /// Tight-octree clustering.
+    Octree,
+    /// Quadric-ordered pair contraction.
+    Qem,
+}
+
+impl From<BuilderArg> for vds_build::Builder {
+    fn from(arg: BuilderArg) -> Self {
+        match arg {
+            BuilderArg::Octree => vds_build::Builder::Octree,
+            BuilderArg::Qem => vds_build::Builder::Qem,
+        }
+    }
 }
 
 /// A byte count: digits, optionally followed by K, M, G or T (powers of 1024), with or
@@ -172,6 +195,8 @@ struct Report {
     input_triangles: u64,
     welded_vertices: u64,
     degenerate_triangles_dropped: u64,
+    /// `octree` or `qem`.
+    builder: &'static str,
     nodes: usize,
     depth: usize,
     degree_histogram: [u64; 9],
@@ -364,7 +389,8 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
     if let Some(bar) = &bar {
         bar.set_message("building the vertex tree");
     }
-    let (tree, timings) = vds_build::build_tree_timed(&scene);
+    let builder = vds_build::Builder::from(args.builder);
+    let (tree, timings) = vds_build::build_tree_by(&scene, builder);
     if args.verify {
         if let Some(bar) = &bar {
             bar.set_message("verifying the tree");
@@ -478,6 +504,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
         input_triangles: stats.input_triangles,
         welded_vertices: stats.welded_vertices,
         degenerate_triangles_dropped: stats.degenerate_triangles_dropped,
+        builder: builder.name(),
         warnings,
         nodes,
         depth,

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use vds_build::{build_tree, snap_to_grid, tree_content};
+use vds_build::{Builder, build_tree_by, snap_to_grid, tree_content};
 use vds_format::{VdtFile, WriteOptions, encode};
 use vds_import::Scene;
 use vds_runtime::{Camera, CornerTracking, Runtime};
@@ -20,11 +20,19 @@ pub fn load(name: &str) -> Scene {
     vds_import::load_file(shared(name), &Default::default()).unwrap()
 }
 
+/// Every builder, for the invariants that must hold whichever made the tree.
+pub const BUILDERS: [Builder; 2] = [Builder::Octree, Builder::Qem];
+
 /// The `.vdt` bytes of `scene` (snapped to the file's grid in place), with small pages so
 /// that even small meshes exercise page loading.
 pub fn vdt_bytes(scene: &mut Scene) -> Vec<u8> {
+    vdt_bytes_by(scene, Builder::default())
+}
+
+/// [`vdt_bytes`] with the tree made by `builder`.
+pub fn vdt_bytes_by(scene: &mut Scene, builder: Builder) -> Vec<u8> {
     let grid = snap_to_grid(scene);
-    let tree = build_tree(scene);
+    let (tree, _) = build_tree_by(scene, builder);
     let metadata = vds_format::Metadata {
         part_names: scene.part_names.clone(),
         ..Default::default()
