@@ -91,6 +91,20 @@ fn triangles_of(indices: &[u32]) -> Vec<[u32; 3]> {
         .collect()
 }
 
+/// Triangles that repeat another's three corners with the same winding (each repeat counted
+/// once per extra copy).
+fn repeats(triangles: &[[u32; 3]]) -> usize {
+    let mut canonical: Vec<[u32; 3]> = triangles
+        .iter()
+        .map(|&t| {
+            let k = (0..3).min_by_key(|&k| t[k]).unwrap_or(0);
+            [t[k], t[(k + 1) % 3], t[(k + 2) % 3]]
+        })
+        .collect();
+    canonical.sort_unstable();
+    canonical.windows(2).filter(|w| w[0] == w[1]).count()
+}
+
 fn cell(count: usize, error: Error) -> String {
     format!(
         "{count:>7} {:>8.4} {:>8.4}",
@@ -126,7 +140,7 @@ pub fn run(file: &Path, targets: &[usize]) -> Result<()> {
         times.join(", ")
     );
     println!(
-        "  {:>7}  {:>24}  {:>24}  {:>24}  {:>24}  {:>24}  {:>9} {:>9}",
+        "  {:>7}  {:>24}  {:>24}  {:>24}  {:>24}  {:>24}  {:>9} {:>9}  {:>7} {:>7}",
         "target",
         "octree, surface",
         "octree, vertex",
@@ -134,7 +148,9 @@ pub fn run(file: &Path, targets: &[usize]) -> Result<()> {
         "simplify",
         "simplify_sloppy",
         "qem/simp",
-        "qem/slop"
+        "qem/slop",
+        "oct rep",
+        "qem rep"
     );
     for &target in targets {
         let simplify = triangles_of(&meshopt::simplify(
@@ -155,7 +171,7 @@ pub fn run(file: &Path, targets: &[usize]) -> Result<()> {
         // The cut gets the smaller of the peers' counts, so neither peer is compared with more
         // triangles than the cut had.
         let budget = simplify.len().min(sloppy.len()).max(1) as u32;
-        let cut = |bytes: &[u8], bound: Bound| -> Result<(usize, Error)> {
+        let cut = |bytes: &[u8], bound: Bound| -> Result<(usize, Error, usize)> {
             let mut runtime = Runtime::new(
                 Box::new(VdtFile::from_bytes(bytes.to_vec())?),
                 CornerTracking::Incidence,
@@ -169,22 +185,25 @@ pub fn run(file: &Path, targets: &[usize]) -> Result<()> {
             Ok((
                 mesh.triangles.len(),
                 reference.error(&mesh.positions, &mesh.triangles),
+                repeats(&mesh.triangles),
             ))
         };
-        let (octree_count, octree) = cut(&built[0].0, Bound::Surface)?;
-        let (vertex_count, vertex) = cut(&built[0].0, Bound::Vertex)?;
-        let (qem_count, qem) = cut(&built[1].0, Bound::Surface)?;
+        let (octree_count, octree, octree_repeats) = cut(&built[0].0, Bound::Surface)?;
+        let (vertex_count, vertex, _) = cut(&built[0].0, Bound::Vertex)?;
+        let (qem_count, qem, qem_repeats) = cut(&built[1].0, Bound::Surface)?;
         let peer = reference.error(&scene.positions, &simplify);
         let clustered = reference.error(&scene.positions, &sloppy);
         println!(
-            "  {target:>7}  {}  {}  {}  {}  {}  {:>9.2} {:>9.2}",
+            "  {target:>7}  {}  {}  {}  {}  {}  {:>9.2} {:>9.2}  {:>7} {:>7}",
             cell(octree_count, octree),
             cell(vertex_count, vertex),
             cell(qem_count, qem),
             cell(simplify.len(), peer),
             cell(sloppy.len(), clustered),
             qem.mean / peer.mean,
-            qem.mean / clustered.mean
+            qem.mean / clustered.mean,
+            octree_repeats,
+            qem_repeats
         );
     }
     println!();
