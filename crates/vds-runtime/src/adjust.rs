@@ -363,7 +363,7 @@ impl Adjuster {
         }
         // Over budget (the budget shrank): fold the cheapest candidates. The budget is a hard
         // limit, so mesh-fold prevention yields here.
-        while cut.active_triangle_count() > budget {
+        while cut.counted_triangles() > budget {
             let Some(f) = self.pop_fold(cut) else { break };
             cut.fold_node(f, false);
             self.stats.folds += 1;
@@ -411,15 +411,22 @@ impl Adjuster {
                 continue;
             }
             let cost = cut.node(u).subtri_count;
-            if u64::from(cut.active_triangle_count()) + u64::from(cost) <= u64::from(budget) {
-                self.unfold_queue.pop();
+            if u64::from(cut.counted_triangles()) + u64::from(cost) <= u64::from(budget) {
                 cut.unfold_node(u)?;
-                self.stats.unfolds += 1;
-                for c in cut.node(u).children() {
-                    self.queue_unfold(cut, judge, c);
+                // An unfold can split classes of repeats that were counted once, and so add
+                // more than its subtris: one that goes past the budget is undone, and the node
+                // does not fit after all.
+                if cut.counted_triangles() > budget {
+                    cut.fold_node(u, false);
+                } else {
+                    self.unfold_queue.pop();
+                    self.stats.unfolds += 1;
+                    for c in cut.node(u).children() {
+                        self.queue_unfold(cut, judge, c);
+                    }
+                    self.queue_fold(cut, judge, u);
+                    continue;
                 }
-                self.queue_fold(cut, judge, u);
-                continue;
             }
             match self.peek_fold(cut) {
                 Some(&Reverse((Priority(cheapest), f))) if cheapest < worst => {

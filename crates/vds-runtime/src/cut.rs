@@ -26,9 +26,18 @@
 //!   proportional to the active triangles, every frame.
 //!
 //! `vds-bench cut` measures both along the same camera paths.
+//!
+//! ## Repeats
+//! Active triangles with the same three current corners in the same winding are drawn and
+//! counted once ([`crate::repeats`]): the others stay in their slots, marked hidden, and read
+//! as free slots. With incidence lists the classes follow every change, and a triangle
+//! budget counts what is drawn (an unfold that would split classes past the budget is
+//! undone). Lazy tracking sees corners only when the cut is read, so it sorts triangles into
+//! classes then, and its budget counts every active triangle (never more drawn than that).
 
 use vds_format::VdtError;
 
+use crate::repeats::{Repeats, Visibility, key};
 use crate::reuse::Reuse;
 use crate::store::{Hot, Node, NodeStore, Shape, Tested};
 
@@ -85,6 +94,8 @@ struct Slot {
     prev: [u32; 3],
     /// The journal epoch in which this slot was last recorded.
     touched: u32,
+    /// Whether the triangle is drawn ([`crate::repeats`]).
+    visibility: Visibility,
 }
 
 const FREE_SLOT: Slot = Slot {
@@ -95,7 +106,23 @@ const FREE_SLOT: Slot = Slot {
     next: [NIL; 3],
     prev: [NIL; 3],
     touched: 0,
+    visibility: Visibility::Detached,
 };
+
+const _: () = assert!(size_of::<Slot>() == 64);
+
+impl Slot {
+    /// What a renderer draws from this slot: the triangle and its corners, or nothing
+    /// ([`NIL`]) for a free slot or a hidden repeat.
+    #[inline]
+    fn drawn(&self) -> (u32, [u32; 3]) {
+        if self.visibility == Visibility::Hidden {
+            (NIL, [NIL; 3])
+        } else {
+            (self.triangle, self.corners)
+        }
+    }
+}
 
 /// What changed in the active triangle list since the last [`Cut::take_changes`].
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -156,6 +183,8 @@ pub struct Cut {
     subtri_scratch: Vec<[u32; 3]>,
     /// The slot array's length at the last `take_changes`.
     drawn_len: u32,
+    /// Classes of same-winding repeats, and which member of each is drawn.
+    repeats: Repeats,
 }
 
 impl Cut {
@@ -180,6 +209,7 @@ impl Cut {
             child_starts: Vec::new(),
             subtri_scratch: Vec::new(),
             drawn_len: 0,
+            repeats: Repeats::default(),
         }
     }
 
@@ -295,8 +325,23 @@ impl Cut {
         self.active_node_count
     }
 
-    /// Number of active triangles.
+    /// Number of active triangles drawn: each class of same-winding repeats once (with
+    /// lazy tracking, as sorted when the cut was last read).
     pub fn active_triangle_count(&self) -> u32 {
+        self.active_triangle_count - self.repeats.hidden
+    }
+
+    /// The triangle count a budget holds to: what is drawn, or, with lazy tracking (which
+    /// sorts repeats only when the cut is read), every active triangle.
+    pub(crate) fn counted_triangles(&self) -> u32 {
+        match self.tracking {
+            CornerTracking::Incidence => self.active_triangle_count(),
+            CornerTracking::Lazy => self.active_triangle_count,
+        }
+    }
+
+    /// Number of active triangles, hidden repeats included.
+    pub fn active_triangle_count_with_repeats(&self) -> u32 {
         self.active_triangle_count
     }
 
@@ -312,14 +357,11 @@ impl Cut {
     }
 
     fn peek_slot(&self, index: u32) -> Option<ActiveTriangle> {
-        let slot = self.slots.get(index as usize)?;
-        (slot.triangle != NIL).then_some(ActiveTriangle {
-            triangle: slot.triangle,
-            corners: slot.corners,
-        })
+        let (triangle, corners) = self.slots.get(index as usize)?.drawn();
+        (triangle != NIL).then_some(ActiveTriangle { triangle, corners })
     }
 
-    /// Every active triangle, by slot.
+    /// Every active triangle drawn (each class of repeats once), by slot.
     pub fn active_triangles(&mut self) -> Vec<ActiveTriangle> {
         self.refresh_lazy_corners();
         (0..self.slot_count())
@@ -381,6 +423,7 @@ impl Cut {
                 let following = self.next_of(entry);
                 let (slot, k) = (entry / 3, (entry % 3) as usize);
                 let child = child_of(self.slots[slot as usize].leaves[k]);
+                self.detach_for_rewrite(slot);
                 self.touch(slot);
                 self.slots[slot as usize].corners[k] = child;
                 self.link(child, entry);
@@ -406,6 +449,7 @@ impl Cut {
         }
         self.child_starts = starts;
         self.subtri_scratch = subtris;
+        self.settle_repeats();
         Ok(())
     }
 
@@ -434,6 +478,7 @@ impl Cut {
                 while entry != NIL {
                     let following = self.next_of(entry);
                     let (slot, k) = (entry / 3, (entry % 3) as usize);
+                    self.detach_for_rewrite(slot);
                     self.touch(slot);
                     self.slots[slot as usize].corners[k] = id;
                     self.link(id, entry);
@@ -449,6 +494,7 @@ impl Cut {
         self.set_state(id, NodeState::Boundary);
         self.count_active_child(node.parent, -1);
         self.active_node_count -= 1;
+        self.settle_repeats();
         true
     }
 
@@ -535,8 +581,10 @@ impl Cut {
 
     /// The changes to the active triangle list since the last call, and a fresh journal.
     pub fn take_changes(&mut self) -> Changes {
-        self.refresh_lazy_corners();
+        // Compaction first: with lazy tracking, the moved triangles are sorted into classes
+        // by the refresh.
         self.compact_slots();
+        self.refresh_lazy_corners();
         let mut changes = Changes::default();
         self.dirty_bits.resize(self.slots.len().div_ceil(64), 0);
         // A triangle active before the frame and after it sits in a touched slot now if it
@@ -545,7 +593,7 @@ impl Cut {
         self.now_in_slot.clear();
         self.before.clear();
         for &(slot, triangle, _) in &self.journal {
-            let now = self.slots.get(slot as usize).map_or(NIL, |s| s.triangle);
+            let now = self.slots.get(slot as usize).map_or(NIL, |s| s.drawn().0);
             if now != NIL {
                 self.now_in_slot.insert(now, slot);
             }
@@ -567,10 +615,11 @@ impl Cut {
             let Some(now) = self.slots.get(slot as usize) else {
                 continue;
             };
-            if now.triangle != triangle || now.corners != corners {
+            let (now_triangle, now_corners) = now.drawn();
+            if now_triangle != triangle || now_corners != corners {
                 self.dirty_bits[slot as usize / 64] |= 1 << (slot % 64);
             }
-            if now.triangle != NIL && !self.before.contains(&now.triangle) {
+            if now_triangle != NIL && !self.before.contains(&now_triangle) {
                 changes.added += 1;
             }
         }
@@ -617,7 +666,8 @@ impl Cut {
         fn held<T>(v: &Vec<T>) -> usize {
             v.capacity() * size_of::<T>()
         }
-        let hashed = self.now_in_slot.capacity() * (size_of::<(u32, u32)>() + 1)
+        let hashed = self.repeats.bytes() as usize
+            + self.now_in_slot.capacity() * (size_of::<(u32, u32)>() + 1)
             + self.before.capacity() * (size_of::<u32>() + 1);
         (size_of::<Cut>()
             + held(&self.active_list)
@@ -670,6 +720,10 @@ impl Cut {
         self.slots.truncate(target);
         self.slots.shrink_to(target);
         self.free_slots = holes;
+        self.settle_repeats();
+        if self.tracking == CornerTracking::Lazy {
+            self.lazy_dirty = true;
+        }
     }
 
     /// Lazy tracking: re-resolves every active corner whose node left the boundary.
@@ -702,6 +756,164 @@ impl Cut {
                 self.slots[slot as usize].corners[k] = resolved;
             }
         }
+        self.sort_into_classes();
+    }
+
+    /// Lazy tracking: sorts every active triangle into its class from scratch, once its
+    /// corners are current, and marks which member of each is drawn.
+    fn sort_into_classes(&mut self) {
+        self.repeats.classes.clear();
+        for (slot, s) in self.slots.iter().enumerate() {
+            if s.triangle == NIL {
+                continue;
+            }
+            let class =
+                self.repeats
+                    .classes
+                    .entry(key(s.corners))
+                    .or_insert(crate::repeats::Class {
+                        count: 0,
+                        shown: slot as u32,
+                    });
+            class.count += 1;
+            if s.triangle < self.slots[class.shown as usize].triangle {
+                class.shown = slot as u32;
+            }
+        }
+        let mut hidden = 0;
+        for slot in 0..self.slots.len() as u32 {
+            let s = &self.slots[slot as usize];
+            if s.triangle == NIL {
+                continue;
+            }
+            let shown = self.repeats.classes[&key(s.corners)].shown == slot;
+            let visibility = if shown {
+                Visibility::Shown
+            } else {
+                hidden += 1;
+                Visibility::Hidden
+            };
+            if s.visibility != visibility {
+                self.touch(slot);
+                self.slots[slot as usize].visibility = visibility;
+            }
+        }
+        self.repeats.hidden = hidden;
+    }
+
+    /// Incidence tracking: puts the triangle in `slot` (active, not in a class) into the class
+    /// of its corners, shown if it has the smallest triangle index there.
+    fn attach(&mut self, slot: u32) {
+        let s = self.slots[slot as usize];
+        let visibility = match self.repeats.join(key(s.corners), slot) {
+            None => Visibility::Shown,
+            // The class's member to show is being chosen again: `settle_repeats` will.
+            Some(NIL) => Visibility::Hidden,
+            Some(shown) if s.triangle < self.slots[shown as usize].triangle => {
+                self.set_visibility(shown, Visibility::Hidden);
+                self.repeats
+                    .classes
+                    .get_mut(&key(s.corners))
+                    .expect("joined")
+                    .shown = slot;
+                Visibility::Shown
+            }
+            Some(_) => Visibility::Hidden,
+        };
+        self.touch(slot);
+        self.slots[slot as usize].visibility = visibility;
+        if visibility == Visibility::Hidden {
+            self.repeats.hidden += 1;
+        }
+    }
+
+    /// Incidence tracking: takes the triangle in `slot` out of its class (before its corners
+    /// change or it leaves the cut). Nothing for a slot in no class.
+    fn detach(&mut self, slot: u32) -> bool {
+        let s = self.slots[slot as usize];
+        if s.visibility == Visibility::Detached {
+            return false;
+        }
+        self.touch(slot);
+        if s.visibility == Visibility::Hidden {
+            self.repeats.hidden -= 1;
+        }
+        self.repeats.leave(key(s.corners), slot);
+        self.slots[slot as usize].visibility = Visibility::Detached;
+        true
+    }
+
+    /// [`Cut::detach`] before a corner of `slot` is rewritten, remembering it to attach
+    /// again when the fold or unfold is done ([`Cut::settle_repeats`]).
+    #[inline]
+    fn detach_for_rewrite(&mut self, slot: u32) {
+        if self.detach(slot) {
+            self.repeats.detached.push(slot);
+        }
+    }
+
+    /// Marks an attached slot shown or hidden, keeping the hidden count.
+    fn set_visibility(&mut self, slot: u32, visibility: Visibility) {
+        let was = self.slots[slot as usize].visibility;
+        if was == visibility {
+            return;
+        }
+        self.touch(slot);
+        self.slots[slot as usize].visibility = visibility;
+        if was == Visibility::Hidden {
+            self.repeats.hidden -= 1;
+        }
+        if visibility == Visibility::Hidden {
+            self.repeats.hidden += 1;
+        }
+    }
+
+    /// Ends a fold, unfold or compaction under incidence tracking: attaches the triangles
+    /// whose corners it rewrote, then, for each class whose shown member left, shows the
+    /// member with the smallest triangle index. Members all hold the key's first corner,
+    /// so that node's incidence list finds them.
+    fn settle_repeats(&mut self) {
+        if self.tracking != CornerTracking::Incidence {
+            return;
+        }
+        for slot in std::mem::take(&mut self.repeats.detached) {
+            if self.slots[slot as usize].triangle != NIL
+                && self.slots[slot as usize].visibility == Visibility::Detached
+            {
+                self.attach(slot);
+            }
+        }
+        let mut orphans = std::mem::take(&mut self.repeats.orphans);
+        for class_key in orphans.drain(..) {
+            if !self.repeats.classes.contains_key(&class_key) {
+                continue;
+            }
+            let mut members = Vec::new();
+            let mut entry = self.store.label(class_key[0]).head;
+            while entry != NIL {
+                let slot = entry / 3;
+                let s = &self.slots[slot as usize];
+                if s.visibility != Visibility::Detached && key(s.corners) == class_key {
+                    members.push((s.triangle, slot));
+                }
+                entry = self.next_of(entry);
+            }
+            let &(_, winner) = members.iter().min().expect("a class has members");
+            for &(_, slot) in &members {
+                let visibility = if slot == winner {
+                    Visibility::Shown
+                } else {
+                    Visibility::Hidden
+                };
+                self.set_visibility(slot, visibility);
+            }
+            self.repeats
+                .classes
+                .get_mut(&class_key)
+                .expect("checked above")
+                .shown = winner;
+        }
+        self.repeats.orphans = orphans;
     }
 
     /// The boundary node above `rank`, found from `near` (any node on or above the boundary,
@@ -774,6 +986,7 @@ impl Cut {
             for k in 0..3 {
                 self.link(corners[k], slot * 3 + k as u32);
             }
+            self.attach(slot);
         }
         self.active_triangle_count += 1;
         slot
@@ -781,6 +994,16 @@ impl Cut {
 
     fn remove_slot(&mut self, slot: u32) {
         self.touch(slot);
+        match self.tracking {
+            CornerTracking::Incidence => {
+                self.detach(slot);
+            }
+            CornerTracking::Lazy => {
+                if self.slots[slot as usize].visibility == Visibility::Hidden {
+                    self.repeats.hidden -= 1;
+                }
+            }
+        }
         let s = self.slots[slot as usize];
         if self.tracking == CornerTracking::Incidence {
             for k in 0..3 {
@@ -802,7 +1025,8 @@ impl Cut {
         let s = &mut self.slots[slot as usize];
         if s.touched != self.epoch {
             s.touched = self.epoch;
-            self.journal.push((slot, s.triangle, s.corners));
+            let (triangle, corners) = s.drawn();
+            self.journal.push((slot, triangle, corners));
         }
     }
 
@@ -884,6 +1108,63 @@ impl Cut {
         }
     }
 
+    /// Checks the classes of repeats against a recomputation from the slots: every active
+    /// triangle in the class of its corners, counts and shown slots right, one member shown
+    /// per class and the rest hidden.
+    fn check_repeats(&self) -> Result<(), String> {
+        let mut classes: rustc_hash::FxHashMap<[u32; 3], (u32, u32)> = Default::default();
+        for (slot, s) in self.slots.iter().enumerate() {
+            if s.triangle == NIL {
+                if s.visibility != Visibility::Detached {
+                    return Err(format!("free slot {slot} is in a class"));
+                }
+                continue;
+            }
+            let class = classes.entry(key(s.corners)).or_insert((0, slot as u32));
+            class.0 += 1;
+            if s.triangle < self.slots[class.1 as usize].triangle {
+                class.1 = slot as u32;
+            }
+        }
+        if classes.len() != self.repeats.classes.len() {
+            return Err(format!(
+                "{} classes of repeats kept, {} recomputed",
+                self.repeats.classes.len(),
+                classes.len()
+            ));
+        }
+        let mut hidden = 0;
+        for (slot, s) in self.slots.iter().enumerate() {
+            if s.triangle == NIL {
+                continue;
+            }
+            let (count, shown) = classes[&key(s.corners)];
+            let kept = self.repeats.classes.get(&key(s.corners));
+            if kept.map(|c| (c.count, c.shown)) != Some((count, shown)) {
+                return Err(format!(
+                    "triangle {}'s class is kept as {kept:?}, recomputed as {count} members                      shown in slot {shown}",
+                    s.triangle
+                ));
+            }
+            let visibility = if shown == slot as u32 {
+                Visibility::Shown
+            } else {
+                hidden += 1;
+                Visibility::Hidden
+            };
+            if s.visibility != visibility {
+                return Err(format!(
+                    "triangle {} is {:?}, should be {visibility:?}",
+                    s.triangle, s.visibility
+                ));
+            }
+        }
+        if hidden != self.repeats.hidden {
+            return Err("the hidden repeat count is wrong".into());
+        }
+        Ok(())
+    }
+
     /// Checks every structural invariant of the cut against a recomputation from scratch:
     /// labels, the boundary list, child counts, and the active triangle set (each active
     /// node's subtris, with corners found by walking down from the root), plus the incidence
@@ -953,11 +1234,19 @@ impl Cut {
         if active_count != self.active_node_count as usize {
             return Err("the active node count is wrong".into());
         }
+        let held = self.slots.iter().filter(|s| s.triangle != NIL).count();
+        if held != self.active_triangle_count as usize {
+            return Err("the active triangle count is wrong".into());
+        }
+        self.check_repeats()?;
+        // Of each class of repeats, the member with the smallest triangle index is drawn.
+        expected.sort_unstable_by_key(|t| (key(t.corners), t.triangle));
+        expected.dedup_by_key(|t| key(t.corners));
         let mut actual: Vec<ActiveTriangle> = (0..self.slot_count())
             .filter_map(|s| self.peek_slot(s))
             .collect();
-        if actual.len() != self.active_triangle_count as usize {
-            return Err("the active triangle count is wrong".into());
+        if actual.len() != self.active_triangle_count() as usize {
+            return Err("the drawn triangle count is wrong".into());
         }
         expected.sort_unstable();
         actual.sort_unstable();
@@ -996,7 +1285,7 @@ impl Cut {
                     entry = self.next_of(entry);
                 }
             }
-            if listed != 3 * self.active_triangle_count as usize {
+            if listed != 3 * held {
                 return Err("incidence lists miss active corners".into());
             }
         }

@@ -35,6 +35,7 @@ mod loader;
 pub mod measure;
 pub mod nearest;
 mod prefetch;
+mod repeats;
 pub mod reuse;
 pub mod size;
 pub mod store;
