@@ -185,6 +185,8 @@ pub struct Cut {
     drawn_len: u32,
     /// Classes of same-winding repeats, and which member of each is drawn.
     repeats: Repeats,
+    /// Folds and unfolds leave the classes to be settled later ([`Cut::defer_repeats`]).
+    defer_repeats: bool,
 }
 
 impl Cut {
@@ -210,6 +212,17 @@ impl Cut {
             subtri_scratch: Vec::new(),
             drawn_len: 0,
             repeats: Repeats::default(),
+            defer_repeats: false,
+        }
+    }
+
+    /// While `on`, folds and unfolds leave the triangles whose corners they rewrite out of
+    /// their classes of repeats, and [`Cut::active_triangle_count`] is not current; turning it
+    /// off sorts them in (each once, however often it moved). Off by default.
+    pub(crate) fn defer_repeats(&mut self, on: bool) {
+        self.defer_repeats = on;
+        if !on {
+            self.settle_repeats();
         }
     }
 
@@ -449,7 +462,9 @@ impl Cut {
         }
         self.child_starts = starts;
         self.subtri_scratch = subtris;
-        self.settle_repeats();
+        if !self.defer_repeats {
+            self.settle_repeats();
+        }
         Ok(())
     }
 
@@ -494,7 +509,9 @@ impl Cut {
         self.set_state(id, NodeState::Boundary);
         self.count_active_child(node.parent, -1);
         self.active_node_count -= 1;
-        self.settle_repeats();
+        if !self.defer_repeats {
+            self.settle_repeats();
+        }
         true
     }
 
@@ -581,6 +598,7 @@ impl Cut {
 
     /// The changes to the active triangle list since the last call, and a fresh journal.
     pub fn take_changes(&mut self) -> Changes {
+        self.settle_repeats();
         // Compaction first: with lazy tracking, the moved triangles are sorted into classes
         // by the refresh.
         self.compact_slots();
@@ -876,13 +894,18 @@ impl Cut {
         if self.tracking != CornerTracking::Incidence {
             return;
         }
-        for slot in std::mem::take(&mut self.repeats.detached) {
+        let mut detached = std::mem::take(&mut self.repeats.detached);
+        for &slot in &detached {
+            // A slot may be listed twice, or freed or refilled since: only an active
+            // triangle still in no class is attached.
             if self.slots[slot as usize].triangle != NIL
                 && self.slots[slot as usize].visibility == Visibility::Detached
             {
                 self.attach(slot);
             }
         }
+        detached.clear();
+        self.repeats.detached = detached;
         let mut orphans = std::mem::take(&mut self.repeats.orphans);
         for class_key in orphans.drain(..) {
             if !self.repeats.classes.contains_key(&class_key) {
@@ -986,7 +1009,11 @@ impl Cut {
             for k in 0..3 {
                 self.link(corners[k], slot * 3 + k as u32);
             }
-            self.attach(slot);
+            if self.defer_repeats {
+                self.repeats.detached.push(slot);
+            } else {
+                self.attach(slot);
+            }
         }
         self.active_triangle_count += 1;
         slot

@@ -13,6 +13,8 @@
 //! the smallest node id, which keeps the winding) to its member count and shown slot. The cut
 //! ([`crate::cut`]) keeps it current as corners change, and marks each slot shown or hidden.
 
+use std::collections::hash_map::Entry;
+
 use rustc_hash::FxHashMap;
 
 use crate::cut::NIL;
@@ -72,19 +74,18 @@ impl Repeats {
     /// A new class for a first member in `slot`, or the class `key` grown by one. Returns
     /// the slot shown before (or [`NIL`]) when the class already existed.
     pub fn join(&mut self, key: [u32; 3], slot: u32) -> Option<u32> {
-        match self.classes.get_mut(&key) {
-            Some(class) => {
+        // One look-up either way (the entry API): most classes are born and die single.
+        match self.classes.entry(key) {
+            Entry::Occupied(mut class) => {
+                let class = class.get_mut();
                 class.count += 1;
                 Some(class.shown)
             }
-            None => {
-                self.classes.insert(
-                    key,
-                    Class {
-                        count: 1,
-                        shown: slot,
-                    },
-                );
+            Entry::Vacant(vacant) => {
+                vacant.insert(Class {
+                    count: 1,
+                    shown: slot,
+                });
                 None
             }
         }
@@ -93,13 +94,13 @@ impl Repeats {
     /// Removes a member in `slot` from class `key`: the class goes when it empties, and is
     /// orphaned when `slot` was its shown member.
     pub fn leave(&mut self, key: [u32; 3], slot: u32) {
-        let class = self
-            .classes
-            .get_mut(&key)
-            .expect("an attached slot's class exists");
+        let Entry::Occupied(mut entry) = self.classes.entry(key) else {
+            unreachable!("an attached slot's class exists");
+        };
+        let class = entry.get_mut();
         class.count -= 1;
         if class.count == 0 {
-            self.classes.remove(&key);
+            entry.remove();
         } else if class.shown == slot {
             class.shown = NIL;
             self.orphans.push(key);
