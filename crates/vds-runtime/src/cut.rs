@@ -30,14 +30,16 @@
 //! ## Repeats
 //! Active triangles with the same three current corners in the same winding are drawn and
 //! counted once ([`crate::repeats`]): the others stay in their slots, marked hidden, and read
-//! as free slots. With incidence lists the classes follow every change, and a triangle
-//! budget counts what is drawn (an unfold that would split classes past the budget is
-//! undone). Lazy tracking sees corners only when the cut is read, so it sorts triangles into
-//! classes then, and its budget counts every active triangle (never more drawn than that).
+//! as free slots. Only subtris of one node can repeat, and only those its unfold finds in one
+//! group; a fold or unfold that moves a grouped triangle's corner has its group compared
+//! again. With incidence lists that happens at once, and a triangle budget counts what is
+//! drawn (an unfold that would split repeats past the budget is undone). Lazy tracking sees
+//! corners only when the cut is read, so it compares groups then, and its budget counts every
+//! active triangle (never fewer than are drawn).
 
 use vds_format::VdtError;
 
-use crate::repeats::{Repeats, Visibility, key};
+use crate::repeats::{Repeats, groups_of, hidden_members, key};
 use crate::reuse::Reuse;
 use crate::store::{Hot, Node, NodeStore, Shape, Tested};
 
@@ -94,8 +96,10 @@ struct Slot {
     prev: [u32; 3],
     /// The journal epoch in which this slot was last recorded.
     touched: u32,
-    /// Whether the triangle is drawn ([`crate::repeats`]).
-    visibility: Visibility,
+    /// Hidden as a repeat of a triangle with a smaller index ([`crate::repeats`]).
+    hidden: bool,
+    /// In a group of its node's subtris that can repeat ([`crate::repeats`]).
+    grouped: bool,
 }
 
 const FREE_SLOT: Slot = Slot {
@@ -106,7 +110,8 @@ const FREE_SLOT: Slot = Slot {
     next: [NIL; 3],
     prev: [NIL; 3],
     touched: 0,
-    visibility: Visibility::Detached,
+    hidden: false,
+    grouped: false,
 };
 
 const _: () = assert!(size_of::<Slot>() == 64);
@@ -116,7 +121,7 @@ impl Slot {
     /// ([`NIL`]) for a free slot or a hidden repeat.
     #[inline]
     fn drawn(&self) -> (u32, [u32; 3]) {
-        if self.visibility == Visibility::Hidden {
+        if self.hidden {
             (NIL, [NIL; 3])
         } else {
             (self.triangle, self.corners)
@@ -183,10 +188,10 @@ pub struct Cut {
     subtri_scratch: Vec<[u32; 3]>,
     /// The slot array's length at the last `take_changes`.
     drawn_len: u32,
-    /// Classes of same-winding repeats, and which member of each is drawn.
+    /// The groups of subtris that can repeat, and how many triangles are hidden.
     repeats: Repeats,
-    /// Folds and unfolds leave the classes to be settled later ([`Cut::defer_repeats`]).
-    defer_repeats: bool,
+    /// Scratch of `unfold_node`: its subtris' corners in its own cut, for grouping.
+    own_corners: Vec<([u32; 3], u32)>,
 }
 
 impl Cut {
@@ -212,17 +217,7 @@ impl Cut {
             subtri_scratch: Vec::new(),
             drawn_len: 0,
             repeats: Repeats::default(),
-            defer_repeats: false,
-        }
-    }
-
-    /// While `on`, folds and unfolds leave the triangles whose corners they rewrite out of
-    /// their classes of repeats, and [`Cut::active_triangle_count`] is not current; turning it
-    /// off sorts them in (each once, however often it moved). Off by default.
-    pub(crate) fn defer_repeats(&mut self, on: bool) {
-        self.defer_repeats = on;
-        if !on {
-            self.settle_repeats();
+            own_corners: Vec::new(),
         }
     }
 
@@ -339,13 +334,13 @@ impl Cut {
     }
 
     /// Number of active triangles drawn: each class of same-winding repeats once (with
-    /// lazy tracking, as sorted when the cut was last read).
+    /// lazy tracking, as compared when the cut was last read).
     pub fn active_triangle_count(&self) -> u32 {
         self.active_triangle_count - self.repeats.hidden
     }
 
     /// The triangle count a budget holds to: what is drawn, or, with lazy tracking (which
-    /// sorts repeats only when the cut is read), every active triangle.
+    /// compares repeats only when the cut is read), every active triangle.
     pub(crate) fn counted_triangles(&self) -> u32 {
         match self.tracking {
             CornerTracking::Incidence => self.active_triangle_count(),
@@ -436,8 +431,8 @@ impl Cut {
                 let following = self.next_of(entry);
                 let (slot, k) = (entry / 3, (entry % 3) as usize);
                 let child = child_of(self.slots[slot as usize].leaves[k]);
-                self.detach_for_rewrite(slot);
                 self.touch(slot);
+                self.note_moved(slot);
                 self.slots[slot as usize].corners[k] = child;
                 self.link(child, entry);
                 entry = following;
@@ -448,23 +443,46 @@ impl Cut {
         let mut subtris = std::mem::take(&mut self.subtri_scratch);
         subtris.clear();
         subtris.extend_from_slice(self.store.subtri_corners(id));
+        // Subtris that can repeat are those with equal corners in `id`'s own cut
+        // ([`crate::repeats`]): with only one, there is nothing to group.
+        let grouping = subtris.len() > 1;
+        let mut own = std::mem::take(&mut self.own_corners);
+        own.clear();
         for (t, &leaves) in (node.subtri_begin..).zip(&subtris) {
             // A corner under `id` is on one of its children, which are all on the boundary
-            // now; the others are found from `id` upwards.
-            let corners = leaves.map(|rank| {
-                if node.supports_rank(rank) {
-                    child_of(rank)
+            // now; the others are found from `id` upwards. In `id`'s own cut, a corner outside
+            // it is on the child, holding it, of the deepest ancestor that supports it: the
+            // first step of the way down.
+            let (mut corners, mut own_corners) = ([NIL; 3], [NIL; 3]);
+            for k in 0..3 {
+                let rank = leaves[k];
+                (own_corners[k], corners[k]) = if node.supports_rank(rank) {
+                    let child = child_of(rank);
+                    (child, child)
                 } else {
                     self.boundary_node_of(rank, id)
-                }
-            });
+                };
+            }
             self.insert_triangle(id, t, leaves, corners);
+            if grouping {
+                own.push((own_corners, t));
+            }
         }
+        if grouping {
+            let groups = groups_of(&mut own);
+            if !groups.is_empty() {
+                for &t in groups.iter().flatten() {
+                    let slot = self.store.triangle_slot(id, t);
+                    self.slots[slot as usize].grouped = true;
+                }
+                self.repeats.groups.insert(id, groups);
+                self.repeats.dirty.push(id);
+            }
+        }
+        self.own_corners = own;
         self.child_starts = starts;
         self.subtri_scratch = subtris;
-        if !self.defer_repeats {
-            self.settle_repeats();
-        }
+        self.settle_repeats();
         Ok(())
     }
 
@@ -493,8 +511,8 @@ impl Cut {
                 while entry != NIL {
                     let following = self.next_of(entry);
                     let (slot, k) = (entry / 3, (entry % 3) as usize);
-                    self.detach_for_rewrite(slot);
                     self.touch(slot);
+                    self.note_moved(slot);
                     self.slots[slot as usize].corners[k] = id;
                     self.link(id, entry);
                     entry = following;
@@ -509,9 +527,8 @@ impl Cut {
         self.set_state(id, NodeState::Boundary);
         self.count_active_child(node.parent, -1);
         self.active_node_count -= 1;
-        if !self.defer_repeats {
-            self.settle_repeats();
-        }
+        self.repeats.groups.remove(&id);
+        self.settle_repeats();
         true
     }
 
@@ -734,12 +751,17 @@ impl Cut {
             let slot =
                 self.place_triangle(to, moved.owner, moved.triangle, moved.leaves, moved.corners);
             debug_assert_eq!(slot, to);
+            if moved.grouped {
+                self.slots[slot as usize].grouped = true;
+                self.note_moved(slot);
+            }
         }
         self.slots.truncate(target);
         self.slots.shrink_to(target);
         self.free_slots = holes;
         self.settle_repeats();
         if self.tracking == CornerTracking::Lazy {
+            // Moved members of groups are compared when the corners are refreshed.
             self.lazy_dirty = true;
         }
     }
@@ -774,181 +796,98 @@ impl Cut {
                 self.slots[slot as usize].corners[k] = resolved;
             }
         }
-        self.sort_into_classes();
+        // Every group's corners may have moved.
+        let owners: Vec<u32> = self.repeats.groups.keys().copied().collect();
+        self.repeats.dirty.extend(owners);
+        self.compare_groups();
     }
 
-    /// Lazy tracking: sorts every active triangle into its class from scratch, once its
-    /// corners are current, and marks which member of each is drawn.
-    fn sort_into_classes(&mut self) {
-        self.repeats.classes.clear();
-        for (slot, s) in self.slots.iter().enumerate() {
-            if s.triangle == NIL {
-                continue;
-            }
-            let class =
-                self.repeats
-                    .classes
-                    .entry(key(s.corners))
-                    .or_insert(crate::repeats::Class {
-                        count: 0,
-                        shown: slot as u32,
-                    });
-            class.count += 1;
-            if s.triangle < self.slots[class.shown as usize].triangle {
-                class.shown = slot as u32;
-            }
-        }
-        let mut hidden = 0;
-        for slot in 0..self.slots.len() as u32 {
-            let s = &self.slots[slot as usize];
-            if s.triangle == NIL {
-                continue;
-            }
-            let shown = self.repeats.classes[&key(s.corners)].shown == slot;
-            let visibility = if shown {
-                Visibility::Shown
-            } else {
-                hidden += 1;
-                Visibility::Hidden
-            };
-            if s.visibility != visibility {
-                self.touch(slot);
-                self.slots[slot as usize].visibility = visibility;
-            }
-        }
-        self.repeats.hidden = hidden;
-    }
-
-    /// Incidence tracking: puts the triangle in `slot` (active, not in a class) into the class
-    /// of its corners, shown if it has the smallest triangle index there.
-    fn attach(&mut self, slot: u32) {
-        let s = self.slots[slot as usize];
-        let visibility = match self.repeats.join(key(s.corners), slot) {
-            None => Visibility::Shown,
-            // The class's member to show is being chosen again: `settle_repeats` will.
-            Some(NIL) => Visibility::Hidden,
-            Some(shown) if s.triangle < self.slots[shown as usize].triangle => {
-                self.set_visibility(shown, Visibility::Hidden);
-                self.repeats
-                    .classes
-                    .get_mut(&key(s.corners))
-                    .expect("joined")
-                    .shown = slot;
-                Visibility::Shown
-            }
-            Some(_) => Visibility::Hidden,
-        };
-        self.touch(slot);
-        self.slots[slot as usize].visibility = visibility;
-        if visibility == Visibility::Hidden {
-            self.repeats.hidden += 1;
-        }
-    }
-
-    /// Incidence tracking: takes the triangle in `slot` out of its class (before its corners
-    /// change or it leaves the cut). Nothing for a slot in no class.
-    fn detach(&mut self, slot: u32) -> bool {
-        let s = self.slots[slot as usize];
-        if s.visibility == Visibility::Detached {
-            return false;
-        }
-        self.touch(slot);
-        if s.visibility == Visibility::Hidden {
-            self.repeats.hidden -= 1;
-        }
-        self.repeats.leave(key(s.corners), slot);
-        self.slots[slot as usize].visibility = Visibility::Detached;
-        true
-    }
-
-    /// [`Cut::detach`] before a corner of `slot` is rewritten, remembering it to attach
-    /// again when the fold or unfold is done ([`Cut::settle_repeats`]).
+    /// Notes that a corner of the triangle in `slot` is about to move: its group, if it has
+    /// one, is compared again ([`Cut::settle_repeats`]).
     #[inline]
-    fn detach_for_rewrite(&mut self, slot: u32) {
-        if self.detach(slot) {
-            self.repeats.detached.push(slot);
+    fn note_moved(&mut self, slot: u32) {
+        let s = &self.slots[slot as usize];
+        if s.grouped {
+            self.repeats.dirty.push(s.owner);
         }
     }
 
-    /// Marks an attached slot shown or hidden, keeping the hidden count.
-    fn set_visibility(&mut self, slot: u32, visibility: Visibility) {
-        let was = self.slots[slot as usize].visibility;
-        if was == visibility {
+    /// Ends a fold, unfold or compaction: compares again the groups whose members moved
+    /// (with lazy tracking, corners are current only when the cut is read, which compares
+    /// them then).
+    fn settle_repeats(&mut self) {
+        if self.tracking == CornerTracking::Incidence {
+            self.compare_groups();
+        }
+    }
+
+    /// Hides, in each group of the nodes marked dirty, every member whose current corners a
+    /// member with a smaller triangle index has, and shows the rest.
+    fn compare_groups(&mut self) {
+        if self.repeats.dirty.is_empty() {
+            return;
+        }
+        let mut dirty = std::mem::take(&mut self.repeats.dirty);
+        dirty.sort_unstable();
+        dirty.dedup();
+        let mut members: Vec<(u32, [u32; 3])> = Vec::new();
+        let mut corners: Vec<[u32; 3]> = Vec::new();
+        for &owner in &dirty {
+            // A node folded since its members moved has no groups any more.
+            let Some(groups) = self.repeats.groups.get(&owner) else {
+                continue;
+            };
+            members.clear();
+            for group in groups {
+                for &t in group {
+                    let slot = self.store.triangle_slot(owner, t);
+                    members.push((slot, self.slots[slot as usize].corners));
+                }
+                // Group boundaries travel as a marker between groups.
+                members.push((NIL, [NIL; 3]));
+            }
+            for group in members.split(|&(slot, _)| slot == NIL) {
+                corners.clear();
+                corners.extend(group.iter().map(|&(_, c)| c));
+                let verdicts: Vec<bool> = hidden_members(&corners).collect();
+                for (&(slot, _), hidden) in group.iter().zip(verdicts) {
+                    self.set_hidden(slot, hidden);
+                }
+            }
+        }
+        dirty.clear();
+        self.repeats.dirty = dirty;
+    }
+
+    /// Marks an active slot hidden or drawn, keeping the hidden count.
+    fn set_hidden(&mut self, slot: u32, hidden: bool) {
+        if self.slots[slot as usize].hidden == hidden {
             return;
         }
         self.touch(slot);
-        self.slots[slot as usize].visibility = visibility;
-        if was == Visibility::Hidden {
+        self.slots[slot as usize].hidden = hidden;
+        if hidden {
+            self.repeats.hidden += 1;
+        } else {
             self.repeats.hidden -= 1;
         }
-        if visibility == Visibility::Hidden {
-            self.repeats.hidden += 1;
-        }
     }
 
-    /// Ends a fold, unfold or compaction under incidence tracking: attaches the triangles
-    /// whose corners it rewrote, then, for each class whose shown member left, shows the
-    /// member with the smallest triangle index. Members all hold the key's first corner,
-    /// so that node's incidence list finds them.
-    fn settle_repeats(&mut self) {
-        if self.tracking != CornerTracking::Incidence {
-            return;
-        }
-        let mut detached = std::mem::take(&mut self.repeats.detached);
-        for &slot in &detached {
-            // A slot may be listed twice, or freed or refilled since: only an active
-            // triangle still in no class is attached.
-            if self.slots[slot as usize].triangle != NIL
-                && self.slots[slot as usize].visibility == Visibility::Detached
-            {
-                self.attach(slot);
-            }
-        }
-        detached.clear();
-        self.repeats.detached = detached;
-        let mut orphans = std::mem::take(&mut self.repeats.orphans);
-        for class_key in orphans.drain(..) {
-            if !self.repeats.classes.contains_key(&class_key) {
-                continue;
-            }
-            let mut members = Vec::new();
-            let mut entry = self.store.label(class_key[0]).head;
-            while entry != NIL {
-                let slot = entry / 3;
-                let s = &self.slots[slot as usize];
-                if s.visibility != Visibility::Detached && key(s.corners) == class_key {
-                    members.push((s.triangle, slot));
-                }
-                entry = self.next_of(entry);
-            }
-            let &(_, winner) = members.iter().min().expect("a class has members");
-            for &(_, slot) in &members {
-                let visibility = if slot == winner {
-                    Visibility::Shown
-                } else {
-                    Visibility::Hidden
-                };
-                self.set_visibility(slot, visibility);
-            }
-            self.repeats
-                .classes
-                .get_mut(&class_key)
-                .expect("checked above")
-                .shown = winner;
-        }
-        self.repeats.orphans = orphans;
-    }
-
-    /// The boundary node above `rank`, found from `near` (any node on or above the boundary,
-    /// typically the node being unfolded): up to the first ancestor supporting `rank`, then
-    /// down through active nodes.
-    fn boundary_node_of(&self, rank: u32, near: u32) -> u32 {
-        let mut node = near;
+    /// The boundary node above `rank`, found from `near` (an active node not supporting
+    /// `rank`, the node being unfolded): up to the first ancestor supporting `rank`, then
+    /// down through active nodes. Also returns the first node of the way down: the child of
+    /// that ancestor which holds `rank`.
+    fn boundary_node_of(&self, rank: u32, near: u32) -> (u32, u32) {
+        let mut node = self.store.parent(near);
         while !self.store.supports_rank(node, rank) {
             node = self.store.parent(node);
         }
-        self.store
-            .descend(node, rank, |id| self.store.state(id) == NodeState::Active)
+        // The ancestor is active, being above `near`.
+        let first = self.store.child_supporting(node, rank);
+        let boundary = self
+            .store
+            .descend(first, rank, |id| self.store.state(id) == NodeState::Active);
+        (first, boundary)
     }
 
     fn fold_would_flip(&self, id: u32) -> bool {
@@ -1009,11 +948,6 @@ impl Cut {
             for k in 0..3 {
                 self.link(corners[k], slot * 3 + k as u32);
             }
-            if self.defer_repeats {
-                self.repeats.detached.push(slot);
-            } else {
-                self.attach(slot);
-            }
         }
         self.active_triangle_count += 1;
         slot
@@ -1021,17 +955,10 @@ impl Cut {
 
     fn remove_slot(&mut self, slot: u32) {
         self.touch(slot);
-        match self.tracking {
-            CornerTracking::Incidence => {
-                self.detach(slot);
-            }
-            CornerTracking::Lazy => {
-                if self.slots[slot as usize].visibility == Visibility::Hidden {
-                    self.repeats.hidden -= 1;
-                }
-            }
-        }
         let s = self.slots[slot as usize];
+        if s.hidden {
+            self.repeats.hidden -= 1;
+        }
         if self.tracking == CornerTracking::Incidence {
             for k in 0..3 {
                 self.unlink(s.corners[k], slot * 3 + k as u32);
@@ -1135,56 +1062,33 @@ impl Cut {
         }
     }
 
-    /// Checks the classes of repeats against a recomputation from the slots: every active
-    /// triangle in the class of its corners, counts and shown slots right, one member shown
-    /// per class and the rest hidden.
+    /// Checks which triangles are hidden against a recomputation from all active triangles:
+    /// of each set with the same corners and winding, all but the smallest triangle index.
     fn check_repeats(&self) -> Result<(), String> {
-        let mut classes: rustc_hash::FxHashMap<[u32; 3], (u32, u32)> = Default::default();
-        for (slot, s) in self.slots.iter().enumerate() {
+        let mut smallest: rustc_hash::FxHashMap<[u32; 3], u32> = Default::default();
+        for s in self.slots.iter().filter(|s| s.triangle != NIL) {
+            let t = smallest.entry(key(s.corners)).or_insert(s.triangle);
+            *t = (*t).min(s.triangle);
+        }
+        let mut hidden = 0;
+        for s in &self.slots {
             if s.triangle == NIL {
-                if s.visibility != Visibility::Detached {
-                    return Err(format!("free slot {slot} is in a class"));
+                if s.hidden || s.grouped {
+                    return Err("a free slot is marked hidden or grouped".into());
                 }
                 continue;
             }
-            let class = classes.entry(key(s.corners)).or_insert((0, slot as u32));
-            class.0 += 1;
-            if s.triangle < self.slots[class.1 as usize].triangle {
-                class.1 = slot as u32;
-            }
-        }
-        if classes.len() != self.repeats.classes.len() {
-            return Err(format!(
-                "{} classes of repeats kept, {} recomputed",
-                self.repeats.classes.len(),
-                classes.len()
-            ));
-        }
-        let mut hidden = 0;
-        for (slot, s) in self.slots.iter().enumerate() {
-            if s.triangle == NIL {
-                continue;
-            }
-            let (count, shown) = classes[&key(s.corners)];
-            let kept = self.repeats.classes.get(&key(s.corners));
-            if kept.map(|c| (c.count, c.shown)) != Some((count, shown)) {
+            let should = smallest[&key(s.corners)] != s.triangle;
+            if s.hidden != should {
                 return Err(format!(
-                    "triangle {}'s class is kept as {kept:?}, recomputed as {count} members                      shown in slot {shown}",
-                    s.triangle
+                    "triangle {} (corners {:?}) is {} but should be {}",
+                    s.triangle,
+                    s.corners,
+                    if s.hidden { "hidden" } else { "drawn" },
+                    if should { "hidden" } else { "drawn" }
                 ));
             }
-            let visibility = if shown == slot as u32 {
-                Visibility::Shown
-            } else {
-                hidden += 1;
-                Visibility::Hidden
-            };
-            if s.visibility != visibility {
-                return Err(format!(
-                    "triangle {} is {:?}, should be {visibility:?}",
-                    s.triangle, s.visibility
-                ));
-            }
+            hidden += u32::from(should);
         }
         if hidden != self.repeats.hidden {
             return Err("the hidden repeat count is wrong".into());

@@ -192,16 +192,10 @@ impl Runtime {
         let (stats, effective_threshold) = match goal {
             Goal::Threshold(t) => {
                 let effective = self.effective_threshold(t);
-                // Nothing reads triangle counts during a threshold adjust, so the classes of
-                // repeats are brought up to date once at its end (`take_changes`), not after
-                // every fold and unfold: a triangle whose corners move several times in one
-                // frame is sorted once.
-                self.cut.defer_repeats(true);
                 let stats =
                     self.adjuster
-                        .adjust_threshold(&mut self.cut, &judge, effective, prevent);
-                self.cut.defer_repeats(false);
-                (stats?, Some(effective))
+                        .adjust_threshold(&mut self.cut, &judge, effective, prevent)?;
+                (stats, Some(effective))
             }
             Goal::Budget(n) => (
                 self.adjuster

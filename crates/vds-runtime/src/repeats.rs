@@ -3,24 +3,36 @@
 //!
 //! A cut can hold them whatever the tree: two triangles of a thin tube, of a CAD face and its
 //! coincident copy, or of a stack of folded layers can land on the same three boundary nodes.
-//! Each is drawn over the other and adds nothing to the picture, so a cut shows one triangle
+//! Each is drawn over the other and adds nothing to the picture, so a cut draws one triangle
 //! of each *class* (active triangles with the same corners up to rotation) and counts it once
-//! against a triangle budget. The one shown is the class member with the smallest triangle
-//! index, so what is drawn depends on the cut alone, not on the order of the changes that
-//! made it (the two corner-tracking strategies agree).
+//! against a triangle budget. The one drawn is the member with the smallest triangle index,
+//! so what is drawn depends on the cut alone, not on the changes that made it.
 //!
-//! This module owns the classes: a map from each class's key (its corners rotated to start at
-//! the smallest node id, which keeps the winding) to its member count and shown slot. The cut
-//! ([`crate::cut`]) keeps it current as corners change, and marks each slot shown or hidden.
-
-use std::collections::hash_map::Entry;
+//! ## Which triangles can repeat
+//! Two facts keep the search small.
+//! - **Repeats are subtris of one node.** A triangle's node is the deepest of its corners'
+//!   pairwise lowest common ancestors, and while it is active the common ancestor of two
+//!   original corners is the common ancestor of the boundary nodes above them. So the node
+//!   depends on the current corners alone, and two triangles with the same current corners
+//!   are subtris of the same node `S`.
+//! - **Repeats stay repeats in coarser cuts.** Folding moves both triangles' corners to the
+//!   same ancestors. The coarsest cut in which the subtris of `S` are active unfolds exactly
+//!   `S` and its ancestors; call it `S`'s own cut. Two subtris of `S` that differ there differ
+//!   in every cut.
+//!
+//! So when `S` unfolds, its subtris' corners in its own cut are worked out (a corner under
+//! `S` is the child of `S` holding it; another is the child holding it of the deepest
+//! ancestor of `S` that supports it) and the subtris are sorted into *groups* of equal
+//! corners there. Almost every group is a single triangle, which can never repeat and is
+//! never looked at again. The few groups of two or more are kept with `S` while it stays
+//! unfolded, and when a member's corners move, its group's members are compared again: a
+//! member is hidden when a member with a smaller triangle index has the same corners now.
+//! A frame pays for repeats only where they can happen.
 
 use rustc_hash::FxHashMap;
 
-use crate::cut::NIL;
-
-/// A class's key: `corners` rotated to start at the smallest node id (the winding is kept, so
-/// a triangle and its reverse are different classes).
+/// `corners` rotated to start at the smallest node id: equal for two triangles with the same
+/// corners and winding, different for a triangle and its reverse.
 #[inline]
 pub(crate) fn key(corners: [u32; 3]) -> [u32; 3] {
     let [a, b, c] = corners;
@@ -33,87 +45,57 @@ pub(crate) fn key(corners: [u32; 3]) -> [u32; 3] {
     }
 }
 
-/// One class of active triangles.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct Class {
-    /// Active triangles in the class.
-    pub count: u32,
-    /// The slot of the member shown, or [`NIL`] while it is being chosen again (its shown
-    /// member left during a fold or unfold).
-    pub shown: u32,
-}
-
-/// Whether a slot's triangle is drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-pub(crate) enum Visibility {
-    /// In no class: a free slot, or a triangle whose corners are being rewritten (or, with
-    /// lazy tracking, placed since the last refresh).
-    Detached = 0,
-    /// The member of its class that is drawn and counted.
-    Shown = 1,
-    /// Another member of a class: kept in the cut, not drawn, not counted.
-    Hidden = 2,
-}
-
-/// The classes of the active triangles, and the bookkeeping of one fold or unfold.
+/// The groups of subtris of the unfolded nodes that have any, and the nodes whose groups must
+/// be compared again.
 #[derive(Debug, Default)]
 pub(crate) struct Repeats {
-    /// Every class, by key.
-    pub classes: FxHashMap<[u32; 3], Class>,
-    /// Slots marked [`Visibility::Hidden`].
+    /// For each unfolded node with groups, its groups: triangle indices, ascending within a
+    /// group, each group of two or more.
+    pub groups: FxHashMap<u32, Vec<Vec<u32>>>,
+    /// Nodes whose grouped subtris' corners moved since their groups were last compared.
+    pub dirty: Vec<u32>,
+    /// Active triangles hidden as repeats.
     pub hidden: u32,
-    /// Slots detached while their corners are rewritten, to attach again once they are done.
-    pub detached: Vec<u32>,
-    /// Keys of classes whose shown member left; their member to show is chosen once the fold
-    /// or unfold is done (the incidence lists are consistent only then).
-    pub orphans: Vec<[u32; 3]>,
 }
 
 impl Repeats {
-    /// A new class for a first member in `slot`, or the class `key` grown by one. Returns
-    /// the slot shown before (or [`NIL`]) when the class already existed.
-    pub fn join(&mut self, key: [u32; 3], slot: u32) -> Option<u32> {
-        // One look-up either way (the entry API): most classes are born and die single.
-        match self.classes.entry(key) {
-            Entry::Occupied(mut class) => {
-                let class = class.get_mut();
-                class.count += 1;
-                Some(class.shown)
-            }
-            Entry::Vacant(vacant) => {
-                vacant.insert(Class {
-                    count: 1,
-                    shown: slot,
-                });
-                None
-            }
-        }
-    }
-
-    /// Removes a member in `slot` from class `key`: the class goes when it empties, and is
-    /// orphaned when `slot` was its shown member.
-    pub fn leave(&mut self, key: [u32; 3], slot: u32) {
-        let Entry::Occupied(mut entry) = self.classes.entry(key) else {
-            unreachable!("an attached slot's class exists");
-        };
-        let class = entry.get_mut();
-        class.count -= 1;
-        if class.count == 0 {
-            entry.remove();
-        } else if class.shown == slot {
-            class.shown = NIL;
-            self.orphans.push(key);
-        }
-    }
-
     /// Bytes held (by capacity; the map by entries and control bytes).
     pub fn bytes(&self) -> u64 {
-        let map = self.classes.capacity() * (size_of::<([u32; 3], Class)>() + 1);
-        let lists = self.detached.capacity() * size_of::<u32>()
-            + self.orphans.capacity() * size_of::<[u32; 3]>();
-        (map + lists) as u64
+        let map = self.groups.capacity() * (size_of::<(u32, Vec<Vec<u32>>)>() + 1);
+        let groups: usize = self
+            .groups
+            .values()
+            .map(|g| {
+                g.capacity() * size_of::<Vec<u32>>()
+                    + g.iter().map(|m| m.capacity() * 4).sum::<usize>()
+            })
+            .sum();
+        (map + groups + self.dirty.capacity() * 4) as u64
     }
+}
+
+/// Sorts subtris, given as (corners in their node's own cut, triangle index) in increasing
+/// triangle index, into groups of equal corners; returns the groups of two or more, each in
+/// increasing triangle index.
+pub(crate) fn groups_of(subtris: &mut [([u32; 3], u32)]) -> Vec<Vec<u32>> {
+    for s in subtris.iter_mut() {
+        s.0 = key(s.0);
+    }
+    subtris.sort_unstable();
+    subtris
+        .chunk_by(|a, b| a.0 == b.0)
+        .filter(|group| group.len() > 1)
+        .map(|group| group.iter().map(|&(_, t)| t).collect())
+        .collect()
+}
+
+/// Which members of a group are hidden, given each member's current corners in increasing
+/// triangle index: those whose corners an earlier member already has.
+pub(crate) fn hidden_members(corners: &[[u32; 3]]) -> impl Iterator<Item = bool> + '_ {
+    corners
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| corners[..i].iter().any(|&earlier| key(earlier) == key(c)))
 }
 
 #[cfg(test)]
@@ -126,5 +108,24 @@ mod tests {
         assert_eq!(key([9, 5, 2]), [2, 9, 5]);
         assert_eq!(key([2, 9, 5]), [2, 9, 5]);
         assert_ne!(key([2, 5, 9]), key([2, 9, 5]));
+    }
+
+    #[test]
+    fn groups_hold_two_or_more_equal_rotations() {
+        let mut subtris = [
+            ([1, 2, 3], 10),
+            ([7, 8, 9], 11),
+            ([2, 3, 1], 12),
+            ([3, 2, 1], 13),
+            ([3, 1, 2], 14),
+        ];
+        assert_eq!(groups_of(&mut subtris), vec![vec![10, 12, 14]]);
+    }
+
+    #[test]
+    fn later_members_with_earlier_corners_are_hidden() {
+        let corners = [[4, 5, 6], [5, 6, 4], [6, 5, 4], [4, 5, 6]];
+        let hidden: Vec<bool> = hidden_members(&corners).collect();
+        assert_eq!(hidden, [false, true, false, true]);
     }
 }
