@@ -53,12 +53,27 @@ pub enum Builder {
 }
 
 impl Builder {
-    /// The name `vds-build --builder` takes.
+    /// Every builder.
+    pub const ALL: [Builder; 2] = [Builder::Octree, Builder::Qem];
+
+    /// The name `--builder` takes.
     pub fn name(self) -> &'static str {
         match self {
             Builder::Octree => "octree",
             Builder::Qem => "qem",
         }
+    }
+}
+
+impl std::str::FromStr for Builder {
+    type Err = String;
+
+    /// A builder by [`Builder::name`].
+    fn from_str(name: &str) -> Result<Builder, String> {
+        Builder::ALL
+            .into_iter()
+            .find(|b| b.name() == name)
+            .ok_or_else(|| format!("'{name}' is not a builder (octree or qem)"))
     }
 }
 

@@ -352,8 +352,18 @@ pub fn encode_scene(
     tool: &str,
     options: &vds_format::WriteOptions,
 ) -> Result<Vec<u8>, VdtError> {
+    encode_scene_by(scene, tool, options, crate::Builder::default())
+}
+
+/// [`encode_scene`] with the tree made by `builder`.
+pub fn encode_scene_by(
+    scene: &mut Scene,
+    tool: &str,
+    options: &vds_format::WriteOptions,
+    builder: crate::Builder,
+) -> Result<Vec<u8>, VdtError> {
     let grid = snap_to_grid(scene);
-    let tree = crate::build_tree(scene);
+    let (tree, _) = crate::build_tree_by(scene, builder);
     let metadata = vds_format::Metadata {
         tool: tool.to_string(),
         part_names: scene.part_names.clone(),

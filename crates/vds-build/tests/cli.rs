@@ -79,6 +79,60 @@ fn identical_inputs_give_byte_identical_files_on_any_thread_count() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// `--builder qem` writes a file that verifies, the same bytes on one and two threads, and
+/// another tree than the default; an unknown builder is a usage error that writes nothing.
+#[test]
+fn the_qem_builder_writes_a_deterministic_file_that_verifies() {
+    let dir = temp_dir("qem");
+    let (one, two, octree) = (dir.join("1.vdt"), dir.join("2.vdt"), dir.join("o.vdt"));
+    let model = demo_model();
+    for (out, threads) in [(&one, "1"), (&two, "2")] {
+        let run = build(&[
+            path(&model),
+            "-o",
+            path(out),
+            "--builder",
+            "qem",
+            "--threads",
+            threads,
+            "--json",
+            "--verify",
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        assert_eq!(report["builder"], "qem");
+        // Binary: one inner node per leaf but one.
+        assert_eq!(
+            report["degree_histogram"][2].as_u64(),
+            report["vertices"].as_u64().map(|v| v - 1)
+        );
+    }
+    assert!(std::fs::read(&one).unwrap() == std::fs::read(&two).unwrap());
+    assert!(
+        build(&[path(&model), "-o", path(&octree), "-q"])
+            .status
+            .success()
+    );
+    assert!(std::fs::read(&one).unwrap() != std::fs::read(&octree).unwrap());
+    let verify = info(&[path(&one), "--verify"]);
+    assert!(
+        verify.status.success(),
+        "{}",
+        String::from_utf8_lossy(&verify.stderr)
+    );
+
+    let bad = dir.join("bad.vdt");
+    let run = build(&[path(&model), "-o", path(&bad), "--builder", "sloppy"]);
+    assert_eq!(run.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("'sloppy' is not a builder"));
+    assert!(!bad.exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn malformed_input_fails_naming_file_and_line_and_writes_nothing() {
     let dir = temp_dir("malformed");

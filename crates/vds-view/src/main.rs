@@ -150,6 +150,11 @@ struct Args {
     /// until it does (the panel and --stats show the effective threshold).
     #[arg(long, value_name = "SIZE", value_parser = vds_runtime::size::parse_size)]
     memory_budget: Option<u64>,
+    /// How a mesh file's tree is built when it is opened directly (`vds-build --builder`):
+    /// octree (fast) or qem (closer to the original per triangle, slower to open). A .vdt
+    /// file keeps the tree it was built with.
+    #[arg(long, value_name = "octree|qem", default_value = "octree")]
+    builder: vds_build::Builder,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -395,7 +400,13 @@ fn run(args: &Args) -> Result<()> {
             return picture_without_display(args);
         }
         let loading = args.loading.unwrap_or(LoadingArg::Background).loading();
-        let mut model = model::open(args.file.as_deref(), false, loading, args.memory_budget)?;
+        let mut model = model::open(
+            args.file.as_deref(),
+            false,
+            loading,
+            args.memory_budget,
+            args.builder,
+        )?;
         args.review(&mut model.parts)?;
         return window::run(
             model,
@@ -411,6 +422,7 @@ fn run(args: &Args) -> Result<()> {
         args.brute_force,
         loading,
         args.memory_budget,
+        args.builder,
     )?;
     args.review(&mut model.parts)?;
     let review = model.parts.clone();
@@ -475,7 +487,13 @@ fn run(args: &Args) -> Result<()> {
     // Same cameras, same process: first the cut, then the whole model.
     let (vds, _) = Summary::run(model, &headless)?;
     println!("{vds}");
-    let model = model::open(args.file.as_deref(), true, loading, args.memory_budget)?;
+    let model = model::open(
+        args.file.as_deref(),
+        true,
+        loading,
+        args.memory_budget,
+        args.builder,
+    )?;
     let brute_force = Headless {
         brute_force: true,
         out: None,
@@ -499,7 +517,13 @@ fn run(args: &Args) -> Result<()> {
 /// seen from above at three quarters, written to the current directory.
 fn picture_without_display(args: &Args) -> Result<()> {
     let loading = args.loading.unwrap_or(LoadingArg::Synchronous).loading();
-    let mut model = model::open(args.file.as_deref(), false, loading, args.memory_budget)?;
+    let mut model = model::open(
+        args.file.as_deref(),
+        false,
+        loading,
+        args.memory_budget,
+        args.builder,
+    )?;
     args.review(&mut model.parts)?;
     let root = model.runtime.cut().node(0);
     // The bounding sphere of a CAD assembly is loose around it: frame three quarters of it.

@@ -34,12 +34,13 @@ fn bounds_of(metadata: &vds_format::Metadata) -> [[f32; 2]; 3] {
 /// Opens `path` (or the demo when `None`). `keep_mesh` keeps the original triangles for
 /// brute-force draws (only possible for mesh inputs: a `.vdt` file is decoded fully for it).
 /// Pages are loaded as `loading` says, within `memory_budget` bytes (default:
-/// [`vds_runtime::default_memory_budget`]).
+/// [`vds_runtime::default_memory_budget`]). A mesh's tree is made by `builder`.
 pub fn open(
     path: Option<&Path>,
     keep_mesh: bool,
     loading: Loading,
     memory_budget: Option<u64>,
+    builder: vds_build::Builder,
 ) -> Result<Model> {
     let budget = memory_budget.unwrap_or_else(vds_runtime::default_memory_budget);
     let tracking = CornerTracking::Incidence;
@@ -84,10 +85,11 @@ pub fn open(
     for warning in &scene.warnings {
         eprintln!("vds-view: warning: {warning}");
     }
-    let bytes = vds_build::encode_scene(
+    let bytes = vds_build::encode_scene_by(
         &mut scene,
         concat!("vds-view ", env!("CARGO_PKG_VERSION")),
         &Default::default(),
+        builder,
     )
     .with_context(|| format!("building the tree of {name}"))?;
     let file = VdtFile::from_bytes(bytes).with_context(|| format!("the tree of {name}"))?;

@@ -77,8 +77,8 @@ struct Args {
     /// How vertices are grouped into the tree: `octree` (tight-octree clustering, fast,
     /// parallel) or `qem` (quadric-ordered pair contraction: budget cuts closer to the
     /// original per triangle, several times slower, one thread).
-    #[arg(long, value_enum, default_value_t = BuilderArg::Octree)]
-    builder: BuilderArg,
+    #[arg(long, value_name = "octree|qem", default_value = "octree")]
+    builder: vds_build::Builder,
     /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_THREADS))]
     threads: Option<usize>,
@@ -107,24 +107,6 @@ struct Args {
     /// build read other files; other URI schemes are never fetched.
     #[arg(long)]
     allow_external_uris: bool,
-}
-
-/// `--builder`'s values ([`vds_build::Builder`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-enum BuilderArg {
-    /// Tight-octree clustering.
-    Octree,
-    /// Quadric-ordered pair contraction.
-    Qem,
-}
-
-impl From<BuilderArg> for vds_build::Builder {
-    fn from(arg: BuilderArg) -> Self {
-        match arg {
-            BuilderArg::Octree => vds_build::Builder::Octree,
-            BuilderArg::Qem => vds_build::Builder::Qem,
-        }
-    }
 }
 
 /// A byte count: digits, optionally followed by K, M, G or T (powers of 1024), with or
@@ -389,7 +371,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
     if let Some(bar) = &bar {
         bar.set_message("building the vertex tree");
     }
-    let builder = vds_build::Builder::from(args.builder);
+    let builder = args.builder;
     let (tree, timings) = vds_build::build_tree_by(&scene, builder);
     if args.verify {
         if let Some(bar) = &bar {
