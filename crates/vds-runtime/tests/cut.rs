@@ -469,9 +469,13 @@ fn adjust_within(
 
 #[test]
 fn threshold_holds_on_every_frame_of_a_smooth_path() {
-    for name in ["bunny.obj", "as1_assembly.obj"] {
-        let mut scene = load(name);
-        let bytes = vdt_bytes(&mut scene);
+    for (file, builder) in ["bunny.obj", "as1_assembly.obj"]
+        .iter()
+        .flat_map(|&m| BUILDERS.map(|b| (m, b)))
+    {
+        let name = &format!("{file} ({} builder)", builder.name());
+        let mut scene = load(file);
+        let bytes = vdt_bytes_by(&mut scene, builder);
         let (center, radius) = bounds(&scene.positions);
         let mut runtime = runtime(&bytes, CornerTracking::Incidence);
         let positions = runtime.leaf_positions().unwrap();
@@ -555,9 +559,13 @@ fn a_second_adjust_for_the_same_camera_and_goal_changes_nothing() {
             ..no_backface()
         },
     ];
-    for name in ["bunny.obj", "as1_assembly.obj"] {
-        let mut scene = load(name);
-        let bytes = vdt_bytes(&mut scene);
+    for (file, builder) in ["bunny.obj", "as1_assembly.obj"]
+        .iter()
+        .flat_map(|&m| BUILDERS.map(|b| (m, b)))
+    {
+        let name = &format!("{file} ({} builder)", builder.name());
+        let mut scene = load(file);
+        let bytes = vdt_bytes_by(&mut scene, builder);
         let (center, radius) = bounds(&scene.positions);
         let path = vds_runtime::CameraPath::fly_through(center, radius * 1.5, 30, 480, 320);
         for (setting, criteria) in settings.iter().enumerate() {
