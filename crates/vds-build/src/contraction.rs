@@ -121,7 +121,9 @@ struct Contraction {
     /// The cluster each dead cluster was contracted into ([`ALIVE`] for a living one).
     merged_into: Vec<u32>,
     /// Clusters each cluster shares a candidate pair with; entries may name dead clusters,
-    /// which [`Contraction::find`] resolves to the living cluster that holds them.
+    /// which [`Contraction::find`] resolves to the living cluster that holds them. The lists
+    /// are symmetric up to that resolution: a contraction gives the new cluster the union of
+    /// its two lists, and each neighbour's list already names one of the two.
     neighbours: Vec<Vec<u32>>,
     /// Candidate pairs by cost (as ordered bits: costs are never negative), cheapest first.
     /// A pair is current while both its clusters live: a cluster's cost inputs never change,
@@ -188,19 +190,20 @@ impl Contraction {
         let mut list = std::mem::take(&mut self.neighbours[a as usize]);
         list.append(&mut std::mem::take(&mut self.neighbours[b as usize]));
         let list = self.resolve(list, id);
+        // Each neighbour's own list already names `a` or `b`, which `find` resolves to the new
+        // cluster: nothing needs writing there.
         for &other in &list {
             self.push_pair(id, other);
-            let theirs = &mut self.neighbours[other as usize];
-            theirs.push(id);
-            // Lists collect dead ids as their neighbours contract; compacting one whenever
-            // its length reaches a power of two keeps it within twice its living size.
-            let len = theirs.len();
-            if len >= 16 && len.is_power_of_two() {
-                let taken = std::mem::take(theirs);
-                self.neighbours[other as usize] = self.resolve(taken, other);
-            }
         }
         self.neighbours.push(list);
+    }
+
+    /// Removes every pair of which a cluster is dead from the heap (a pop would skip them).
+    fn drop_stale_pairs(&mut self) {
+        let mut pairs = std::mem::take(&mut self.heap).into_vec();
+        let live = |id: u32| self.merged_into[id as usize] == ALIVE;
+        pairs.retain(|Reverse((_, a, b))| live(*a) && live(*b));
+        self.heap = BinaryHeap::from(pairs);
     }
 
     /// Pairs the living clusters along the tight octree's leaf order of their proxies, which
@@ -276,6 +279,13 @@ pub fn contract(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Clustering {
         state.link(a, b);
     }
     while state.alive > 1 {
+        // Pairs go stale as their clusters are contracted, several per contraction, and a
+        // stale pair popped costs a walk down the whole heap. Dropping them all in one pass
+        // when they outnumber the living pairs several times over costs a pass over the heap
+        // per that many contractions, and keeps the heap a few times the living pairs.
+        if state.heap.len() > 4 * state.alive + 4096 {
+            state.drop_stale_pairs();
+        }
         match state.heap.pop() {
             Some(Reverse((_, a, b))) => {
                 let live = |id: u32| state.merged_into[id as usize] == ALIVE;
