@@ -278,13 +278,17 @@ pub fn contract(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Clustering {
     for (a, b) in initial_pairs(positions, triangles) {
         state.link(a, b);
     }
+    let mut kept = state.heap.len();
     while state.alive > 1 {
         // Pairs go stale as their clusters are contracted, several per contraction, and a
-        // stale pair popped costs a walk down the whole heap. Dropping them all in one pass
-        // when they outnumber the living pairs several times over costs a pass over the heap
-        // per that many contractions, and keeps the heap a few times the living pairs.
-        if state.heap.len() > 4 * state.alive + 4096 {
+        // stale pair popped costs a walk down the whole heap. So they are dropped in one pass
+        // when the heap holds four pairs per living cluster (a mesh has about three per
+        // vertex, so most are stale), but only once it has grown by a quarter since the last
+        // pass: a pass over the heap then stands for at least a fifth as many pushes, which
+        // keeps the passes linear however many neighbours the late, large clusters have.
+        if state.heap.len() > 4 * state.alive + 4096 && state.heap.len() >= kept + kept / 4 {
             state.drop_stale_pairs();
+            kept = state.heap.len();
         }
         match state.heap.pop() {
             Some(Reverse((_, a, b))) => {
