@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use vds_import::Scene;
 
 use crate::bounds::{Aabb, NormalCone, round_up_f32};
-use crate::contraction::contract;
+use crate::contraction::{MAX_DEPTH, contract};
 use crate::isa::{Isa, dispatched};
 use crate::octree::cluster_with;
 use crate::prefault::filled;
@@ -48,7 +48,9 @@ pub enum Builder {
     Octree,
     /// Quadric-ordered pair contraction over mesh edges and proximity pairs
     /// ([`crate::contraction`]): a binary tree whose budget cuts follow the quadric error,
-    /// more faithful per triangle, slower to build (one thread).
+    /// more faithful per triangle, slower to build (one thread). A contraction tree deeper
+    /// than [`crate::contraction::MAX_DEPTH`] levels (no real mesh makes one) is replaced by
+    /// the octree's.
     Qem,
 }
 
@@ -103,7 +105,10 @@ fn build_tree_with(scene: &Scene, builder: Builder, isa: Isa) -> (VertexTree, Bu
     let start = Instant::now();
     let clustering = match builder {
         Builder::Octree => cluster_with(&scene.positions, isa),
-        Builder::Qem => contract(&scene.positions, &scene.triangles),
+        // A contraction tree too deep for the attribute pass (no real mesh makes one) falls
+        // back to the octree.
+        Builder::Qem => contract(&scene.positions, &scene.triangles, MAX_DEPTH)
+            .unwrap_or_else(|| cluster_with(&scene.positions, isa)),
     };
     timings.cluster = start.elapsed();
 

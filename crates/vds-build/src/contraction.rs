@@ -257,8 +257,20 @@ fn initial_pairs(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<(u32, u3
     pairs
 }
 
-/// Clusters the scene's vertices (at least one) by quadric-ordered pair contraction.
-pub fn contract(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Clustering {
+/// The deepest contraction tree [`contract`] lays out. Real meshes give trees a few dozen
+/// levels deep (the bunny 23, the dragon 32); a deeper one would come from a contrived input
+/// whose clusters grow a vertex at a time, and the attribute pass recurses as deep as the
+/// tree below its parallel frontier.
+pub const MAX_DEPTH: usize = 1024;
+
+/// Clusters the scene's vertices (at least one) by quadric-ordered pair contraction, or
+/// `None` when the tree would be deeper than `max_depth` levels ([`MAX_DEPTH`] for the
+/// builder, which then clusters by octree instead).
+pub fn contract(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    max_depth: usize,
+) -> Option<Clustering> {
     let n = positions.len();
     assert!(n > 0, "contraction needs a vertex");
     let quadrics = vertex_quadrics(positions, triangles);
@@ -300,12 +312,13 @@ pub fn contract(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Clustering {
             None => state.link_survivors(),
         }
     }
-    tree_of(&state.children, positions)
+    tree_of(&state.children, positions, max_depth)
 }
 
 /// Lays out the contraction tree (root: the last cluster) as a [`Clustering`]: nodes
 /// breadth-first, leaves ranked depth-first, so each node covers a contiguous leaf range.
-fn tree_of(children: &[[u32; 2]], positions: &[[f32; 3]]) -> Clustering {
+/// `None` when it is deeper than `max_depth`.
+fn tree_of(children: &[[u32; 2]], positions: &[[f32; 3]], max_depth: usize) -> Option<Clustering> {
     let n = positions.len();
     let root = (n + children.len() - 1) as u32;
     // Leaves under each cluster: vertices count one, contractions the sum of their children
@@ -335,10 +348,10 @@ fn tree_of(children: &[[u32; 2]], positions: &[[f32; 3]]) -> Clustering {
             continue;
         }
         let pair = children[cluster - n];
-        let depth = node
-            .depth
-            .checked_add(1)
-            .expect("contraction tree deeper than 65,535");
+        if usize::from(node.depth) >= max_depth.min(usize::from(u16::MAX)) {
+            return None;
+        }
+        let depth = node.depth + 1;
         let first_child = nodes.len() as u32;
         let mut begin = node.leaf_begin;
         for &child in &pair {
@@ -361,12 +374,12 @@ fn tree_of(children: &[[u32; 2]], positions: &[[f32; 3]]) -> Clustering {
         }
     }
     let leaf_positions = leaf_vertex.iter().map(|&v| positions[v as usize]).collect();
-    Clustering {
+    Some(Clustering {
         nodes,
         leaf_vertex,
         leaf_positions,
         level_starts,
-    }
+    })
 }
 
 #[cfg(test)]
@@ -399,7 +412,7 @@ mod tests {
         let base = positions.len() as u32;
         positions.extend([[50.0, 0.0, 0.0], [51.0, 0.0, 0.0], [50.0, 1.0, 0.0]]);
         triangles.push([base, base + 1, base + 2]);
-        let clustering = contract(&positions, &triangles);
+        let clustering = contract(&positions, &triangles, MAX_DEPTH).unwrap();
         let nodes = &clustering.nodes;
         assert_eq!(
             nodes.iter().filter(|n| n.is_leaf()).count(),
@@ -432,11 +445,23 @@ mod tests {
     }
 
     #[test]
+    fn a_tree_deeper_than_the_limit_is_refused() {
+        let (positions, triangles) = grid(16);
+        let depth = contract(&positions, &triangles, MAX_DEPTH)
+            .unwrap()
+            .level_starts
+            .len()
+            - 2;
+        assert!(contract(&positions, &triangles, depth).is_some());
+        assert!(contract(&positions, &triangles, depth - 1).is_none());
+    }
+
+    #[test]
     fn the_same_input_gives_the_same_tree() {
         let (positions, triangles) = grid(16);
         assert_eq!(
-            contract(&positions, &triangles),
-            contract(&positions, &triangles)
+            contract(&positions, &triangles, MAX_DEPTH),
+            contract(&positions, &triangles, MAX_DEPTH)
         );
     }
 
@@ -459,7 +484,7 @@ mod tests {
                 triangles.push([v + 1, v + side + 1, v + side]);
             }
         }
-        let clustering = contract(&positions, &triangles);
+        let clustering = contract(&positions, &triangles, MAX_DEPTH).unwrap();
         let depth = clustering.level_starts.len() - 2;
         assert!(depth <= 40, "depth {depth}");
     }

@@ -616,8 +616,8 @@ impl Cut {
     /// The changes to the active triangle list since the last call, and a fresh journal.
     pub fn take_changes(&mut self) -> Changes {
         self.settle_repeats();
-        // Compaction first: with lazy tracking, the moved triangles are sorted into classes
-        // by the refresh.
+        // Compaction first: with lazy tracking, the groups of moved triangles are compared by
+        // the refresh.
         self.compact_slots();
         self.refresh_lazy_corners();
         let mut changes = Changes::default();
