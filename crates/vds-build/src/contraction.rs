@@ -386,12 +386,14 @@ fn tree_of(children: &[[u32; 2]], positions: &[[f32; 3]], max_depth: usize) -> O
 mod tests {
     use super::*;
 
-    fn grid(side: u32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    /// A `side` × `side` grid of vertices, two triangles a cell, with a little bump at
+    /// some vertices (none when `bumpy` is false).
+    fn grid(side: u32, bumpy: bool) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
         let mut positions = Vec::new();
         for y in 0..side {
             for x in 0..side {
                 let bump = ((x * 7 + y * 3) % 5) as f32 * 0.01;
-                positions.push([x as f32, y as f32, bump]);
+                positions.push([x as f32, y as f32, if bumpy { bump } else { 0.0 }]);
             }
         }
         let mut triangles = Vec::new();
@@ -407,7 +409,7 @@ mod tests {
 
     #[test]
     fn one_root_binary_nodes_and_contiguous_leaf_ranges() {
-        let (mut positions, mut triangles) = grid(20);
+        let (mut positions, mut triangles) = grid(20, true);
         // A second part apart from the first, sharing no edge with it.
         let base = positions.len() as u32;
         positions.extend([[50.0, 0.0, 0.0], [51.0, 0.0, 0.0], [50.0, 1.0, 0.0]]);
@@ -446,7 +448,7 @@ mod tests {
 
     #[test]
     fn a_tree_deeper_than_the_limit_is_refused() {
-        let (positions, triangles) = grid(16);
+        let (positions, triangles) = grid(16, true);
         let depth = contract(&positions, &triangles, MAX_DEPTH)
             .unwrap()
             .level_starts
@@ -458,7 +460,7 @@ mod tests {
 
     #[test]
     fn the_same_input_gives_the_same_tree() {
-        let (positions, triangles) = grid(16);
+        let (positions, triangles) = grid(16, true);
         assert_eq!(
             contract(&positions, &triangles, MAX_DEPTH),
             contract(&positions, &triangles, MAX_DEPTH)
@@ -469,21 +471,7 @@ mod tests {
     fn flat_regions_stay_shallow() {
         // 1,600 vertices of a plane: a cluster growing one vertex at a time would make the
         // tree ~1,600 deep; compact contraction keeps it within a few times log2(n).
-        let mut positions = Vec::new();
-        let side = 40u32;
-        for y in 0..side {
-            for x in 0..side {
-                positions.push([x as f32, y as f32, 0.0]);
-            }
-        }
-        let mut triangles = Vec::new();
-        for y in 0..side - 1 {
-            for x in 0..side - 1 {
-                let v = y * side + x;
-                triangles.push([v, v + 1, v + side]);
-                triangles.push([v + 1, v + side + 1, v + side]);
-            }
-        }
+        let (positions, triangles) = grid(40, false);
         let clustering = contract(&positions, &triangles, MAX_DEPTH).unwrap();
         let depth = clustering.level_starts.len() - 2;
         assert!(depth <= 40, "depth {depth}");

@@ -38,10 +38,8 @@ fn canonical(corners: [[f32; 3]; 3]) -> [[u32; 3]; 3] {
 
 #[test]
 fn unfolding_everything_gives_the_original_mesh_and_folding_everything_the_root() {
-    for (name, builder) in MESHES.iter().flat_map(|&m| BUILDERS.map(|b| (m, b))) {
+    for (name, scene, bytes) in built_by_each(&MESHES) {
         for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
-            let mut scene = load(name);
-            let bytes = vdt_bytes_by(&mut scene, builder);
             let mut runtime = runtime(&bytes, tracking);
             runtime.cut_mut().unfold_all().unwrap();
             runtime.cut_mut().check().unwrap();
@@ -191,13 +189,7 @@ fn apply(mirror: &mut Vec<Option<ActiveTriangle>>, runtime: &mut Runtime, dirty:
 
 #[test]
 fn incremental_adjusts_match_a_recomputation_and_the_journal_replays_them() {
-    for (name, builder) in ["bunny.obj", "as1_assembly.obj"]
-        .iter()
-        .flat_map(|&m| BUILDERS.map(|b| (m, b)))
-    {
-        let name = &format!("{name} ({} builder)", builder.name());
-        let mut scene = load(name.split(' ').next().unwrap());
-        let bytes = vdt_bytes_by(&mut scene, builder);
+    for (name, scene, bytes) in built_by_each(&["bunny.obj", "as1_assembly.obj"]) {
         let (center, radius) = bounds(&scene.positions);
         let mut eager = runtime(&bytes, CornerTracking::Incidence);
         let mut lazy = runtime(&bytes, CornerTracking::Lazy);
@@ -469,13 +461,7 @@ fn adjust_within(
 
 #[test]
 fn threshold_holds_on_every_frame_of_a_smooth_path() {
-    for (file, builder) in ["bunny.obj", "as1_assembly.obj"]
-        .iter()
-        .flat_map(|&m| BUILDERS.map(|b| (m, b)))
-    {
-        let name = &format!("{file} ({} builder)", builder.name());
-        let mut scene = load(file);
-        let bytes = vdt_bytes_by(&mut scene, builder);
+    for (name, scene, bytes) in built_by_each(&["bunny.obj", "as1_assembly.obj"]) {
         let (center, radius) = bounds(&scene.positions);
         let mut runtime = runtime(&bytes, CornerTracking::Incidence);
         let positions = runtime.leaf_positions().unwrap();
@@ -559,13 +545,7 @@ fn a_second_adjust_for_the_same_camera_and_goal_changes_nothing() {
             ..no_backface()
         },
     ];
-    for (file, builder) in ["bunny.obj", "as1_assembly.obj"]
-        .iter()
-        .flat_map(|&m| BUILDERS.map(|b| (m, b)))
-    {
-        let name = &format!("{file} ({} builder)", builder.name());
-        let mut scene = load(file);
-        let bytes = vdt_bytes_by(&mut scene, builder);
+    for (name, scene, bytes) in built_by_each(&["bunny.obj", "as1_assembly.obj"]) {
         let (center, radius) = bounds(&scene.positions);
         let path = vds_runtime::CameraPath::fly_through(center, radius * 1.5, 30, 480, 320);
         for (setting, criteria) in settings.iter().enumerate() {

@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{BUILDERS, load, runtime, vdt_bytes_by};
+use common::{built_by_each, runtime};
 use glam::DVec3;
 use vds_runtime::{Bound, CornerTracking, Criteria, Goal, NodeState, Viewpoint};
 
@@ -87,13 +87,7 @@ fn mean_distance(points: &[DVec3], triangles: &[[DVec3; 3]]) -> f64 {
 
 #[test]
 fn stored_surface_errors_track_the_measured_surface_distance() {
-    for (file, builder) in ["bunny.obj", "as1_assembly.obj"]
-        .iter()
-        .flat_map(|&m| BUILDERS.map(|b| (m, b)))
-    {
-        let name = format!("{file} ({} builder)", builder.name());
-        let mut scene = load(file);
-        let bytes = vdt_bytes_by(&mut scene, builder);
+    for (name, scene, bytes) in built_by_each(&["bunny.obj", "as1_assembly.obj"]) {
         let corners = |positions: &[[f32; 3]], triangles: &[[u32; 3]]| -> Vec<[DVec3; 3]> {
             triangles
                 .iter()

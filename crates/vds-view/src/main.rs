@@ -300,6 +300,18 @@ where
 }
 
 impl Args {
+    /// Opens the model the arguments name (`model::open`), keeping the original mesh when
+    /// `keep_mesh` is set.
+    fn open_model(&self, keep_mesh: bool, loading: vds_runtime::Loading) -> Result<model::Model> {
+        model::open(
+            self.file.as_deref(),
+            keep_mesh,
+            loading,
+            self.memory_budget,
+            self.builder,
+        )
+    }
+
     fn settings(&self) -> Settings {
         Settings {
             goal: match self.budget {
@@ -400,13 +412,7 @@ fn run(args: &Args) -> Result<()> {
             return picture_without_display(args);
         }
         let loading = args.loading.unwrap_or(LoadingArg::Background).loading();
-        let mut model = model::open(
-            args.file.as_deref(),
-            false,
-            loading,
-            args.memory_budget,
-            args.builder,
-        )?;
+        let mut model = args.open_model(false, loading)?;
         args.review(&mut model.parts)?;
         return window::run(
             model,
@@ -417,13 +423,7 @@ fn run(args: &Args) -> Result<()> {
         );
     }
     let loading = args.loading.unwrap_or(LoadingArg::Synchronous).loading();
-    let mut model = model::open(
-        args.file.as_deref(),
-        args.brute_force,
-        loading,
-        args.memory_budget,
-        args.builder,
-    )?;
+    let mut model = args.open_model(args.brute_force, loading)?;
     args.review(&mut model.parts)?;
     let review = model.parts.clone();
     let pages = model.runtime.cut().store().source();
@@ -487,13 +487,7 @@ fn run(args: &Args) -> Result<()> {
     // Same cameras, same process: first the cut, then the whole model.
     let (vds, _) = Summary::run(model, &headless)?;
     println!("{vds}");
-    let model = model::open(
-        args.file.as_deref(),
-        true,
-        loading,
-        args.memory_budget,
-        args.builder,
-    )?;
+    let model = args.open_model(true, loading)?;
     let brute_force = Headless {
         brute_force: true,
         out: None,
@@ -517,13 +511,7 @@ fn run(args: &Args) -> Result<()> {
 /// seen from above at three quarters, written to the current directory.
 fn picture_without_display(args: &Args) -> Result<()> {
     let loading = args.loading.unwrap_or(LoadingArg::Synchronous).loading();
-    let mut model = model::open(
-        args.file.as_deref(),
-        false,
-        loading,
-        args.memory_budget,
-        args.builder,
-    )?;
+    let mut model = args.open_model(false, loading)?;
     args.review(&mut model.parts)?;
     let root = model.runtime.cut().node(0);
     // The bounding sphere of a CAD assembly is loose around it: frame three quarters of it.

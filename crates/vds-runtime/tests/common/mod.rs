@@ -46,6 +46,20 @@ pub fn vdt_bytes_by(scene: &mut Scene, builder: Builder) -> Vec<u8> {
         .0
 }
 
+/// Meshes from `../shared/data`, each built by every builder: a label naming mesh and
+/// builder, the scene (snapped to the file's grid) and the `.vdt` bytes.
+pub fn built_by_each(files: &[&str]) -> Vec<(String, Scene, Vec<u8>)> {
+    let mut built = Vec::new();
+    for &file in files {
+        for builder in BUILDERS {
+            let mut scene = load(file);
+            let bytes = vdt_bytes_by(&mut scene, builder);
+            built.push((format!("{file} ({} builder)", builder.name()), scene, bytes));
+        }
+    }
+    built
+}
+
 pub fn runtime(bytes: &[u8], tracking: CornerTracking) -> Runtime {
     Runtime::new(
         Box::new(VdtFile::from_bytes(bytes.to_vec()).unwrap()),
