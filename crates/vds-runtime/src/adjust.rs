@@ -30,7 +30,7 @@
 //! A max-queue of boundary nodes by priority (screen-space error over the criteria's
 //! threshold scale) and a min-queue of *fold candidates* (active nodes whose children are all
 //! on the boundary). Starting from the current cut (coherence), the worst boundary node is
-//! unfolded while its subtris fit (counted as drawn: repeats once, [`crate::repeats`]; an
+//! unfolded while its subtris fit (counted as drawn: repeats once, see `repeats.rs`; an
 //! unfold that splits repeats past the budget is undone, and the node does not fit after
 //! all); when it does not fit and a fold candidate is cheaper, that
 //! candidate is folded to make room. A node's priority is clamped to its parent's, so a fold

@@ -29,7 +29,7 @@
 //!
 //! ## Repeats
 //! Active triangles with the same three current corners in the same winding are drawn and
-//! counted once ([`crate::repeats`]): the others stay in their slots, marked hidden, and read
+//! counted once (`repeats.rs`): the others stay in their slots, marked hidden, and read
 //! as free slots. Only subtris of one node can repeat, and only those its unfold finds in one
 //! group; a fold or unfold that moves a grouped triangle's corner has its group compared
 //! again. With incidence lists that happens at once, and a triangle budget counts what is
