@@ -141,7 +141,6 @@ pub fn read_file(
     let (format, gz) = format_of(path).ok_or_else(|| ImportError::UnknownFormat {
         path: path.to_path_buf(),
     })?;
-    let bytes = source::read_bytes(path, gz, options.max_decompressed_bytes)?;
     let name = source::part_name_of(path);
     let mut file_soup = MeshSoup::default();
     let budget = options
@@ -151,14 +150,18 @@ pub fn read_file(
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
+    let materials = obj::MaterialFiles {
+        folder,
+        allow_external: options.allow_external_uris,
+    };
+    if format == Format::Obj && gz {
+        // Streamed: the decompressed text is never in memory whole.
+        source::read_obj_gz(path, &name, &materials, options, &mut file_soup)?;
+        return finish_file(path, options, budget, soup, file_soup);
+    }
+    let bytes = source::read_bytes(path, gz, options.max_decompressed_bytes)?;
     let result = match format {
-        Format::Obj => {
-            let materials = obj::MaterialFiles {
-                folder,
-                allow_external: options.allow_external_uris,
-            };
-            obj::read_obj(&bytes, &name, Some(&materials), &mut file_soup)
-        }
+        Format::Obj => obj::read_obj(&bytes, &name, Some(&materials), &mut file_soup),
         Format::Gltf => {
             let gltf_options = gltf_scene::GltfOptions {
                 folder: Some(folder),
@@ -172,6 +175,17 @@ pub fn read_file(
         Format::Stl => stl::read_stl(&bytes, &name, &mut file_soup),
     };
     result.map_err(|e| e.in_file(path))?;
+    finish_file(path, options, budget, soup, file_soup)
+}
+
+/// Checks one file's soup (triangles, the limit) and adds it to `soup`.
+fn finish_file(
+    path: &Path,
+    options: &ImportOptions,
+    budget: u64,
+    soup: &mut MeshSoup,
+    mut file_soup: MeshSoup,
+) -> Result<(), ImportError> {
     for warning in &mut file_soup.warnings {
         *warning = format!("{}: {warning}", path.display());
     }

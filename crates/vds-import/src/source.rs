@@ -1,5 +1,5 @@
-//! Reading an input file into memory, transparently gunzipping `*.gz`, and telling the mesh
-//! format from the file name.
+//! Reading an input file into memory (mapped, or gunzipped within a limit), streaming a
+//! gzipped OBJ file through its reader, and telling the mesh format from the file name.
 
 use std::io::Read;
 use std::path::Path;
@@ -160,6 +160,44 @@ pub fn read_bytes(
         return Ok(Bytes::Owned(Vec::new()));
     }
     map(&file).map(Bytes::Mapped).map_err(io_error)
+}
+
+/// Reads a gzipped OBJ file into `soup` as a stream: the decompressed text is never held
+/// whole. Decompressed text longer than `options.max_decompressed_bytes` is refused as
+/// [`read_bytes`] refuses it (reading stops one byte past the limit), so that the limit
+/// bounds the time a gzip bomb can take.
+pub(crate) fn read_obj_gz(
+    path: &Path,
+    name: &str,
+    materials: &crate::obj::MaterialFiles,
+    options: &crate::ImportOptions,
+    soup: &mut crate::MeshSoup,
+) -> Result<(), ImportError> {
+    let file = open_regular_file(path)?;
+    let limit = options.max_decompressed_bytes;
+    let mut stream = flate2::read::MultiGzDecoder::new(std::io::BufReader::new(file))
+        .take(limit.saturating_add(1));
+    let result = crate::obj::read_obj_stream(&mut stream, name, Some(materials), soup);
+    let read = limit.saturating_add(1) - stream.limit();
+    if read > limit {
+        return Err(ImportError::Malformed {
+            path: path.to_path_buf(),
+            location: Location::File,
+            problem: Problem::LimitExceeded {
+                what: "decompressed size is at least".into(),
+                amount: read,
+                limit,
+                option: "--max-decompressed-bytes",
+            },
+        });
+    }
+    result.map_err(|e| match e {
+        crate::obj::StreamError::Read(cause) => ImportError::Io {
+            path: path.to_path_buf(),
+            cause,
+        },
+        crate::obj::StreamError::Format(e) => e.in_file(path),
+    })
 }
 
 #[allow(unsafe_code)]

@@ -271,17 +271,17 @@ fn directory_input_is_refused() {
 
 #[test]
 fn gzip_bomb_is_refused_at_the_decompression_limit() {
-    // 64 MiB of zeros compress to about 64 KB; the limit of 4 MiB stops it after reading
-    // 4 MiB + 1 byte of output.
+    // 64 MiB of comment lines compress to about 64 KB; an OBJ file is streamed, so it never
+    // sits in memory whole, and the limit of 4 MiB stops the stream after 4 MiB + 1 byte.
     let dir = TempDir::new("gzip-bomb");
     let path = dir.join("bomb.obj.gz");
     let mut encoder = flate2::write::GzEncoder::new(
         std::fs::File::create(&path).unwrap(),
         flate2::Compression::fast(),
     );
-    let zeros = vec![0u8; 1 << 20];
+    let comments = b"#\n".repeat(1 << 19);
     for _ in 0..64 {
-        encoder.write_all(&zeros).unwrap();
+        encoder.write_all(&comments).unwrap();
     }
     encoder.finish().unwrap();
     let options = ImportOptions {
@@ -298,6 +298,34 @@ fn gzip_bomb_is_refused_at_the_decompression_limit() {
         "{message}"
     );
     assert!(message.contains("bomb.obj.gz") && message.contains("--max-decompressed-bytes"));
+}
+
+#[test]
+fn gzip_obj_without_line_breaks_is_refused_at_the_line_limit() {
+    // 64 MiB of zeros: streamed, the reader holds at most one line (1 MiB) and a chunk.
+    let dir = TempDir::new("gzip-zeros");
+    let path = dir.join("zeros.obj.gz");
+    let mut encoder = flate2::write::GzEncoder::new(
+        std::fs::File::create(&path).unwrap(),
+        flate2::Compression::fast(),
+    );
+    let zeros = vec![0u8; 1 << 20];
+    for _ in 0..64 {
+        encoder.write_all(&zeros).unwrap();
+    }
+    encoder.finish().unwrap();
+    let error = load_file(&path, &ImportOptions::default()).unwrap_err();
+    assert!(
+        matches!(
+            error,
+            ImportError::Malformed {
+                location: vds_import::Location::Line(1),
+                problem: Problem::LineTooLong { .. },
+                ..
+            }
+        ),
+        "{error}"
+    );
 }
 
 #[test]

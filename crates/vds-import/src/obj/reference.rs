@@ -1,121 +1,20 @@
-//! Wavefront OBJ through `tobj`: every object or group becomes a named part; polygons are
-//! triangulated by `tobj`; points and lines are ignored.
+//! The OBJ reader as it was before the streaming parser: `tobj` over prepared text. Kept
+//! only for tests, which read files with both and compare the soups (the parser is
+//! hand-written, so it is held to a well-used crate's reading of the same bytes).
 //!
 //! Before `tobj` sees the text, [`prepare`] skips a UTF-8 byte-order mark, turns old Mac
-//! CR-only line endings into LF, and refuses any line longer than [`MAX_LINE_BYTES`] (`tobj`
-//! holds a line and everything parsed from it at once: one 100 MB face line took 2.9 GB).
-//! [`ObjReader`] then hands `tobj` one line at a time, drops `l` (polyline) statements, which
-//! `tobj` would otherwise triangulate as faces when they have three or more corners, and
-//! strips texture and normal indices from faces (the tree needs none, and `tobj` panics on
-//! some out-of-range relative ones).
-//!
-//! Colours come from the `Kd` (and `d`, as alpha) of the materials a group uses, averaged
-//! over its triangles. Material libraries (`mtllib`) are read only for a file read from disk
-//! ([`MaterialFiles`]), resolved like glTF URIs ([`crate::uri::resolve`]: inside the OBJ's
-//! folder unless external URIs are allowed), at most [`MAX_MTL_BYTES`] of them in all and
-//! each file once. A library that is missing, refused, too large or malformed only costs
-//! the colours: the geometry is read as without it. `tobj` starts a new model where a group
-//! switches material; consecutive models of the same name are one part, as they were one
-//! group in the file.
-//!
-//! `tobj` reports what went wrong but not where, so the reader knows how far `tobj` got
-//! and, on the rare error path, rescans the text to name the exact line of a non-finite
-//! coordinate or an out-of-range face index.
+//! CR-only line endings into LF, and refuses any line longer than [`MAX_LINE_BYTES`].
+//! [`ObjReader`] then hands `tobj` one line at a time, drops `l` (polyline) statements and
+//! strips texture and normal indices from faces. `tobj` starts a new model where a group
+//! switches material; consecutive models of the same name are one part.
 
 use std::borrow::Cow;
 use std::io::{BufRead, Read};
 
+use super::MAX_LINE_BYTES;
+use super::materials::{Libraries, MaterialFiles, material_color};
 use crate::error::{FormatError, Location, Problem};
 use crate::soup::MeshSoup;
-
-/// The longest line accepted, in bytes. Real files stay far below it (a face with 10,000
-/// corners written as `v/vt/vn` triples is about 200 KB); the limit bounds what one line can
-/// make `tobj` allocate.
-pub const MAX_LINE_BYTES: usize = 1 << 20;
-
-/// The most bytes of material libraries one OBJ file may make the reader load, all its
-/// `mtllib` statements together: real libraries are a few kilobytes, and the limit bounds
-/// what a file naming one huge library many times can cost.
-pub const MAX_MTL_BYTES: u64 = 16 << 20;
-
-/// The most `mtllib` statements of one OBJ file that are followed (each costs a file open).
-const MAX_MTL_FILES: usize = 64;
-
-/// Where an OBJ file read from disk may find its material libraries.
-pub struct MaterialFiles<'a> {
-    /// The OBJ file's folder.
-    pub folder: &'a std::path::Path,
-    /// Whether libraries may lie outside it (see [`crate::ImportOptions::allow_external_uris`]).
-    pub allow_external: bool,
-}
-
-/// The material libraries one OBJ file has loaded so far: which, how many bytes, and what
-/// could not be read.
-#[derive(Default)]
-struct Libraries {
-    read: Vec<std::path::PathBuf>,
-    bytes: u64,
-    warnings: Vec<String>,
-}
-
-impl MaterialFiles<'_> {
-    /// Loads one library for `tobj`, within the budget `loaded` keeps; a library that cannot
-    /// be read is a warning and tobj's `OpenFileFailed`, which costs only colours.
-    fn load(
-        &self,
-        name: &std::path::Path,
-        loaded: &std::cell::RefCell<Libraries>,
-    ) -> tobj::MTLLoadResult {
-        let mut loaded = loaded.borrow_mut();
-        match self.read(name, &mut loaded) {
-            Ok(Some(bytes)) => tobj::load_mtl_buf(&mut &bytes[..]),
-            // Already merged (or over the statement limit): nothing more to add.
-            Ok(None) => Ok((Vec::new(), Default::default())),
-            Err(why) => {
-                loaded.warnings.push(format!(
-                    "material library {}: {why}; its materials give no colours",
-                    name.display()
-                ));
-                Err(tobj::LoadError::OpenFileFailed)
-            }
-        }
-    }
-
-    /// The bytes of library `name`, or none when it was read before or the file names too
-    /// many.
-    fn read(
-        &self,
-        name: &std::path::Path,
-        loaded: &mut Libraries,
-    ) -> Result<Option<Vec<u8>>, String> {
-        let name = name.to_str().ok_or("the name is not UTF-8")?;
-        let path = crate::uri::resolve(name, Some(self.folder), self.allow_external)
-            .map_err(|reason| format!("refused ({reason})"))?;
-        if loaded.read.contains(&path) || loaded.read.len() >= MAX_MTL_FILES {
-            return Ok(None);
-        }
-        loaded.read.push(path.clone());
-        let inside = (!self.allow_external).then_some(self.folder);
-        let file = crate::uri::open_buffer_file(&path, inside).map_err(|e| e.to_string())?;
-        if loaded.bytes.saturating_add(file.size) > MAX_MTL_BYTES {
-            return Err(format!(
-                "the libraries of one file may hold at most {MAX_MTL_BYTES} bytes"
-            ));
-        }
-        let bytes = file
-            .read_prefix(MAX_MTL_BYTES - loaded.bytes)
-            .map_err(|e| e.to_string())?;
-        loaded.bytes += bytes.len() as u64;
-        Ok(Some(bytes))
-    }
-}
-
-/// A material's colour: `Kd` with `d` as alpha (1 without it); none without `Kd`.
-fn material_color(material: &tobj::Material) -> Option<[f64; 4]> {
-    let [r, g, b] = material.diffuse?;
-    let a = material.dissolve.unwrap_or(1.0);
-    Some([r, g, b, a].map(f64::from))
-}
 
 /// The text `tobj` should see: no byte-order mark, LF line endings, no over-long line.
 fn prepare(data: &[u8]) -> Result<Cow<'_, [u8]>, FormatError> {

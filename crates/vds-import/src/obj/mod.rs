@@ -1,0 +1,612 @@
+//! Wavefront OBJ: a streaming parser of its own. Every object or group becomes a named part;
+//! polygons are fan-triangulated; points, lines, texture coordinates and normals are
+//! skipped.
+//!
+//! Why not a crate: `tobj` (what this reader used before) reads about 60 MB/s, allocates a
+//! `String` per line and holds the whole model twice, once as its own arrays and once as
+//! ours; it reports what went wrong but not on which line; and it cannot stop reading early
+//! or read from a stream in bounded memory. The statements a mesh needs are few (`v`, `f`,
+//! `o`, `g`, `usemtl`, `mtllib`), so the parser is short: one pass over each line's bytes,
+//! numbers parsed with the standard library's correctly rounded `f32` parser. The tests hold
+//! it to `tobj`'s reading of the same files (`reference.rs`, compiled for tests only).
+//! Material libraries are still parsed by `tobj` ([`materials`]).
+//!
+//! What it reads, as `tobj` did:
+//! - `v x y z [w | r g b]`: a position, divided by `w` when one is given (`w = 0` is an
+//!   error); per-vertex colours are not read.
+//! - `f a b c ...`: the vertex index of each corner (the part before any `/`), 1-based or
+//!   negative (relative to the vertices so far). A face with fewer than three corners is
+//!   counted in [`MeshSoup::short_faces_dropped`].
+//! - `o NAME`, `g NAME`: a new part when faces follow; consecutive groups of the same name are
+//!   one part. Faces before any name, or under an empty one, go to a part named after the
+//!   file (`NAME#k`, the k-th part, when the file has several parts).
+//! - `usemtl NAME` and `mtllib FILE`: the part's colour is the `Kd` (with `d` as alpha) of the
+//!   materials its faces use, averaged over its triangles. Libraries are read only for a file
+//!   read from disk ([`MaterialFiles`]), resolved like glTF URIs ([`crate::uri::resolve`]),
+//!   at most [`materials::MAX_MTL_BYTES`] in all; one that cannot be read costs only colours.
+//! - Each model (a run of faces between a group or material change) lists its vertices in
+//!   the order its faces first use them, as `tobj` did, so welded scenes and the trees built
+//!   from them are the same as before.
+//!
+//! Where it is stricter or more lenient than `tobj`: a face may refer only to vertices
+//! defined before it (the OBJ specification's rule; `tobj` also accepted vertices defined
+//! later in the same group); a non-finite or out-of-range position is an error only when a
+//! face uses it, named by its `v` line; texture-coordinate and normal statements are not
+//! checked; a line that is not UTF-8 is read with replacement characters (only names can
+//! hold such bytes).
+//!
+//! Line endings: LF, CR LF, and old Mac CR-only files (decided by the first line break); a
+//! UTF-8 byte-order mark is skipped. A line longer than [`MAX_LINE_BYTES`] is refused with
+//! its number. [`read_obj_stream`] reads from any `Read` (a gzip stream) in chunks of
+//! [`CHUNK_BYTES`], so the text is never in memory whole.
+
+mod materials;
+#[cfg(test)]
+mod reference;
+#[cfg(test)]
+mod tests;
+
+use std::cell::RefCell;
+use std::io::Read;
+
+pub use materials::MaterialFiles;
+
+use crate::error::{FormatError, Location, Problem};
+use crate::soup::{ColorSum, MeshSoup, check_position};
+use materials::{Libraries, material_color};
+
+/// The longest line accepted, in bytes. Real files stay far below it (a face with 10,000
+/// corners written as `v/vt/vn` triples is about 200 KB); the limit bounds what one line can
+/// make the reader hold.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// How many bytes [`read_obj_stream`] asks of its source at a time.
+pub const CHUNK_BYTES: usize = 1 << 20;
+
+/// The name of a group before any `o` or `g`, or of one without a name (as `tobj` calls it):
+/// such parts are named after the file in the end.
+const UNNAMED: &str = "unnamed_object";
+
+const BYTE_ORDER_MARK: &[u8] = b"\xEF\xBB\xBF";
+
+/// Reads an OBJ file's bytes into `soup`, one part per object or group, with colours from
+/// the material libraries `materials` lets it read (none: no library is read).
+pub fn read_obj(
+    data: &[u8],
+    default_name: &str,
+    materials: Option<&MaterialFiles>,
+    soup: &mut MeshSoup,
+) -> Result<(), FormatError> {
+    let data = data.strip_prefix(BYTE_ORDER_MARK).unwrap_or(data);
+    let mut parser = Parser::new(default_name, materials, soup);
+    parser.endings = Endings::of(data).unwrap_or(Endings::Lf);
+    parser.feed(data, soup)?;
+    parser.finish(soup);
+    Ok(())
+}
+
+/// What stops [`read_obj_stream`]: the source, or the text.
+#[derive(Debug)]
+pub enum StreamError {
+    /// Reading the source failed (a corrupt gzip stream, an I/O error).
+    Read(std::io::Error),
+    /// The text is not a valid OBJ file.
+    Format(FormatError),
+}
+
+impl From<FormatError> for StreamError {
+    fn from(error: FormatError) -> Self {
+        StreamError::Format(error)
+    }
+}
+
+/// Reads OBJ text from `source` in chunks of [`CHUNK_BYTES`] into `soup`, as [`read_obj`]
+/// reads it from memory: the text itself is never held whole, only the current chunk and
+/// one unfinished line.
+pub fn read_obj_stream(
+    source: &mut dyn Read,
+    default_name: &str,
+    materials: Option<&MaterialFiles>,
+    soup: &mut MeshSoup,
+) -> Result<(), StreamError> {
+    let mut parser = Parser::new(default_name, materials, soup);
+    let mut buffer: Vec<u8> = Vec::with_capacity(CHUNK_BYTES);
+    let mut first = true;
+    let mut endings = None;
+    loop {
+        let at_end = fill(source, &mut buffer, CHUNK_BYTES).map_err(StreamError::Read)?;
+        let mut text = &buffer[..];
+        if first {
+            text = text.strip_prefix(BYTE_ORDER_MARK).unwrap_or(text);
+            first = false;
+        }
+        if endings.is_none() {
+            endings = Endings::of(text).or(at_end.then_some(Endings::Lf));
+            parser.endings = endings.unwrap_or(Endings::Lf);
+        }
+        // Only whole lines go to the parser; the unfinished last one waits for more text.
+        let complete = if at_end {
+            text.len()
+        } else if endings.is_some() {
+            parser.endings.last_break(text).map_or(0, |at| at + 1)
+        } else {
+            0
+        };
+        if complete == 0 && !at_end && text.len() > MAX_LINE_BYTES {
+            return Err(line_too_long(parser.line + 1, text.len()).into());
+        }
+        parser.feed(&text[..complete], soup)?;
+        let consumed = buffer.len() - (text.len() - complete);
+        buffer.drain(..consumed);
+        if at_end {
+            break;
+        }
+    }
+    parser.finish(soup);
+    Ok(())
+}
+
+/// Reads from `source` until `buffer` holds at least `chunk` more bytes or the source ends;
+/// true at the end.
+fn fill(source: &mut dyn Read, buffer: &mut Vec<u8>, chunk: usize) -> std::io::Result<bool> {
+    let target = buffer.len() + chunk;
+    while buffer.len() < target {
+        let start = buffer.len();
+        buffer.resize(target, 0);
+        let read = loop {
+            match source.read(&mut buffer[start..]) {
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                other => break other,
+            }
+        };
+        let read = match read {
+            Ok(read) => read,
+            Err(e) => {
+                buffer.truncate(start);
+                return Err(e);
+            }
+        };
+        buffer.truncate(start + read);
+        if read == 0 {
+            return Ok(true);
+        }
+    }
+    Ok(false)
+}
+
+fn line_too_long(line: u64, bytes: usize) -> FormatError {
+    FormatError::new(
+        Location::Line(line),
+        Problem::LineTooLong {
+            bytes: bytes as u64,
+            limit: MAX_LINE_BYTES as u64,
+        },
+    )
+}
+
+/// How lines end in one file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Endings {
+    /// LF (and CR LF: the CR is whitespace at the end of the line).
+    Lf,
+    /// Classic Mac OS: every CR ends a line, and so does an LF; a CR LF pair ends one.
+    Cr,
+}
+
+impl Endings {
+    /// The file's line endings, from its first line break (none yet: not known).
+    fn of(text: &[u8]) -> Option<Endings> {
+        let at = memchr::memchr2(b'\r', b'\n', text)?;
+        // A CR as the last byte seen may be the start of a CR LF pair: not known yet.
+        match (text[at], text.get(at + 1)) {
+            (b'\n', _) | (b'\r', Some(b'\n')) => Some(Endings::Lf),
+            (b'\r', Some(_)) => Some(Endings::Cr),
+            _ => None,
+        }
+    }
+
+    /// Where the last line break of `text` is.
+    fn last_break(self, text: &[u8]) -> Option<usize> {
+        match self {
+            Endings::Lf => memchr::memrchr(b'\n', text),
+            Endings::Cr => memchr::memrchr2(b'\r', b'\n', text),
+        }
+    }
+}
+
+/// One vertex as the faces of the current model see it: the model that last used it and
+/// its index in the soup for that model.
+#[derive(Clone, Copy, Default)]
+struct Use {
+    model: u32,
+    index: u32,
+}
+
+/// A part this file started: its id in the soup, its name as written, and its colour.
+struct Part {
+    id: u32,
+    written_name: String,
+    color: ColorSum,
+}
+
+/// The reader's state between lines.
+struct Parser<'m> {
+    endings: Endings,
+    /// Lines read so far (the number of the line being read, once it is counted).
+    line: u64,
+    /// A CR ended the text fed last: an LF starting the next text belongs to it.
+    pending_cr: bool,
+    default_name: String,
+    /// Every position read, in file order.
+    positions: Vec<[f32; 3]>,
+    /// Per position, where the current model put it in the soup.
+    uses: Vec<Use>,
+    /// The `v` lines of positions that fail [`check_position`] (an error once a face uses
+    /// one).
+    bad_positions: rustc_hash::FxHashMap<u32, u64>,
+    /// The current model: a run of faces with one name and one material (`tobj`'s unit),
+    /// counted from 1 so that `Use::default()` belongs to none.
+    model: u32,
+    model_has_faces: bool,
+    /// The part the current model's triangles go to, once it has one.
+    model_part: Option<usize>,
+    /// Triangles of the current model, for its share of the part's colour.
+    model_triangles: u64,
+    name: String,
+    parts: Vec<Part>,
+    material: Option<usize>,
+    materials: Vec<tobj::Material>,
+    material_ids: std::collections::HashMap<String, usize>,
+    files: Option<&'m MaterialFiles<'m>>,
+    libraries: RefCell<Libraries>,
+    corners: Vec<u32>,
+    /// Triangles and parts the soup held before this file.
+    soup_parts_before: usize,
+}
+
+impl<'m> Parser<'m> {
+    fn new(default_name: &str, files: Option<&'m MaterialFiles<'m>>, soup: &MeshSoup) -> Self {
+        Parser {
+            endings: Endings::Lf,
+            line: 0,
+            pending_cr: false,
+            default_name: default_name.to_string(),
+            positions: Vec::new(),
+            uses: Vec::new(),
+            bad_positions: Default::default(),
+            model: 1,
+            model_has_faces: false,
+            model_part: None,
+            model_triangles: 0,
+            name: UNNAMED.into(),
+            parts: Vec::new(),
+            material: None,
+            materials: Vec::new(),
+            material_ids: Default::default(),
+            files,
+            libraries: RefCell::default(),
+            corners: Vec::new(),
+            soup_parts_before: soup.part_names.len(),
+        }
+    }
+
+    /// Reads the whole lines of `text` (the last one may lack its line break only at the end
+    /// of the file).
+    fn feed(&mut self, mut text: &[u8], soup: &mut MeshSoup) -> Result<(), FormatError> {
+        if std::mem::take(&mut self.pending_cr) {
+            text = text.strip_prefix(b"\n").unwrap_or(text);
+        }
+        while !text.is_empty() {
+            let (line, rest) = match self.endings {
+                Endings::Lf => match memchr::memchr(b'\n', text) {
+                    Some(at) => (&text[..at], &text[at + 1..]),
+                    None => (text, &text[text.len()..]),
+                },
+                Endings::Cr => match memchr::memchr2(b'\r', b'\n', text) {
+                    Some(at) if text[at] == b'\r' => match text.get(at + 1) {
+                        Some(b'\n') => (&text[..at], &text[at + 2..]),
+                        Some(_) => (&text[..at], &text[at + 1..]),
+                        None => {
+                            self.pending_cr = true;
+                            (&text[..at], &text[at + 1..])
+                        }
+                    },
+                    Some(at) => (&text[..at], &text[at + 1..]),
+                    None => (text, &text[text.len()..]),
+                },
+            };
+            self.line += 1;
+            if line.len() > MAX_LINE_BYTES {
+                return Err(line_too_long(self.line, line.len()));
+            }
+            self.statement(line, soup)?;
+            text = rest;
+        }
+        Ok(())
+    }
+
+    fn syntax(&self, message: impl Into<String>) -> FormatError {
+        FormatError::syntax(Location::Line(self.line), message)
+    }
+
+    /// One line.
+    fn statement(&mut self, line: &[u8], soup: &mut MeshSoup) -> Result<(), FormatError> {
+        if line.is_ascii() {
+            let mut words = line
+                .split(|b| b.is_ascii_whitespace() || *b == 0x0B)
+                .filter(|w| !w.is_empty());
+            self.words(line, &mut words, soup)
+        } else {
+            // Words split on Unicode whitespace, as `str::split_whitespace` (and `tobj`) does.
+            let text = String::from_utf8_lossy(line);
+            let mut words = text.split_whitespace().map(str::as_bytes);
+            self.words(text.as_bytes(), &mut words, soup)
+        }
+    }
+
+    fn words<'a>(
+        &mut self,
+        line: &'a [u8],
+        words: &mut impl Iterator<Item = &'a [u8]>,
+        soup: &mut MeshSoup,
+    ) -> Result<(), FormatError> {
+        let Some(keyword) = words.next() else {
+            return Ok(());
+        };
+        match keyword {
+            b"v" => self.vertex(words),
+            b"f" => self.face(words, soup),
+            b"o" | b"g" => {
+                if self.model_has_faces {
+                    self.end_model();
+                }
+                self.name = rest_after(line, keyword);
+                if self.name.is_empty() {
+                    self.name = UNNAMED.into();
+                }
+                Ok(())
+            }
+            b"usemtl" => {
+                let name = rest_after(line, keyword);
+                if name.is_empty() {
+                    return Err(self.syntax("`usemtl` without a material name"));
+                }
+                let material = self.material_ids.get(&name).copied();
+                if material != self.material && self.model_has_faces {
+                    self.end_model();
+                }
+                self.material = material;
+                Ok(())
+            }
+            b"mtllib" => {
+                if let Some(files) = self.files {
+                    let name = rest_after(line, keyword);
+                    let loaded = files.load(std::path::Path::new(&name), &self.libraries);
+                    // A library that cannot be read or parsed costs only its colours.
+                    if let Ok((materials, ids)) = loaded {
+                        let offset = self.materials.len();
+                        self.materials.extend(materials);
+                        for (name, id) in ids {
+                            self.material_ids.insert(name, id + offset);
+                        }
+                    }
+                }
+                Ok(())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// `v x y z [w | r g b]`.
+    fn vertex<'a>(
+        &mut self,
+        words: &mut impl Iterator<Item = &'a [u8]>,
+    ) -> Result<(), FormatError> {
+        let mut p = [0f32; 3];
+        for c in &mut p {
+            *c = words
+                .next()
+                .and_then(parse_f32)
+                .ok_or_else(|| self.syntax("a `v` statement needs three numeric coordinates"))?;
+        }
+        match (words.next(), words.next(), words.next()) {
+            (None, ..) => {}
+            (Some(w), None, _) => {
+                let w = parse_f32(w)
+                    .ok_or_else(|| self.syntax("the `w` of a `v` statement is not a number"))?;
+                if w == 0.0 {
+                    return Err(self.syntax("a `v` statement has w = 0"));
+                }
+                p = p.map(|c| c / w);
+            }
+            (Some(_), Some(_), None) => {
+                return Err(self.syntax("a `v` statement has five values"));
+            }
+            (Some(_), Some(_), Some(_)) => {
+                // Three more are a colour, which the tree does not use.
+                if words.next().is_some() {
+                    return Err(self.syntax("a `v` statement has more than six values"));
+                }
+            }
+        }
+        let index = u32::try_from(self.positions.len())
+            .map_err(|_| self.syntax("more than 2^32 vertices"))?;
+        if check_position(p).is_err() {
+            self.bad_positions.insert(index, self.line);
+        }
+        self.positions.push(p);
+        self.uses.push(Use::default());
+        Ok(())
+    }
+
+    /// `f a b c ...`.
+    fn face<'a>(
+        &mut self,
+        words: &mut impl Iterator<Item = &'a [u8]>,
+        soup: &mut MeshSoup,
+    ) -> Result<(), FormatError> {
+        self.model_has_faces = true;
+        let count = self.positions.len() as i64;
+        let mut corners = std::mem::take(&mut self.corners);
+        corners.clear();
+        for word in words {
+            let written = word.split(|&b| b == b'/').next().and_then(parse_index);
+            let Some(written) = written else {
+                self.corners = corners;
+                return Err(self.syntax(format!(
+                    "face corner `{}` has no vertex index",
+                    String::from_utf8_lossy(word)
+                )));
+            };
+            let index = if written < 0 {
+                count + written
+            } else {
+                written - 1
+            };
+            if written == 0 || index < 0 || index >= count {
+                self.corners = corners;
+                return Err(FormatError::new(
+                    Location::Line(self.line),
+                    Problem::IndexOutOfRange {
+                        index: written,
+                        vertex_count: count as u64,
+                    },
+                ));
+            }
+            corners.push(index as u32);
+        }
+        let result = self.push_face(&mut corners, soup);
+        self.corners = corners;
+        result
+    }
+
+    /// Puts a face's vertices (file indices in `corners`, replaced by soup indices) and
+    /// triangles into the soup.
+    fn push_face(&mut self, corners: &mut [u32], soup: &mut MeshSoup) -> Result<(), FormatError> {
+        if corners.len() < 3 {
+            soup.short_faces_dropped += 1;
+            return Ok(());
+        }
+        let part = self.model_part(soup);
+        for corner in corners.iter_mut() {
+            let vertex = *corner as usize;
+            let used = self.uses[vertex];
+            *corner = if used.model == self.model {
+                used.index
+            } else {
+                let bad = &self.bad_positions;
+                let index = soup.push_vertex(self.positions[vertex], || {
+                    Location::Line(bad.get(&(vertex as u32)).copied().unwrap_or(0))
+                })?;
+                self.uses[vertex] = Use {
+                    model: self.model,
+                    index,
+                };
+                index
+            };
+        }
+        soup.push_polygon(self.parts[part].id, corners);
+        self.model_triangles += corners.len() as u64 - 2;
+        Ok(())
+    }
+
+    /// The part of the current model, started when a model's name differs from the last
+    /// part's.
+    fn model_part(&mut self, soup: &mut MeshSoup) -> usize {
+        if let Some(part) = self.model_part {
+            return part;
+        }
+        let part = match self.parts.last() {
+            Some(last) if last.written_name == self.name => self.parts.len() - 1,
+            _ => {
+                // Unnamed parts get their final name at the end, when the count is known.
+                let id = soup.begin_part(self.name.clone());
+                self.parts.push(Part {
+                    id,
+                    written_name: self.name.clone(),
+                    color: ColorSum::default(),
+                });
+                self.parts.len() - 1
+            }
+        };
+        self.model_part = Some(part);
+        part
+    }
+
+    /// Ends the current model: its triangles add its material's colour to its part, and the
+    /// next model lists its vertices afresh.
+    fn end_model(&mut self) {
+        if let (Some(part), Some(rgba)) = (
+            self.model_part,
+            self.material
+                .and_then(|m| self.materials.get(m))
+                .and_then(material_color),
+        ) {
+            self.parts[part]
+                .color
+                .add_weighted(rgba, self.model_triangles);
+        }
+        self.model += 1;
+        self.model_has_faces = false;
+        self.model_part = None;
+        self.model_triangles = 0;
+    }
+
+    /// After the last line: colours, the names of unnamed parts, and the warnings.
+    fn finish(mut self, soup: &mut MeshSoup) {
+        self.end_model();
+        let several = self.parts.len() > 1;
+        for (k, part) in self.parts.iter().enumerate() {
+            let id = part.id as usize;
+            debug_assert!(id >= self.soup_parts_before);
+            soup.parts[id].color = part.color.mean();
+            if part.written_name == UNNAMED {
+                soup.part_names[id] = if several {
+                    format!("{}#{k}", self.default_name)
+                } else {
+                    self.default_name.clone()
+                };
+            }
+        }
+        soup.warnings
+            .extend(std::mem::take(&mut self.libraries.get_mut().warnings));
+    }
+}
+
+/// The text after `keyword` on `line`, without surrounding whitespace (a name may hold
+/// spaces).
+fn rest_after(line: &[u8], keyword: &[u8]) -> String {
+    let text = String::from_utf8_lossy(line);
+    let text = text.trim_start();
+    // `keyword` is the line's first word, so the trimmed text starts with it.
+    let keyword = std::str::from_utf8(keyword).unwrap_or_default();
+    text.strip_prefix(keyword)
+        .unwrap_or(text)
+        .trim()
+        .to_string()
+}
+
+/// A number as Rust (and `tobj`) parse an `f32`: decimal or exponent notation, `inf`, `nan`.
+fn parse_f32(word: &[u8]) -> Option<f32> {
+    std::str::from_utf8(word).ok()?.parse().ok()
+}
+
+/// A face corner's vertex index: an optional sign and decimal digits, within `i64`.
+fn parse_index(word: &[u8]) -> Option<i64> {
+    let (negative, digits) = match word.split_first()? {
+        (b'-', rest) => (true, rest),
+        (b'+', rest) => (false, rest),
+        _ => (false, word),
+    };
+    if digits.is_empty() || digits.len() > 18 {
+        return None;
+    }
+    let mut value: i64 = 0;
+    for &d in digits {
+        if !d.is_ascii_digit() {
+            return None;
+        }
+        value = value * 10 + i64::from(d - b'0');
+    }
+    Some(if negative { -value } else { value })
+}
