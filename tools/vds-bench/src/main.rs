@@ -15,6 +15,7 @@ mod distance;
 mod fidelity;
 mod first_touch;
 mod latency;
+mod read;
 mod refine;
 
 use std::path::{Path, PathBuf};
@@ -56,6 +57,13 @@ enum Commands {
     /// (internal) Build one file, write its .vdt, time opening and decoding it.
     #[command(hide = true)]
     Vdt { file: PathBuf },
+    /// Read speed of the importers (MB/s, triangles/s; parse and check, no weld). Without
+    /// files: the bunny's, and the bunny as a whole `vds-build` process against reading it
+    /// and one meshoptimizer `simplify` (needs the release `vds-build` binary beside this one).
+    Read {
+        /// Mesh files to read.
+        files: Vec<PathBuf>,
+    },
     /// Time dependent random memory reads at several working-set sizes (compare machines
     /// before comparing their figures).
     Latency,
@@ -233,6 +241,14 @@ fn main() -> Result<()> {
                 fidelity::run(Path::new(file), &targets)?;
             }
             return Ok(());
+        }
+        Some(Commands::Read { files }) => {
+            if !files.is_empty() {
+                return read::speeds(&files, args.runs);
+            }
+            let bunny = args.shared.join("bunny.obj");
+            read::speeds(std::slice::from_ref(&bunny), args.runs)?;
+            return read::whole_process(&bunny, args.runs.max(9));
         }
         Some(Commands::Latency) => {
             latency::run();

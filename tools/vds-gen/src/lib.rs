@@ -204,9 +204,20 @@ impl GeneratedScene {
     }
 }
 
-/// Generates a CAD-like scene of about `target_triangles` triangles (within a few percent).
-pub fn generate(target_triangles: u64) -> GeneratedScene {
-    let mut scene = GeneratedScene::default();
+/// The machine cells of a scene of about `target_triangles` triangles, one at a time: each
+/// is a scene of its own (its triangles use only its own vertices, numbered from 0; its
+/// parts are numbered from 0), so a writer holds one cell, never the whole scene. [`generate`]
+/// is their concatenation.
+pub struct Cells {
+    cells_per_side: u64,
+    detail: u32,
+    index: u64,
+    triangles: u64,
+    target: u64,
+}
+
+/// The cells of the scene [`generate`] makes for `target_triangles`.
+pub fn cells(target_triangles: u64) -> Cells {
     // One machine cell has a fixed mix of parts; the cell count and the detail per cell scale
     // together so that both the part count and the tessellation grow with the target.
     let cells_per_side = ((target_triangles as f64 / 40_000.0).cbrt().ceil() as u32).max(1);
@@ -214,14 +225,25 @@ pub fn generate(target_triangles: u64) -> GeneratedScene {
     let per_cell = (target_triangles / cells).max(200);
     // Triangle yield of one cell at detail d is about 47 d² (measured from the shapes below).
     let detail = ((per_cell as f64 / 47.0).sqrt().round() as u32).max(4);
-    let mut cell_index = 0u64;
-    while (scene.triangles.len() as u64) < target_triangles {
-        let c = cell_index;
-        let (x, y, z) = (
-            c % u64::from(cells_per_side),
-            (c / u64::from(cells_per_side)) % u64::from(cells_per_side),
-            c / u64::from(cells_per_side).pow(2),
-        );
+    Cells {
+        cells_per_side: u64::from(cells_per_side),
+        detail,
+        index: 0,
+        triangles: 0,
+        target: target_triangles,
+    }
+}
+
+impl Iterator for Cells {
+    type Item = GeneratedScene;
+
+    fn next(&mut self) -> Option<GeneratedScene> {
+        if self.triangles >= self.target {
+            return None;
+        }
+        let (c, side, detail) = (self.index, self.cells_per_side, self.detail);
+        let mut scene = GeneratedScene::default();
+        let (x, y, z) = (c % side, (c / side) % side, c / side.pow(2));
         let origin = [x as f32 * 12.0, y as f32 * 12.0, z as f32 * 12.0];
         let jitter = unit(c) * 2.0;
         scene.housing(origin, [10.0, 10.0, 6.0], detail * 2);
@@ -250,44 +272,191 @@ pub fn generate(target_triangles: u64) -> GeneratedScene {
             );
         }
         scene.duplicate_last(40);
-        cell_index += 1;
+        self.index += 1;
+        self.triangles += scene.triangles.len() as u64;
+        Some(scene)
+    }
+}
+
+impl GeneratedScene {
+    /// Appends `cell`, renumbering its vertices and parts after this scene's.
+    fn append(&mut self, cell: &GeneratedScene) {
+        let (vertex_base, part_base) = (self.positions.len() as u32, self.part_count);
+        self.positions.extend_from_slice(&cell.positions);
+        self.triangles
+            .extend(cell.triangles.iter().map(|t| t.map(|v| v + vertex_base)));
+        self.triangle_parts
+            .extend(cell.triangle_parts.iter().map(|p| p + part_base));
+        self.part_count += cell.part_count;
+    }
+}
+
+/// Generates a CAD-like scene of about `target_triangles` triangles (within a few percent).
+pub fn generate(target_triangles: u64) -> GeneratedScene {
+    let mut scene = GeneratedScene::default();
+    for cell in cells(target_triangles) {
+        scene.append(&cell);
     }
     scene
 }
 
 /// Writes a scene as binary little-endian PLY with a per-face `part` property.
 pub fn write_ply(scene: &GeneratedScene, out: &mut impl std::io::Write) -> std::io::Result<()> {
+    let counts = [scene.positions.len(), scene.triangles.len()].map(|n| n as u64);
+    write_ply_header(out, scene.part_count, counts[0], counts[1])?;
+    let mut buffer = Vec::with_capacity(1 << 20);
+    put_positions(&mut buffer, out, &scene.positions)?;
+    put_faces(&mut buffer, out, scene, 0, 0)?;
+    out.write_all(&buffer)
+}
+
+/// Writes the scene [`generate`] makes for `target_triangles` as [`write_ply`] writes it,
+/// byte for byte, one cell at a time: memory stays at one cell whatever the size. The cells
+/// are generated three times (counts for the header, positions, faces).
+pub fn write_ply_streamed(
+    target_triangles: u64,
+    out: &mut impl std::io::Write,
+) -> std::io::Result<Totals> {
+    let totals = totals(target_triangles);
+    write_ply_header(out, totals.parts, totals.vertices, totals.triangles)?;
+    let mut buffer = Vec::with_capacity(1 << 20);
+    for cell in cells(target_triangles) {
+        put_positions(&mut buffer, out, &cell.positions)?;
+    }
+    let (mut vertex_base, mut part_base) = (0u32, 0u32);
+    for cell in cells(target_triangles) {
+        put_faces(&mut buffer, out, &cell, vertex_base, part_base)?;
+        vertex_base += cell.positions.len() as u32;
+        part_base += cell.part_count;
+    }
+    out.write_all(&buffer)?;
+    Ok(totals)
+}
+
+/// Writes the scene [`generate`] makes for `target_triangles` as Wavefront OBJ, one cell at a
+/// time (memory stays at one cell): per cell its `v` lines, then its faces, each part under
+/// `o part_N`. Positions are written in the shortest form that reads back to the same
+/// `f32`, so the OBJ and PLY files hold the same scene.
+pub fn write_obj(target_triangles: u64, out: &mut impl std::io::Write) -> std::io::Result<Totals> {
+    writeln!(
+        out,
+        "# vds-gen CAD-like scene, about {target_triangles} triangles"
+    )?;
+    let mut totals = Totals::default();
+    let mut text = String::with_capacity(1 << 20);
+    let mut order = Vec::new();
+    for cell in cells(target_triangles) {
+        use std::fmt::Write;
+        for p in &cell.positions {
+            let _ = writeln!(text, "v {} {} {}", p[0], p[1], p[2]);
+            flush_text(&mut text, out)?;
+        }
+        // A part's faces together, so that each part is one `o` group.
+        order.clear();
+        order.extend(0..cell.triangles.len());
+        order.sort_by_key(|&t| cell.triangle_parts[t]);
+        let mut part = None;
+        for &t in &order {
+            if part != Some(cell.triangle_parts[t]) {
+                part = Some(cell.triangle_parts[t]);
+                let _ = writeln!(text, "o part_{}", totals.parts + cell.triangle_parts[t]);
+            }
+            let [a, b, c] = cell.triangles[t].map(|v| totals.vertices + u64::from(v) + 1);
+            let _ = writeln!(text, "f {a} {b} {c}");
+            flush_text(&mut text, out)?;
+        }
+        totals.add(&cell);
+    }
+    out.write_all(text.as_bytes())?;
+    Ok(totals)
+}
+
+/// How large a generated scene is.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Totals {
+    /// Vertices.
+    pub vertices: u64,
+    /// Triangles.
+    pub triangles: u64,
+    /// Parts.
+    pub parts: u32,
+}
+
+impl Totals {
+    fn add(&mut self, cell: &GeneratedScene) {
+        self.vertices += cell.positions.len() as u64;
+        self.triangles += cell.triangles.len() as u64;
+        self.parts += cell.part_count;
+    }
+}
+
+/// The size of the scene [`generate`] makes for `target_triangles`, counted cell by cell.
+pub fn totals(target_triangles: u64) -> Totals {
+    let mut totals = Totals::default();
+    for cell in cells(target_triangles) {
+        totals.add(&cell);
+    }
+    totals
+}
+
+fn flush_text(text: &mut String, out: &mut impl std::io::Write) -> std::io::Result<()> {
+    if text.len() > 1 << 20 {
+        out.write_all(text.as_bytes())?;
+        text.clear();
+    }
+    Ok(())
+}
+
+fn write_ply_header(
+    out: &mut impl std::io::Write,
+    parts: u32,
+    vertices: u64,
+    triangles: u64,
+) -> std::io::Result<()> {
     write!(
         out,
-        "ply\nformat binary_little_endian 1.0\ncomment vds-gen CAD-like scene, {} parts\n\
-         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
-         element face {}\nproperty list uchar uint vertex_indices\nproperty uint part\nend_header\n",
-        scene.part_count,
-        scene.positions.len(),
-        scene.triangles.len()
-    )?;
-    let mut buffer = Vec::with_capacity(1 << 20);
-    for p in &scene.positions {
+        "ply\nformat binary_little_endian 1.0\ncomment vds-gen CAD-like scene, {parts} parts\n\
+         element vertex {vertices}\nproperty float x\nproperty float y\nproperty float z\n\
+         element face {triangles}\nproperty list uchar uint vertex_indices\nproperty uint part\nend_header\n",
+    )
+}
+
+fn put_positions(
+    buffer: &mut Vec<u8>,
+    out: &mut impl std::io::Write,
+    positions: &[[f32; 3]],
+) -> std::io::Result<()> {
+    for p in positions {
         for c in p {
             buffer.extend_from_slice(&c.to_le_bytes());
         }
         if buffer.len() > 1 << 20 {
-            out.write_all(&buffer)?;
+            out.write_all(buffer)?;
             buffer.clear();
         }
     }
+    Ok(())
+}
+
+fn put_faces(
+    buffer: &mut Vec<u8>,
+    out: &mut impl std::io::Write,
+    scene: &GeneratedScene,
+    vertex_base: u32,
+    part_base: u32,
+) -> std::io::Result<()> {
     for (t, part) in scene.triangles.iter().zip(&scene.triangle_parts) {
         buffer.push(3);
         for v in t {
-            buffer.extend_from_slice(&v.to_le_bytes());
+            buffer.extend_from_slice(&(v + vertex_base).to_le_bytes());
         }
-        buffer.extend_from_slice(&part.to_le_bytes());
+        buffer.extend_from_slice(&(part + part_base).to_le_bytes());
         if buffer.len() > 1 << 20 {
-            out.write_all(&buffer)?;
+            out.write_all(buffer)?;
             buffer.clear();
         }
     }
-    out.write_all(&buffer)
+    Ok(())
 }
 
 #[cfg(test)]
@@ -302,5 +471,19 @@ mod tests {
         let n = a.triangles.len() as f64;
         assert!((50_000.0..=60_000.0).contains(&n), "{n} triangles");
         assert!(a.part_count > 20, "CAD-like scenes have many parts");
+    }
+
+    #[test]
+    fn streamed_ply_is_the_whole_scene_written_at_once() {
+        for target in [1_000, 50_000] {
+            let scene = generate(target);
+            let mut whole = Vec::new();
+            write_ply(&scene, &mut whole).unwrap();
+            let mut streamed = Vec::new();
+            let totals = write_ply_streamed(target, &mut streamed).unwrap();
+            assert_eq!(streamed, whole);
+            assert_eq!(totals.triangles, scene.triangles.len() as u64);
+            assert_eq!(totals.parts, scene.part_count);
+        }
     }
 }

@@ -332,10 +332,29 @@ impl<'m> Parser<'m> {
     /// One line.
     fn statement(&mut self, line: &[u8], soup: &mut MeshSoup) -> Result<(), FormatError> {
         if line.is_ascii() {
-            let mut words = line
-                .split(|b| b.is_ascii_whitespace() || *b == 0x0B)
-                .filter(|w| !w.is_empty());
-            self.words(line, &mut words, soup)
+            // Almost every line of every file is a plain `v` or `f`: read in one pass over
+            // its bytes when it is (anything unusual goes the general way, which also words
+            // the errors).
+            match line {
+                [b'v', b' ', rest @ ..] => {
+                    if let Some(p) = plain_vertex(rest) {
+                        return self.push_position(p);
+                    }
+                }
+                [b'f', b' ', rest @ ..] => {
+                    let mut corners = std::mem::take(&mut self.corners);
+                    let plain = self.plain_face(rest, &mut corners);
+                    let result = plain.then(|| self.push_face(&mut corners, soup));
+                    self.corners = corners;
+                    if let Some(result) = result {
+                        self.model_has_faces = true;
+                        return result;
+                    }
+                }
+                _ => {}
+            }
+            // Split on ASCII whitespace, which is all the whitespace such a line can hold.
+            self.words(line, &mut AsciiWords { rest: line }, soup)
         } else {
             // Words split on Unicode whitespace, as `str::split_whitespace` (and `tobj`) does.
             let text = String::from_utf8_lossy(line);
@@ -429,6 +448,10 @@ impl<'m> Parser<'m> {
                 }
             }
         }
+        self.push_position(p)
+    }
+
+    fn push_position(&mut self, p: [f32; 3]) -> Result<(), FormatError> {
         let index = u32::try_from(self.positions.len())
             .map_err(|_| self.syntax("more than 2^32 vertices"))?;
         if check_position(p).is_err() {
@@ -437,6 +460,46 @@ impl<'m> Parser<'m> {
         self.positions.push(p);
         self.uses.push(Use::default());
         Ok(())
+    }
+
+    /// The corners of a face line made of plain corners (`7`, `-2`, `7/1/3`) that all refer
+    /// to vertices read so far, as file indices in `corners`; false for anything else.
+    #[inline]
+    fn plain_face(&self, mut rest: &[u8], corners: &mut Vec<u32>) -> bool {
+        corners.clear();
+        let count = self.positions.len() as i64;
+        loop {
+            rest = skip_spaces(rest);
+            if rest.is_empty() {
+                return true;
+            }
+            let (negative, digits) = match rest {
+                [b'-', tail @ ..] => (true, tail),
+                _ => (false, rest),
+            };
+            let mut value: i64 = 0;
+            let mut length = 0;
+            while let Some(&d) = digits.get(length) {
+                if !d.is_ascii_digit() || length == 18 {
+                    break;
+                }
+                value = value * 10 + i64::from(d - b'0');
+                length += 1;
+            }
+            rest = &digits[length..];
+            let index = if negative { count - value } else { value - 1 };
+            if length == 0 || length == 18 || value == 0 || !(0..count).contains(&index) {
+                return false;
+            }
+            corners.push(index as u32);
+            // Texture and normal indices are not read.
+            if let [b'/', ..] = rest {
+                let end = rest.iter().position(is_space).unwrap_or(rest.len());
+                rest = &rest[end..];
+            } else if !rest.first().is_none_or(is_space) {
+                return false;
+            }
+        }
     }
 
     /// `f a b c ...`.
@@ -450,7 +513,7 @@ impl<'m> Parser<'m> {
         let mut corners = std::mem::take(&mut self.corners);
         corners.clear();
         for word in words {
-            let written = word.split(|&b| b == b'/').next().and_then(parse_index);
+            let written = parse_index(word);
             let Some(written) = written else {
                 self.corners = corners;
                 return Err(self.syntax(format!(
@@ -573,6 +636,53 @@ impl<'m> Parser<'m> {
     }
 }
 
+/// Whether `b` separates words on an ASCII line (as `char::is_whitespace` has it).
+#[inline]
+fn is_space(b: &u8) -> bool {
+    matches!(b, b' ' | b'\t' | b'\r' | 0x0B | 0x0C)
+}
+
+#[inline]
+fn skip_spaces(text: &[u8]) -> &[u8] {
+    let start = text.iter().position(|b| !is_space(b)).unwrap_or(text.len());
+    &text[start..]
+}
+
+/// The position of a `v` line made of three plain numbers (after `v `), or none.
+#[inline]
+fn plain_vertex(rest: &[u8]) -> Option<[f32; 3]> {
+    let mut p = [0f32; 3];
+    let mut rest = rest;
+    for c in &mut p {
+        let (value, tail) = fast_f32(skip_spaces(rest))?;
+        if !tail.first().is_none_or(is_space) {
+            return None;
+        }
+        *c = value;
+        rest = tail;
+    }
+    skip_spaces(rest).is_empty().then_some(p)
+}
+
+/// The words of an ASCII line: split on ASCII whitespace (space, tab, vertical tab, form
+/// feed, CR), as `str::split_whitespace` splits such a line, without its Unicode tables.
+struct AsciiWords<'a> {
+    rest: &'a [u8],
+}
+
+impl<'a> Iterator for AsciiWords<'a> {
+    type Item = &'a [u8];
+
+    #[inline]
+    fn next(&mut self) -> Option<&'a [u8]> {
+        let start = self.rest.iter().position(|b| !is_space(b))?;
+        let rest = &self.rest[start..];
+        let end = rest.iter().position(is_space).unwrap_or(rest.len());
+        self.rest = &rest[end..];
+        Some(&rest[..end])
+    }
+}
+
 /// The text after `keyword` on `line`, without surrounding whitespace (a name may hold
 /// spaces).
 fn rest_after(line: &[u8], keyword: &[u8]) -> String {
@@ -586,27 +696,129 @@ fn rest_after(line: &[u8], keyword: &[u8]) -> String {
         .to_string()
 }
 
-/// A number as Rust (and `tobj`) parse an `f32`: decimal or exponent notation, `inf`, `nan`.
+/// Powers of ten that `f64` holds exactly.
+const EXACT_POWERS_OF_TEN: [f64; 23] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
+    1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
+];
+
+/// A number as Rust (and `tobj`) parse an `f32`, correctly rounded: decimal or exponent
+/// notation, `inf`, `nan`.
+///
+/// Most coordinates are short decimals (`-0.0378297`, `12.5`), which take a fast path: at
+/// most 15 significant digits `m` and a power of ten `e` with `|e| ≤ 22`, so that `m` and
+/// `10^|e|` are exact in `f64` and one multiplication or division rounds `m·10^e` correctly
+/// to `f64` (Clinger's fast path). Rounding that `f64` on to `f32` is correct too unless it
+/// lies exactly halfway between two `f32` values (the decimal may lie just off the halfway
+/// point on the other side); that case, and every other form, goes to the standard
+/// library's parser.
+#[inline]
 fn parse_f32(word: &[u8]) -> Option<f32> {
-    std::str::from_utf8(word).ok()?.parse().ok()
+    match fast_f32(word) {
+        Some((value, [])) => Some(value),
+        _ => std::str::from_utf8(word).ok()?.parse().ok(),
+    }
 }
 
-/// A face corner's vertex index: an optional sign and decimal digits, within `i64`.
+/// The fast path of [`parse_f32`] on the start of `text`: the number and what follows it.
+#[inline]
+fn fast_f32(word: &[u8]) -> Option<(f32, &[u8])> {
+    let (negative, mut rest) = match word.split_first()? {
+        (b'-', rest) => (true, rest),
+        (b'+', rest) => (false, rest),
+        _ => (false, word),
+    };
+    let mut mantissa: u64 = 0;
+    let mut digits = 0u32;
+    let mut scale = 0i32;
+    let mut any = false;
+    while let [d @ b'0'..=b'9', tail @ ..] = rest {
+        mantissa = mantissa * 10 + u64::from(d - b'0');
+        digits += u32::from(mantissa != 0);
+        any = true;
+        rest = tail;
+        if digits > 15 {
+            return None;
+        }
+    }
+    if let [b'.', tail @ ..] = rest {
+        rest = tail;
+        while let [d @ b'0'..=b'9', tail @ ..] = rest {
+            mantissa = mantissa * 10 + u64::from(d - b'0');
+            digits += u32::from(mantissa != 0);
+            scale -= 1;
+            any = true;
+            rest = tail;
+            if digits > 15 {
+                return None;
+            }
+        }
+    }
+    if !any {
+        return None;
+    }
+    if let [b'e' | b'E', tail @ ..] = rest {
+        let (sign, mut exponent_digits) = match tail {
+            [b'-', t @ ..] => (-1, t),
+            [b'+', t @ ..] => (1, t),
+            t => (1, t),
+        };
+        let mut exponent = 0i32;
+        let mut seen = false;
+        while let [d @ b'0'..=b'9', t @ ..] = exponent_digits {
+            if exponent > 1000 {
+                return None;
+            }
+            exponent = exponent * 10 + i32::from(d - b'0');
+            seen = true;
+            exponent_digits = t;
+        }
+        if !seen {
+            return None;
+        }
+        scale += sign * exponent;
+        rest = exponent_digits;
+    }
+    if scale.unsigned_abs() as usize >= EXACT_POWERS_OF_TEN.len() {
+        return None;
+    }
+    let power = EXACT_POWERS_OF_TEN[scale.unsigned_abs() as usize];
+    let value = if scale < 0 {
+        mantissa as f64 / power
+    } else {
+        mantissa as f64 * power
+    };
+    // Halfway between two `f32` values: the low 29 of the 52 mantissa bits that `f32` drops
+    // are exactly 1000…0. (Only for normal `f32` results: below, `f32` keeps fewer bits.)
+    if value.to_bits() & ((1 << 29) - 1) == 1 << 28
+        || (value != 0.0 && !(f64::from(f32::MIN_POSITIVE)..=f64::from(f32::MAX)).contains(&value))
+    {
+        return None;
+    }
+    let value = value as f32;
+    Some((if negative { -value } else { value }, rest))
+}
+
+/// A face corner's vertex index (the text before any `/`): an optional sign and decimal
+/// digits, within `i64`.
+#[inline]
 fn parse_index(word: &[u8]) -> Option<i64> {
     let (negative, digits) = match word.split_first()? {
         (b'-', rest) => (true, rest),
         (b'+', rest) => (false, rest),
         _ => (false, word),
     };
-    if digits.is_empty() || digits.len() > 18 {
-        return None;
-    }
     let mut value: i64 = 0;
+    let mut count = 0;
     for &d in digits {
-        if !d.is_ascii_digit() {
+        if d == b'/' {
+            break;
+        }
+        if !d.is_ascii_digit() || count == 18 {
             return None;
         }
         value = value * 10 + i64::from(d - b'0');
+        count += 1;
     }
-    Some(if negative { -value } else { value })
+    (count > 0).then_some(if negative { -value } else { value })
 }

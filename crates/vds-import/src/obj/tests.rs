@@ -131,6 +131,59 @@ fn a_line_over_the_limit_is_refused_when_streamed() {
     assert_eq!(parsed(&text).unwrap_err().location, Location::Line(4));
 }
 
+#[test]
+fn fast_numbers_are_the_standard_parser_s() {
+    let words = [
+        "0",
+        "-0",
+        "+1",
+        "1.",
+        ".5",
+        "-.5",
+        "1e3",
+        "1E-3",
+        "2.5e+2",
+        "0.1",
+        "-0.0378297",
+        "3.4028235e38",
+        "3.5e38",
+        "1e-38",
+        "1e-45",
+        "1e-50",
+        "123456789012345",
+        "1234567890123456",
+        "16777217",
+        "0.30000001192092896",
+        "1.00000005960464477539",
+        "e5",
+        "1e",
+        "--1",
+        "1.2.3",
+        "inf",
+        "-inf",
+        "nan",
+        "NaN",
+        "1_0",
+        "0x10",
+        "",
+        "-",
+        ".",
+        "1e400",
+        "1e-400",
+        "9007199254740993",
+        "0.000000000000000000000000000001",
+    ];
+    for word in words {
+        let standard = word.parse::<f32>().ok();
+        let ours = parse_f32(word.as_bytes());
+        assert_eq!(
+            ours.map(f32::to_bits),
+            standard.map(f32::to_bits),
+            "{word}: {ours:?} against {standard:?}"
+        );
+    }
+}
+
 mod generated {
     use super::*;
     use proptest::prelude::*;
@@ -152,6 +205,37 @@ mod generated {
             1 => prop::sample::select(vec!["o a", "g b", "g", "o", "g a b", "usemtl m", "s 1", "# f 9 9 9", ""])
                 .prop_map(str::to_string),
         ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(20_000))]
+        #[test]
+        fn decimals_parse_as_the_standard_parser_parses_them(
+            negative in any::<bool>(),
+            whole in 0u64..100_000_000,
+            fraction in prop::option::of((0u64..10_000_000_000, 0usize..12)),
+            exponent in prop::option::of(-45i32..40),
+        ) {
+            let mut word = format!("{}{whole}", if negative { "-" } else { "" });
+            if let Some((digits, zeros)) = fraction {
+                word.push_str(&format!(".{}{digits}", "0".repeat(zeros)));
+            }
+            if let Some(e) = exponent {
+                word.push_str(&format!("e{e}"));
+            }
+            let standard = word.parse::<f32>().unwrap();
+            prop_assert_eq!(parse_f32(word.as_bytes()).map(f32::to_bits), Some(standard.to_bits()), "{}", word);
+        }
+
+        #[test]
+        fn every_f32_written_shortest_reads_back(bits in any::<u32>()) {
+            let value = f32::from_bits(bits);
+            let word = format!("{value}");
+            let standard = word.parse::<f32>().unwrap();
+            prop_assert_eq!(parse_f32(word.as_bytes()).map(f32::to_bits), Some(standard.to_bits()), "{}", word);
+            let word = format!("{value:e}");
+            prop_assert_eq!(parse_f32(word.as_bytes()).map(f32::to_bits), Some(standard.to_bits()), "{}", word);
+        }
     }
 
     proptest! {
