@@ -269,21 +269,25 @@ fn directory_input_is_refused() {
 
 // ---------- decompression ----------
 
+/// Writes `block` `times` times over as one gzip file (a bomb: a few KB for many MB).
+fn write_gzip_of_repeats(path: &Path, block: &[u8], times: usize) {
+    let mut encoder = flate2::write::GzEncoder::new(
+        std::fs::File::create(path).unwrap(),
+        flate2::Compression::fast(),
+    );
+    for _ in 0..times {
+        encoder.write_all(block).unwrap();
+    }
+    encoder.finish().unwrap();
+}
+
 #[test]
 fn gzip_bomb_is_refused_at_the_decompression_limit() {
     // 64 MiB of comment lines compress to about 64 KB; an OBJ file is streamed, so it never
     // sits in memory whole, and the limit of 4 MiB stops the stream after 4 MiB + 1 byte.
     let dir = TempDir::new("gzip-bomb");
     let path = dir.join("bomb.obj.gz");
-    let mut encoder = flate2::write::GzEncoder::new(
-        std::fs::File::create(&path).unwrap(),
-        flate2::Compression::fast(),
-    );
-    let comments = b"#\n".repeat(1 << 19);
-    for _ in 0..64 {
-        encoder.write_all(&comments).unwrap();
-    }
-    encoder.finish().unwrap();
+    write_gzip_of_repeats(&path, &b"#\n".repeat(1 << 19), 64);
     let options = ImportOptions {
         max_decompressed_bytes: 4 << 20,
         ..Default::default()
@@ -305,15 +309,7 @@ fn gzip_obj_without_line_breaks_is_refused_at_the_line_limit() {
     // 64 MiB of zeros: streamed, the reader holds at most one line (1 MiB) and a chunk.
     let dir = TempDir::new("gzip-zeros");
     let path = dir.join("zeros.obj.gz");
-    let mut encoder = flate2::write::GzEncoder::new(
-        std::fs::File::create(&path).unwrap(),
-        flate2::Compression::fast(),
-    );
-    let zeros = vec![0u8; 1 << 20];
-    for _ in 0..64 {
-        encoder.write_all(&zeros).unwrap();
-    }
-    encoder.finish().unwrap();
+    write_gzip_of_repeats(&path, &[0; 1 << 20], 64);
     let error = load_file(&path, &ImportOptions::default()).unwrap_err();
     assert!(
         matches!(

@@ -399,10 +399,20 @@ pub fn totals(target_triangles: u64) -> Totals {
     totals
 }
 
+/// Writes `text` out and empties it once it holds more than 1 MiB.
 fn flush_text(text: &mut String, out: &mut impl std::io::Write) -> std::io::Result<()> {
     if text.len() > 1 << 20 {
         out.write_all(text.as_bytes())?;
         text.clear();
+    }
+    Ok(())
+}
+
+/// Writes `buffer` out and empties it once it holds more than 1 MiB.
+fn flush_full(buffer: &mut Vec<u8>, out: &mut impl std::io::Write) -> std::io::Result<()> {
+    if buffer.len() > 1 << 20 {
+        out.write_all(buffer)?;
+        buffer.clear();
     }
     Ok(())
 }
@@ -430,10 +440,7 @@ fn put_positions(
         for c in p {
             buffer.extend_from_slice(&c.to_le_bytes());
         }
-        if buffer.len() > 1 << 20 {
-            out.write_all(buffer)?;
-            buffer.clear();
-        }
+        flush_full(buffer, out)?;
     }
     Ok(())
 }
@@ -451,10 +458,7 @@ fn put_faces(
             buffer.extend_from_slice(&(v + vertex_base).to_le_bytes());
         }
         buffer.extend_from_slice(&(part + part_base).to_le_bytes());
-        if buffer.len() > 1 << 20 {
-            out.write_all(buffer)?;
-            buffer.clear();
-        }
+        flush_full(buffer, out)?;
     }
     Ok(())
 }
