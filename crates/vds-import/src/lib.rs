@@ -100,8 +100,8 @@ pub struct ImportOptions {
     /// this, more than three vertices per allowed triangle, or more node instances than this
     /// or 2²⁶, whichever is larger.
     pub max_triangles: u64,
-    /// The most bytes an input may add to memory beyond its own mapped file: what a `.gz`
-    /// input decompresses to, and what a glTF's external buffer files hold together.
+    /// The most bytes a `.gz` input may decompress to (streamed for OBJ, into a mapped
+    /// temporary file otherwise), and what a glTF's external buffer files hold together.
     pub max_decompressed_bytes: u64,
     /// Whether glTF URIs and OBJ `mtllib` paths may name files outside the model's folder (absolute paths, `..`
     /// leaving the folder, symbolic links out of it). Off by default: a model handed to a

@@ -1,5 +1,6 @@
-//! Reading an input file into memory (mapped, or gunzipped within a limit), streaming a
-//! gzipped OBJ file through its reader, and telling the mesh format from the file name.
+//! Reading an input file (mapped; a gzipped one decompressed, within a limit, into a
+//! temporary file that is mapped), streaming a gzipped OBJ file through its reader, and
+//! telling the mesh format from the file name.
 
 use std::io::Read;
 use std::path::Path;
@@ -38,11 +39,11 @@ pub fn format_of(path: &Path) -> Option<(Format, bool)> {
     Some((format, gz))
 }
 
-/// An input file's bytes: memory-mapped, or decompressed into memory.
+/// An input file's bytes: memory-mapped, or (empty) in memory.
 pub enum Bytes {
-    /// A plain file, mapped.
+    /// A plain file, or a gzipped file's decompressed temporary copy, mapped.
     Mapped(memmap2::Mmap),
-    /// A gzipped file, decompressed (or an empty file, which cannot be mapped).
+    /// An empty file, which cannot be mapped.
     Owned(Vec<u8>),
 }
 
@@ -125,7 +126,10 @@ fn describe(kind: std::fs::FileType) -> &'static str {
 ///
 /// Plain files are memory-mapped rather than read: for a multi-gigabyte mesh that skips
 /// copying every byte into freshly zeroed pages, which was half of a 10 M-triangle import
-/// on the dev machine. A mapped file's size is the file's own, so only gzip needs a limit.
+/// on the dev machine. A gzipped file is decompressed into an unnamed temporary file (in
+/// the system's temporary folder, `TMPDIR`) and that is mapped: the decompressed bytes live
+/// in the page cache, which the kernel can drop and reread, not in the process's own memory.
+/// (A gzipped OBJ file does not come here: it is streamed through its reader.)
 pub fn read_bytes(
     path: &Path,
     gz: bool,
@@ -137,24 +141,35 @@ pub fn read_bytes(
     };
     let file = open_regular_file(path)?;
     if gz {
-        let mut out = Vec::new();
-        flate2::read::MultiGzDecoder::new(std::io::BufReader::new(file))
-            .take(max_decompressed_bytes.saturating_add(1))
-            .read_to_end(&mut out)
-            .map_err(io_error)?;
-        if out.len() as u64 > max_decompressed_bytes {
+        let mut decompressed = tempfile::tempfile().map_err(|cause| ImportError::Io {
+            path: std::env::temp_dir(),
+            cause,
+        })?;
+        let mut out = std::io::BufWriter::with_capacity(1 << 20, &mut decompressed);
+        let written = std::io::copy(
+            &mut flate2::read::MultiGzDecoder::new(std::io::BufReader::new(file))
+                .take(max_decompressed_bytes.saturating_add(1)),
+            &mut out,
+        )
+        .map_err(io_error)?;
+        std::io::Write::flush(&mut out).map_err(io_error)?;
+        drop(out);
+        if written > max_decompressed_bytes {
             return Err(ImportError::Malformed {
                 path: path.to_path_buf(),
                 location: Location::File,
                 problem: Problem::LimitExceeded {
                     what: "decompressed size is at least".into(),
-                    amount: out.len() as u64,
+                    amount: written,
                     limit: max_decompressed_bytes,
                     option: "--max-decompressed-bytes",
                 },
             });
         }
-        return Ok(Bytes::Owned(out));
+        if written == 0 {
+            return Ok(Bytes::Owned(Vec::new()));
+        }
+        return map(&decompressed).map(Bytes::Mapped).map_err(io_error);
     }
     if file.metadata().map_err(io_error)?.len() == 0 {
         return Ok(Bytes::Owned(Vec::new()));
@@ -208,7 +223,8 @@ fn map(file: &std::fs::File) -> std::io::Result<memmap2::Mmap> {
     // value is validated where it is read, so changed bytes can only change which error or
     // mesh results, never cause an out-of-bounds access); and a truncation while mapped would
     // raise SIGBUS, which terminates the process rather than reading invalid memory. This is
-    // the same contract ripgrep accepts for searching mapped files.
+    // the same contract ripgrep accepts for searching mapped files. (A gzipped input's
+    // temporary copy has no name, so no other process can open it to change it.)
     unsafe { memmap2::Mmap::map(file) }
 }
 

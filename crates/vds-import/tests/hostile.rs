@@ -305,6 +305,26 @@ fn gzip_bomb_is_refused_at_the_decompression_limit() {
 }
 
 #[test]
+fn gzip_ply_bomb_is_refused_at_the_decompression_limit() {
+    // Other formats are decompressed into a temporary file, within the same limit.
+    let dir = TempDir::new("gzip-ply-bomb");
+    let path = dir.join("bomb.ply.gz");
+    write_gzip_of_repeats(&path, &[0; 1 << 20], 64);
+    let options = ImportOptions {
+        max_decompressed_bytes: 4 << 20,
+        ..Default::default()
+    };
+    let error = load_file(&path, &options).unwrap_err();
+    assert!(
+        matches!(
+            error.problem(),
+            Some(Problem::LimitExceeded { amount, limit, .. }) if *amount == *limit + 1
+        ),
+        "{error}"
+    );
+}
+
+#[test]
 fn gzip_obj_without_line_breaks_is_refused_at_the_line_limit() {
     // 64 MiB of zeros: streamed, the reader holds at most one line (1 MiB) and a chunk.
     let dir = TempDir::new("gzip-zeros");

@@ -99,7 +99,8 @@ struct Args {
     max_triangles: u64,
     /// Refuse a .gz input that decompresses to more than this, and a glTF whose external
     /// buffer files hold more than this together (bytes, or with a suffix: 512MiB, 8GiB;
-    /// default 4GiB): both are read into memory.
+    /// default 4GiB). A .gz OBJ is streamed; other .gz inputs go to a temporary file in
+    /// TMPDIR; glTF buffers are read into memory.
     #[arg(long, value_name = "SIZE", default_value = "4GiB", value_parser = parse_size)]
     max_decompressed_bytes: u64,
     /// Let glTF buffer URIs name files outside the model's folder (absolute paths, `..`,
