@@ -256,3 +256,46 @@ fn build_verify_checks_the_written_file() {
     assert!(info(&[path(&out), "--verify"]).status.success());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn smaller_pages_make_more_pages_that_verify() {
+    let dir = temp_dir("page-bytes");
+    let model = demo_model();
+    let mut pages = Vec::new();
+    for size in ["128KiB", "8KiB"] {
+        let out = dir.join(format!("{size}.vdt"));
+        let run = build(&[
+            path(&model),
+            "-o",
+            path(&out),
+            "--page-bytes",
+            size,
+            "--json",
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        pages.push(report["output"]["pages"].as_u64().unwrap());
+        let verify = info(&[path(&out), "--verify"]);
+        assert!(
+            verify.status.success(),
+            "{}",
+            String::from_utf8_lossy(&verify.stderr)
+        );
+    }
+    assert!(pages[1] > pages[0], "{pages:?}");
+    for bad in ["1KiB", "2MiB", "x"] {
+        let run = build(&[
+            path(&model),
+            "-o",
+            path(&dir.join("bad.vdt")),
+            "--page-bytes",
+            bad,
+        ]);
+        assert_eq!(run.status.code(), Some(2), "{bad}");
+        assert!(String::from_utf8_lossy(&run.stderr).contains("--page-bytes"));
+    }
+}

@@ -70,6 +70,11 @@ struct Args {
     /// zstd level of the pages (1-22).
     #[arg(long, default_value_t = vds_format::DEFAULT_ZSTD_LEVEL, value_parser = clap::value_parser!(i32).range(1..=22))]
     zstd_level: i32,
+    /// Decoded bytes of tree records per page (4KiB to 1MiB; suffixes as for sizes). Smaller
+    /// pages let a runtime under a memory budget hold less below its cut, at some cost in
+    /// file size.
+    #[arg(long, value_name = "SIZE", default_value = "128KiB", value_parser = page_size)]
+    page_bytes: u32,
     /// Weld vertices closer than this fraction of the bounding-box diagonal, a finite number
     /// from 0 up to (not including) 1 (default: exact).
     #[arg(long, value_name = "EPS", value_parser = weld_fraction)]
@@ -112,6 +117,18 @@ struct Args {
 
 /// A byte count: digits, optionally followed by K, M, G or T (powers of 1024), with or
 /// without `iB`/`B` (`512MiB`, `2G`, `4096`).
+/// `--page-bytes`: a size from 4 KiB to 1 MiB.
+fn page_size(text: &str) -> Result<u32, String> {
+    let bytes = parse_size(text)?;
+    if (4 << 10..=1 << 20).contains(&bytes) {
+        Ok(bytes as u32)
+    } else {
+        Err(format!(
+            "expected a page size from 4KiB to 1MiB, got '{text}'"
+        ))
+    }
+}
+
 fn parse_size(text: &str) -> Result<u64, String> {
     let text = text.trim();
     let digits = text
@@ -406,7 +423,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
                 build: vds_format::BuildInfo {
                     weld: args.weld,
                     zstd_level: args.zstd_level,
-                    page_bytes: vds_format::DEFAULT_PAGE_BYTES,
+                    page_bytes: args.page_bytes,
                 },
                 part_names: scene.part_names.clone(),
                 parts: vds_build::part_records(&scene),
@@ -440,7 +457,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
             drop(scene);
             let write_options = vds_format::WriteOptions {
                 zstd_level: args.zstd_level,
-                ..Default::default()
+                page_bytes: args.page_bytes,
             };
             let written = vds_format::write_file(path, &content, &write_options)
                 .with_context(|| format!("cannot write {}", path.display()))?;
