@@ -47,6 +47,7 @@ use vds_format::VdtError;
 use crate::criteria::{Decision, Judge};
 use crate::cut::{Cut, NIL, NodeState};
 use crate::reuse::{MotionLog, Reuse};
+use crate::store::Hot;
 
 /// Work done by one adjust.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -78,11 +79,69 @@ pub struct AdjustStats {
 /// than half the distance makes it unfold.
 const PREFETCH_RATIO: f32 = 0.5;
 
+/// How far ahead the camera's motion is extrapolated for fetching pages, in frames: about
+/// what a page takes to arrive when a few are in flight (tens of milliseconds each).
+const LEAD_FRAMES: f32 = 8.0;
+
 /// How many entries ahead of the threshold traversal its children's data is prefetched.
 const LOOKAHEAD: usize = 8;
 
 /// How many entries ahead the traversal prefetches the active list itself.
 const STREAM_AHEAD: usize = 32;
+
+/// How many levels below a folded node pages are fetched ahead of need when the node is
+/// about to unfold: a camera closing in fast unfolds several levels in one frame, and each
+/// level's treelet may be another page.
+const PREFETCH_LEVELS: u32 = 3;
+
+/// How many folded nodes a frame looks below for pages to fetch ([`PREFETCH_LEVELS`]), the
+/// nearest to their threshold first: the look costs a few page look-ups per child, and a
+/// node that needs it stays near its threshold for several frames.
+const DEEPER_PER_FRAME: usize = 256;
+
+/// The share of its threshold past which a folded node's resident children are looked at
+/// for pages to fetch ([`PREFETCH_LEVELS`]).
+const DEEPER_RATIO: f32 = 0.9;
+
+/// Fetches the children's pages of folded node `id` ahead of need when its error (now, or
+/// where the camera is heading) is past [`PREFETCH_RATIO`] of the threshold. When its
+/// children are resident and it is past [`DEEPER_RATIO`]: on the top level it becomes a
+/// candidate in `deeper` (the frame looks below the nearest of them,
+/// [`Adjuster::prefetch_deeper`]); below, its children are looked at in turn, down to
+/// [`PREFETCH_LEVELS`] levels.
+#[allow(clippy::too_many_arguments)]
+fn prefetch_below(
+    cut: &mut Cut,
+    judge: &Judge,
+    ahead: Option<&Judge>,
+    t: f32,
+    id: u32,
+    hot: Hot,
+    level: u32,
+    deeper: &mut Vec<(f32, u32)>,
+) {
+    if hot.child_count == 0 {
+        return;
+    }
+    let now = judge.screen_error_of(&hot) / t;
+    let ratio = ahead.map_or(now, |ahead| now.max(ahead.screen_error_of(&hot) / t));
+    if ratio <= PREFETCH_RATIO {
+        return;
+    }
+    if !cut.children_resident(id) {
+        cut.store_mut()
+            .prefetch_children(id, ratio - 1.0 - level as f32);
+    } else if now > DEEPER_RATIO && level + 1 < PREFETCH_LEVELS {
+        if level == 0 {
+            deeper.push((now, id));
+        } else {
+            for c in hot.first_child..hot.first_child + hot.child_count {
+                let child = *cut.store().tested(c).hot;
+                prefetch_below(cut, judge, ahead, t, c, child, level + 1, deeper);
+            }
+        }
+    }
+}
 
 /// A float with a total order, for the priority queues.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -117,6 +176,9 @@ pub struct Adjuster {
     unfold_queue: BinaryHeap<(Priority, Reverse<u32>)>,
     fold_queue: BinaryHeap<Reverse<(Priority, u32)>>,
     motion: MotionLog,
+    /// Folded nodes near their threshold whose children are resident, with their share of
+    /// the threshold: this frame's candidates for [`Adjuster::prefetch_deeper`].
+    deeper: Vec<(f32, u32)>,
     stats: AdjustStats,
 }
 
@@ -126,6 +188,7 @@ impl Adjuster {
         self.queued.clear();
         self.stats = AdjustStats::default();
         self.refused.clear();
+        self.deeper.clear();
     }
 
     /// The threshold decision for `id`. Not cached: the traversal asks each node at most
@@ -154,6 +217,10 @@ impl Adjuster {
         }
         let tight = judge.tightest(t);
         let prefetching = cut.store().loads_in_background() && t > 0.0;
+        // Pages are fetched for where the camera is heading too, not only where it is.
+        let ahead = prefetching
+            .then(|| self.motion.ahead(judge, t, LEAD_FRAMES))
+            .flatten();
         let now = self.motion.advance(judge, t);
         if now.is_some_and(|now| now.fresh) {
             cut.clear_reuse();
@@ -209,9 +276,19 @@ impl Adjuster {
                                 // Near its threshold: its children's pages are fetched
                                 // ahead of need, the nearest first.
                                 if prefetching {
-                                    let ratio = judge.screen_error(tested) / t;
-                                    if ratio > PREFETCH_RATIO && tested.hot.child_count > 0 {
-                                        cut.store_mut().prefetch_children(c, ratio - 1.0);
+                                    // Cheap test first: most nodes are far from it.
+                                    let hot = *tested.hot;
+                                    if judge.screen_error_of(&hot) > t * PREFETCH_RATIO * 0.5 {
+                                        prefetch_below(
+                                            cut,
+                                            judge,
+                                            ahead.as_ref(),
+                                            t,
+                                            c,
+                                            hot,
+                                            0,
+                                            &mut self.deeper,
+                                        );
                                     }
                                 }
                             }
@@ -241,8 +318,36 @@ impl Adjuster {
                 }
             }
         }
+        self.prefetch_deeper(cut, judge, ahead.as_ref(), t);
         self.retry_refused_folds(cut, judge, t, prevent_flips);
         Ok(self.stats)
+    }
+
+    /// Looks below the [`DEEPER_PER_FRAME`] candidates nearest to their threshold for pages
+    /// to fetch ([`prefetch_below`]); those the frame folded or unfolded since are skipped.
+    fn prefetch_deeper(&mut self, cut: &mut Cut, judge: &Judge, ahead: Option<&Judge>, t: f32) {
+        let mut deeper = std::mem::take(&mut self.deeper);
+        if deeper.len() > DEEPER_PER_FRAME {
+            deeper.select_nth_unstable_by(DEEPER_PER_FRAME, |a, b| b.0.total_cmp(&a.0));
+            deeper.truncate(DEEPER_PER_FRAME);
+        }
+        let mut none = Vec::new();
+        for &(_, id) in &deeper {
+            // Pages below the boundary may have been evicted since the candidate was taken.
+            if !cut.store().is_resident(id)
+                || cut.state(id) != NodeState::Boundary
+                || !cut.children_resident(id)
+            {
+                continue;
+            }
+            let hot = *cut.store().tested(id).hot;
+            for c in hot.first_child..hot.first_child + hot.child_count {
+                let child = *cut.store().tested(c).hot;
+                prefetch_below(cut, judge, ahead, t, c, child, 1, &mut none);
+            }
+        }
+        deeper.clear();
+        self.deeper = deeper;
     }
 
     /// Mesh-fold prevention refuses a fold for the triangles around the node as they are at

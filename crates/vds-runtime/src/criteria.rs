@@ -182,6 +182,14 @@ impl Judge {
         }
     }
 
+    /// The same judge for another view of the same camera.
+    pub(crate) fn with_view(&self, view: View) -> Judge {
+        Judge {
+            view: Some(view),
+            ..*self
+        }
+    }
+
     /// The prepared camera, if there is one.
     pub fn view(&self) -> Option<&View> {
         self.view.as_ref()
@@ -410,11 +418,17 @@ impl Judge {
     /// The screen-space error bound of `n` in pixels ([`f32::INFINITY`] when its ball reaches
     /// the eye plane), or its error radius when view-independent.
     pub fn screen_error(&self, n: Tested<'_>) -> f32 {
+        self.screen_error_of(n.hot)
+    }
+
+    /// [`Judge::screen_error`] from the node's hot record alone (all it reads).
+    #[inline]
+    pub fn screen_error_of(&self, hot: &Hot) -> f32 {
         let Some(view) = &self.view else {
-            return n.hot.error_radius;
+            return hot.error_radius;
         };
-        let r = n.hot.error_radius;
-        let c = view.to_camera(Vec3::from(n.hot.proxy));
+        let r = hot.error_radius;
+        let c = view.to_camera(Vec3::from(hot.proxy));
         let d = c.z - r;
         if d <= 0.0 {
             return if r == 0.0 { 0.0 } else { f32::INFINITY };

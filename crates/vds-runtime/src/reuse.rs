@@ -87,6 +87,19 @@ pub(crate) struct Now {
 }
 
 impl MotionLog {
+    /// `judge` as it will see the scene `frames` frames from now if the camera keeps moving
+    /// as it moved since the last logged frame (call before [`MotionLog::advance`]); `None`
+    /// without a camera, a previous frame of the same setting, or any motion.
+    pub(crate) fn ahead(&self, judge: &Judge, threshold: f32, frames: f32) -> Option<Judge> {
+        let view = judge.view()?;
+        let (before, setting) = self.previous.as_ref()?;
+        if setting.threshold != threshold || setting.criteria != *judge.criteria() || before == view
+        {
+            return None;
+        }
+        Some(judge.with_view(view.extrapolated(before, frames)))
+    }
+
     /// Logs this frame's camera; `None` without a camera (nothing to reuse then). The
     /// first frame, and any frame whose threshold, criteria or camera intrinsics differ from
     /// the previous one's, starts a new generation.

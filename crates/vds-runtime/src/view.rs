@@ -113,6 +113,25 @@ pub struct View {
 }
 
 impl View {
+    /// Where this view will be `frames` frames from now if it keeps moving as it moved since
+    /// `previous` (one frame ago): the eye keeps its velocity, the basis keeps turning about
+    /// the same axis at the same rate. For fetching pages ahead of the camera.
+    pub(crate) fn extrapolated(&self, previous: &View, frames: f32) -> View {
+        let basis = |v: &View| glam::Mat3::from_cols(v.right, v.up, v.forward);
+        // Both bases have the same handedness, so the turn between them is a proper rotation.
+        let turn = basis(self) * basis(previous).transpose();
+        let (axis, angle) = glam::Quat::from_mat3(&turn).to_axis_angle();
+        let ahead = glam::Quat::from_axis_angle(axis, angle * frames);
+        let mut view = *self;
+        view.eye = self.eye + (self.eye - previous.eye) * frames;
+        if angle.is_finite() && axis.is_finite() {
+            view.right = (ahead * self.right).normalize();
+            view.up = (ahead * self.up).normalize();
+            view.forward = (ahead * self.forward).normalize();
+        }
+        view
+    }
+
     /// `p` in camera coordinates: x right, y up, z along the view direction.
     #[inline]
     pub fn to_camera(&self, p: Vec3) -> Vec3 {
@@ -150,5 +169,50 @@ impl View {
         self.near - z > radius
             || (x.abs() - z * self.tan_x) * self.side_scale_x > radius
             || (y.abs() - z * self.tan_y) * self.side_scale_y > radius
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera(eye: [f32; 3], target: [f32; 3]) -> View {
+        Camera {
+            eye,
+            target,
+            up: [0.0, 1.0, 0.0],
+            fov_y_degrees: 45.0,
+            width: 640,
+            height: 480,
+            near: 0.01,
+        }
+        .view()
+    }
+
+    #[test]
+    fn extrapolation_continues_a_steady_move_and_turn() {
+        // A camera circling the origin by 2° a frame, looking at it: ten frames ahead is
+        // where the circle goes in ten more frames.
+        let at = |degrees: f32| {
+            let a = degrees.to_radians();
+            camera([10.0 * a.cos(), 0.0, 10.0 * a.sin()], [0.0; 3])
+        };
+        let (before, now, later) = (at(0.0), at(2.0), at(22.0));
+        let ahead = now.extrapolated(&before, 10.0);
+        // The eye keeps its velocity (a straight line, so off the circle by the chord's sag).
+        let expected_eye = now.eye + (now.eye - before.eye) * 10.0;
+        assert!((ahead.eye - expected_eye).length() < 1e-4);
+        // The basis turns by the same 20° about the same axis.
+        for (got, want) in [
+            (ahead.forward, later.forward),
+            (ahead.right, later.right),
+            (ahead.up, later.up),
+        ] {
+            assert!((got - want).length() < 1e-4, "{got} against {want}");
+        }
+        // Standing still extrapolates to standing still.
+        let still = now.extrapolated(&now, 10.0);
+        assert_eq!(still.eye, now.eye);
+        assert!((still.forward - now.forward).length() < 1e-6);
     }
 }

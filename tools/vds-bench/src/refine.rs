@@ -70,12 +70,17 @@ struct Played {
     most_bytes: u64,
     highest_threshold: f32,
     evicted: u64,
+    /// Unfolds put off for pages not yet resident, over all frames.
+    deferred: u64,
+    /// Frames that put off at least one unfold.
+    lagging_frames: u32,
 }
 
 fn play(runtime: &mut Runtime, path: &CameraPath, goal: Goal, pace: Duration) -> Result<Played> {
     let criteria = Criteria::default();
     let mut times = Vec::with_capacity(path.cameras.len());
     let (mut most_bytes, mut highest_threshold) = (0u64, 0.0f32);
+    let (mut deferred, mut lagging_frames) = (0u64, 0u32);
     let evicted_before = runtime.memory().pages_evicted;
     let start = Instant::now();
     for (i, camera) in path.cameras.iter().enumerate() {
@@ -87,12 +92,16 @@ fn play(runtime: &mut Runtime, path: &CameraPath, goal: Goal, pace: Duration) ->
         times.push(t.elapsed().as_secs_f64() * 1e3);
         most_bytes = most_bytes.max(frame.memory.resident_bytes);
         highest_threshold = highest_threshold.max(frame.effective_threshold.unwrap_or(0.0));
+        deferred += u64::from(frame.stats.deferred_unfolds);
+        lagging_frames += u32::from(frame.stats.deferred_unfolds > 0);
     }
     Ok(Played {
         times,
         most_bytes,
         highest_threshold,
         evicted: runtime.memory().pages_evicted - evicted_before,
+        deferred,
+        lagging_frames,
     })
 }
 
@@ -201,7 +210,8 @@ pub fn run(
         let times = &played.times;
         println!(
             "  fly-through, {} frames, {what}: adjust median {:.3} ms, p99 {:.3} ms, max {:.3} ms; \
-             at most {} held, effective threshold at most {} px, {} pages evicted",
+             at most {} held, effective threshold at most {} px, {} pages evicted; {} frames \
+             coarser than asked for, waiting on pages ({} unfolds put off in all)",
             times.len(),
             percentile(times, 0.5),
             percentile(times, 0.99),
@@ -209,6 +219,8 @@ pub fn run(
             vds_runtime::size::format_size(played.most_bytes),
             played.highest_threshold,
             played.evicted,
+            played.lagging_frames,
+            played.deferred,
         );
     }
     Ok(())
