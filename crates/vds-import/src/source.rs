@@ -146,25 +146,12 @@ pub fn read_bytes(
             cause,
         })?;
         let mut out = std::io::BufWriter::with_capacity(1 << 20, &mut decompressed);
-        let written = std::io::copy(
-            &mut flate2::read::MultiGzDecoder::new(std::io::BufReader::new(file))
-                .take(max_decompressed_bytes.saturating_add(1)),
-            &mut out,
-        )
-        .map_err(io_error)?;
+        let written =
+            std::io::copy(&mut gunzip(file, max_decompressed_bytes), &mut out).map_err(io_error)?;
         std::io::Write::flush(&mut out).map_err(io_error)?;
         drop(out);
         if written > max_decompressed_bytes {
-            return Err(ImportError::Malformed {
-                path: path.to_path_buf(),
-                location: Location::File,
-                problem: Problem::LimitExceeded {
-                    what: "decompressed size is at least".into(),
-                    amount: written,
-                    limit: max_decompressed_bytes,
-                    option: "--max-decompressed-bytes",
-                },
-            });
+            return Err(over_the_limit(path, written, max_decompressed_bytes));
         }
         if written == 0 {
             return Ok(Bytes::Owned(Vec::new()));
@@ -190,21 +177,11 @@ pub(crate) fn read_obj_gz(
 ) -> Result<(), ImportError> {
     let file = open_regular_file(path)?;
     let limit = options.max_decompressed_bytes;
-    let mut stream = flate2::read::MultiGzDecoder::new(std::io::BufReader::new(file))
-        .take(limit.saturating_add(1));
+    let mut stream = gunzip(file, limit);
     let result = crate::obj::read_obj_stream(&mut stream, name, Some(materials), soup);
     let read = limit.saturating_add(1) - stream.limit();
     if read > limit {
-        return Err(ImportError::Malformed {
-            path: path.to_path_buf(),
-            location: Location::File,
-            problem: Problem::LimitExceeded {
-                what: "decompressed size is at least".into(),
-                amount: read,
-                limit,
-                option: "--max-decompressed-bytes",
-            },
-        });
+        return Err(over_the_limit(path, read, limit));
     }
     result.map_err(|e| match e {
         crate::obj::StreamError::Read(cause) => ImportError::Io {
@@ -213,6 +190,28 @@ pub(crate) fn read_obj_gz(
         },
         crate::obj::StreamError::Format(e) => e.in_file(path),
     })
+}
+
+/// `file` gunzipped, ending one byte past `limit` (so that going past it can be seen).
+fn gunzip(
+    file: std::fs::File,
+    limit: u64,
+) -> std::io::Take<flate2::read::MultiGzDecoder<std::io::BufReader<std::fs::File>>> {
+    flate2::read::MultiGzDecoder::new(std::io::BufReader::new(file)).take(limit.saturating_add(1))
+}
+
+/// The error for a gzipped input that decompresses past `limit` (`amount` is how far it got).
+fn over_the_limit(path: &Path, amount: u64, limit: u64) -> ImportError {
+    ImportError::Malformed {
+        path: path.to_path_buf(),
+        location: Location::File,
+        problem: Problem::LimitExceeded {
+            what: "decompressed size is at least".into(),
+            amount,
+            limit,
+            option: "--max-decompressed-bytes",
+        },
+    }
 }
 
 #[allow(unsafe_code)]
