@@ -78,7 +78,7 @@ pub fn read_obj(
     soup: &mut MeshSoup,
 ) -> Result<(), FormatError> {
     let data = data.strip_prefix(BYTE_ORDER_MARK).unwrap_or(data);
-    let mut parser = Parser::new(default_name, materials, soup);
+    let mut parser = Parser::new(default_name, materials);
     parser.endings = Endings::of(data).unwrap_or(Endings::Lf);
     parser.feed(data, soup)?;
     parser.finish(soup);
@@ -109,7 +109,7 @@ pub fn read_obj_stream(
     materials: Option<&MaterialFiles>,
     soup: &mut MeshSoup,
 ) -> Result<(), StreamError> {
-    let mut parser = Parser::new(default_name, materials, soup);
+    let mut parser = Parser::new(default_name, materials);
     let mut buffer: Vec<u8> = Vec::with_capacity(CHUNK_BYTES);
     let mut first = true;
     let mut endings = None;
@@ -260,12 +260,10 @@ struct Parser<'m> {
     files: Option<&'m MaterialFiles<'m>>,
     libraries: RefCell<Libraries>,
     corners: Vec<u32>,
-    /// Triangles and parts the soup held before this file.
-    soup_parts_before: usize,
 }
 
 impl<'m> Parser<'m> {
-    fn new(default_name: &str, files: Option<&'m MaterialFiles<'m>>, soup: &MeshSoup) -> Self {
+    fn new(default_name: &str, files: Option<&'m MaterialFiles<'m>>) -> Self {
         Parser {
             endings: Endings::Lf,
             line: 0,
@@ -286,7 +284,6 @@ impl<'m> Parser<'m> {
             files,
             libraries: RefCell::default(),
             corners: Vec::new(),
-            soup_parts_before: soup.part_names.len(),
         }
     }
 
@@ -467,12 +464,13 @@ impl<'m> Parser<'m> {
     #[inline]
     fn plain_face(&self, mut rest: &[u8], corners: &mut Vec<u32>) -> bool {
         corners.clear();
-        let count = self.positions.len() as i64;
         loop {
             rest = skip_spaces(rest);
             if rest.is_empty() {
                 return true;
             }
+            // The digits are read in the pass that finds the word's end: `parse_index` on the
+            // word would need the end first, a second pass over every corner.
             let (negative, digits) = match rest {
                 [b'-', tail @ ..] => (true, tail),
                 _ => (false, rest),
@@ -487,11 +485,11 @@ impl<'m> Parser<'m> {
                 length += 1;
             }
             rest = &digits[length..];
-            let index = if negative { count - value } else { value - 1 };
-            if length == 0 || length == 18 || value == 0 || !(0..count).contains(&index) {
+            let written = if negative { -value } else { value };
+            let Some(index) = self.resolve(written).filter(|_| (1..18).contains(&length)) else {
                 return false;
-            }
-            corners.push(index as u32);
+            };
+            corners.push(index);
             // Texture and normal indices are not read.
             if let [b'/', ..] = rest {
                 let end = rest.iter().position(is_space).unwrap_or(rest.len());
@@ -502,6 +500,19 @@ impl<'m> Parser<'m> {
         }
     }
 
+    /// The file index of the vertex a face corner refers to as `written` (1-based, or
+    /// negative: relative to the vertices read so far), if that vertex has been read.
+    #[inline]
+    fn resolve(&self, written: i64) -> Option<u32> {
+        let count = self.positions.len() as i64;
+        let index = if written < 0 {
+            count + written
+        } else {
+            written - 1
+        };
+        (written != 0 && (0..count).contains(&index)).then_some(index as u32)
+    }
+
     /// `f a b c ...`.
     fn face<'a>(
         &mut self,
@@ -509,7 +520,6 @@ impl<'m> Parser<'m> {
         soup: &mut MeshSoup,
     ) -> Result<(), FormatError> {
         self.model_has_faces = true;
-        let count = self.positions.len() as i64;
         let mut corners = std::mem::take(&mut self.corners);
         corners.clear();
         for word in words {
@@ -521,22 +531,17 @@ impl<'m> Parser<'m> {
                     String::from_utf8_lossy(word)
                 )));
             };
-            let index = if written < 0 {
-                count + written
-            } else {
-                written - 1
-            };
-            if written == 0 || index < 0 || index >= count {
+            let Some(index) = self.resolve(written) else {
                 self.corners = corners;
                 return Err(FormatError::new(
                     Location::Line(self.line),
                     Problem::IndexOutOfRange {
                         index: written,
-                        vertex_count: count as u64,
+                        vertex_count: self.positions.len() as u64,
                     },
                 ));
-            }
-            corners.push(index as u32);
+            };
+            corners.push(index);
         }
         let result = self.push_face(&mut corners, soup);
         self.corners = corners;
@@ -621,7 +626,6 @@ impl<'m> Parser<'m> {
         let several = self.parts.len() > 1;
         for (k, part) in self.parts.iter().enumerate() {
             let id = part.id as usize;
-            debug_assert!(id >= self.soup_parts_before);
             soup.parts[id].color = part.color.mean();
             if part.written_name == UNNAMED {
                 soup.part_names[id] = if several {
