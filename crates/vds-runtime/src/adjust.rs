@@ -109,22 +109,21 @@ const DEEPER_RATIO: f32 = 0.9;
 /// candidate in `deeper` (the frame looks below the nearest of them,
 /// [`Adjuster::prefetch_deeper`]); below, its children are looked at in turn, down to
 /// [`PREFETCH_LEVELS`] levels.
-#[allow(clippy::too_many_arguments)]
 fn prefetch_below(
     cut: &mut Cut,
-    judge: &Judge,
-    ahead: Option<&Judge>,
-    t: f32,
+    sight: &Sight,
     id: u32,
     hot: Hot,
+    now: f32,
     level: u32,
     deeper: &mut Vec<(f32, u32)>,
 ) {
     if hot.child_count == 0 {
         return;
     }
-    let now = judge.screen_error_of(&hot) / t;
-    let ratio = ahead.map_or(now, |ahead| now.max(ahead.screen_error_of(&hot) / t));
+    let ratio = sight
+        .ahead
+        .map_or(now, |ahead| now.max(ahead.screen_error_of(&hot) / sight.t));
     if ratio <= PREFETCH_RATIO {
         return;
     }
@@ -135,10 +134,29 @@ fn prefetch_below(
         if level == 0 {
             deeper.push((now, id));
         } else {
-            for c in hot.first_child..hot.first_child + hot.child_count {
-                let child = *cut.store().tested(c).hot;
-                prefetch_below(cut, judge, ahead, t, c, child, level + 1, deeper);
-            }
+            sight.below(cut, hot, level + 1, deeper);
+        }
+    }
+}
+
+/// What [`prefetch_below`] judges by: the view now, the view ahead, the threshold.
+struct Sight<'a> {
+    judge: &'a Judge,
+    ahead: Option<&'a Judge>,
+    t: f32,
+}
+
+impl Sight<'_> {
+    /// `hot`'s error now, as a share of the threshold.
+    fn now(&self, hot: &Hot) -> f32 {
+        self.judge.screen_error_of(hot) / self.t
+    }
+
+    /// [`prefetch_below`] on each child of the node `hot` (children resident), at `level`.
+    fn below(&self, cut: &mut Cut, hot: Hot, level: u32, deeper: &mut Vec<(f32, u32)>) {
+        for c in hot.first_child..hot.first_child + hot.child_count {
+            let child = *cut.store().tested(c).hot;
+            prefetch_below(cut, self, c, child, self.now(&child), level, deeper);
         }
     }
 }
@@ -221,6 +239,11 @@ impl Adjuster {
         let ahead = prefetching
             .then(|| self.motion.ahead(judge, t, LEAD_FRAMES))
             .flatten();
+        let sight = Sight {
+            judge,
+            ahead: ahead.as_ref(),
+            t,
+        };
         let now = self.motion.advance(judge, t);
         if now.is_some_and(|now| now.fresh) {
             cut.clear_reuse();
@@ -278,17 +301,10 @@ impl Adjuster {
                                 if prefetching {
                                     // Cheap test first: most nodes are far from it.
                                     let hot = *tested.hot;
-                                    if judge.screen_error_of(&hot) > t * PREFETCH_RATIO * 0.5 {
-                                        prefetch_below(
-                                            cut,
-                                            judge,
-                                            ahead.as_ref(),
-                                            t,
-                                            c,
-                                            hot,
-                                            0,
-                                            &mut self.deeper,
-                                        );
+                                    let now = sight.now(&hot);
+                                    if now > PREFETCH_RATIO * 0.5 {
+                                        let deeper = &mut self.deeper;
+                                        prefetch_below(cut, &sight, c, hot, now, 0, deeper);
                                     }
                                 }
                             }
@@ -318,19 +334,20 @@ impl Adjuster {
                 }
             }
         }
-        self.prefetch_deeper(cut, judge, ahead.as_ref(), t);
+        self.prefetch_deeper(cut, &sight);
         self.retry_refused_folds(cut, judge, t, prevent_flips);
         Ok(self.stats)
     }
 
     /// Looks below the [`DEEPER_PER_FRAME`] candidates nearest to their threshold for pages
     /// to fetch ([`prefetch_below`]); those the frame folded or unfolded since are skipped.
-    fn prefetch_deeper(&mut self, cut: &mut Cut, judge: &Judge, ahead: Option<&Judge>, t: f32) {
+    fn prefetch_deeper(&mut self, cut: &mut Cut, sight: &Sight) {
         let mut deeper = std::mem::take(&mut self.deeper);
         if deeper.len() > DEEPER_PER_FRAME {
             deeper.select_nth_unstable_by(DEEPER_PER_FRAME, |a, b| b.0.total_cmp(&a.0));
             deeper.truncate(DEEPER_PER_FRAME);
         }
+        // Below the top level nothing becomes a candidate: this stays empty.
         let mut none = Vec::new();
         for &(_, id) in &deeper {
             // Pages below the boundary may have been evicted since the candidate was taken.
@@ -341,10 +358,7 @@ impl Adjuster {
                 continue;
             }
             let hot = *cut.store().tested(id).hot;
-            for c in hot.first_child..hot.first_child + hot.child_count {
-                let child = *cut.store().tested(c).hot;
-                prefetch_below(cut, judge, ahead, t, c, child, 1, &mut none);
-            }
+            sight.below(cut, hot, 1, &mut none);
         }
         deeper.clear();
         self.deeper = deeper;
