@@ -136,7 +136,7 @@ fn build_tree_with(scene: &Scene, builder: Builder, isa: Isa) -> (VertexTree, Bu
     // which wait on memory, while the attributes are arithmetic that fills both cores; side
     // by side the sort's thread no longer leaves the other core idle.
     let start = Instant::now();
-    let (bounds, (subtri_ends, subtris)) = rayon::join(
+    let ((bounds, _), (subtri_ends, subtris)) = rayon::join(
         || {
             compute_attributes(
                 &tree.nodes,
@@ -165,7 +165,7 @@ fn build_tree_with(scene: &Scene, builder: Builder, isa: Isa) -> (VertexTree, Bu
 
 /// The leaf rank of each vertex (the inverse of `leaf_vertex`) and the node id of each leaf
 /// rank.
-fn leaf_tables(leaf_vertex: &[u32], nodes: &[Node]) -> (Vec<u32>, Vec<u32>) {
+pub(crate) fn leaf_tables(leaf_vertex: &[u32], nodes: &[Node]) -> (Vec<u32>, Vec<u32>) {
     let mut vertex_rank = filled(leaf_vertex.len(), 0u32);
     for (rank, &v) in leaf_vertex.iter().enumerate() {
         vertex_rank[v as usize] = rank as u32;
@@ -180,13 +180,13 @@ fn leaf_tables(leaf_vertex: &[u32], nodes: &[Node]) -> (Vec<u32>, Vec<u32>) {
 }
 
 /// Incident triangles of each vertex, in increasing triangle id (compressed rows).
-struct Adjacency {
+pub(crate) struct Adjacency {
     offsets: Vec<u32>,
     triangles: Vec<u32>,
 }
 
 impl Adjacency {
-    fn new(vertex_count: usize, triangles: &[[u32; 3]]) -> Adjacency {
+    pub(crate) fn new(vertex_count: usize, triangles: &[[u32; 3]]) -> Adjacency {
         // Counts, then running ends: `offsets[v]` is where row `v` ends.
         let mut offsets = filled(vertex_count + 1, 0u32);
         for t in triangles {
@@ -220,18 +220,18 @@ impl Adjacency {
 }
 
 /// What a node passes to its parent.
-#[derive(Clone, Copy)]
-struct Accumulator {
-    quadric: Quadric,
-    position_sum: [f64; 3],
-    vertex_box: Aabb,
-    triangle_box: Aabb,
-    cone: NormalCone,
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Accumulator {
+    pub(crate) quadric: Quadric,
+    pub(crate) position_sum: [f64; 3],
+    pub(crate) vertex_box: Aabb,
+    pub(crate) triangle_box: Aabb,
+    pub(crate) cone: NormalCone,
     /// A two-sided cone of the same normals, or `None` where the one-sided cone is narrower
     /// than a hemisphere and stands in for it (a one-sided cone bounds its normals up to sign
     /// too). Fitting and merging two-sided cones only where one-sided ones fail keeps their
     /// cost to thin-shell regions.
-    two_sided: Option<NormalCone>,
+    pub(crate) two_sided: Option<NormalCone>,
 }
 
 fn widen(p: [f32; 3]) -> [f64; 3] {
@@ -239,12 +239,12 @@ fn widen(p: [f32; 3]) -> [f64; 3] {
 }
 
 /// What every node's attributes are computed from.
-struct Inputs<'a> {
-    scene: &'a Scene,
-    leaf_vertex: &'a [u32],
-    adjacency: &'a Adjacency,
-    leaf_positions: &'a [[f32; 3]],
-    isa: Isa,
+pub(crate) struct Inputs<'a> {
+    pub(crate) scene: &'a Scene,
+    pub(crate) leaf_vertex: &'a [u32],
+    pub(crate) adjacency: &'a Adjacency,
+    pub(crate) leaf_positions: &'a [[f32; 3]],
+    pub(crate) isa: Isa,
 }
 
 /// Subtrees filled as one task hold at most this share of all leaves (or
@@ -256,10 +256,10 @@ const MIN_TASK_LEAVES: u32 = 4096;
 
 /// A bounding sphere a node passes to its parent, which bounds its children's spheres. A
 /// leaf's is not kept in the tree (leaves have no bounds there), only passed up.
-#[derive(Clone, Copy)]
-struct Sphere {
-    center: [f32; 3],
-    radius: f32,
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub(crate) struct Sphere {
+    pub(crate) center: [f32; 3],
+    pub(crate) radius: f32,
 }
 
 /// Computes every inner node's proxy and bounds (indexed as [`Node::bounds`]), children
@@ -278,7 +278,11 @@ struct Sphere {
 /// consecutive nodes are consecutive), found from the leaf ranges; bounds indices follow
 /// node ids, so its inner nodes' bounds form one contiguous run per level too, and each task
 /// gets its own `&mut` slice of the bounds of every level below the frontier.
-fn compute_attributes(nodes: &[Node], levels: &[u32], inputs: &Inputs) -> Vec<NodeBounds> {
+pub(crate) fn compute_attributes(
+    nodes: &[Node],
+    levels: &[u32],
+    inputs: &Inputs,
+) -> (Vec<NodeBounds>, (Accumulator, Sphere)) {
     let level_count = levels.len() - 1;
     let level = |k: usize| &nodes[levels[k] as usize..levels[k + 1] as usize];
     let inner_count = |nodes: &[Node]| nodes.iter().filter(|n| !n.is_leaf()).count();
@@ -374,7 +378,8 @@ fn compute_attributes(nodes: &[Node], levels: &[u32], inputs: &Inputs) -> Vec<No
         }
         below = results.into_iter().map(|(up, _)| up).collect();
     }
-    bounds
+    // The root's level is the last one filled: what it would pass to a parent.
+    (bounds, below[0])
 }
 
 impl Inputs<'_> {
@@ -536,12 +541,12 @@ fn leaf_attributes(
 
 dispatched! {
     /// [`Accumulator::absorb`] compiled for `isa`.
-    fn absorb_on(sum: &mut Accumulator, other: &Accumulator) = Accumulator::absorb;
+    pub(crate) fn absorb_on(sum: &mut Accumulator, other: &Accumulator) = Accumulator::absorb;
 }
 
 impl Accumulator {
     /// A placeholder to be overwritten (the sum of nothing).
-    const EMPTY: Accumulator = Accumulator {
+    pub(crate) const EMPTY: Accumulator = Accumulator {
         quadric: Quadric {
             a: [0.0; 6],
             b: [0.0; 3],
@@ -579,7 +584,7 @@ impl Accumulator {
 
 dispatched! {
     /// [`inner_attributes`] compiled for `isa`.
-    fn inner_attributes_on(
+    pub(crate) fn inner_attributes_on(
         node: &Node,
         child_spheres: impl Iterator<Item = Sphere>,
         sum: &Accumulator,

@@ -57,10 +57,10 @@ impl Isa {
 /// with that function's features), and anything it leaves as a call runs as baseline code,
 /// which is slower but computes the same.
 macro_rules! dispatched {
-    ($(#[$doc:meta])* fn $dispatch:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? = $kernel:path;) => {
+    ($(#[$doc:meta])* $vis:vis fn $dispatch:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? = $kernel:path;) => {
         $(#[$doc])*
         #[inline]
-        fn $dispatch(isa: $crate::isa::Isa, $($arg: $ty),*) $(-> $ret)? {
+        $vis fn $dispatch(isa: $crate::isa::Isa, $($arg: $ty),*) $(-> $ret)? {
             #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
             fn wide($($arg: $ty),*) $(-> $ret)? {

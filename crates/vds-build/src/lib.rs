@@ -17,6 +17,7 @@ mod isa;
 pub mod octree;
 mod prefault;
 pub mod quadric;
+pub mod shard;
 mod tree;
 mod vdt;
 mod verify;

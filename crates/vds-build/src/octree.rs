@@ -408,6 +408,24 @@ impl Children {
     }
 }
 
+/// The centre of the tight cube of a node whose vertices span `bounds`, where its octant
+/// split cuts; `None` when the cube has no extent (coincident vertices). The cube is anchored
+/// at the box's lower corner, its side the box's longest extent.
+#[inline(always)]
+pub(crate) fn split_point(bounds: &Aabb) -> Option<[f32; 3]> {
+    let Aabb { min, max } = *bounds;
+    let side = (0..3).map(|k| max[k] - min[k]).fold(0.0f32, f32::max);
+    (side > 0.0).then(|| [0, 1, 2].map(|k| min[k] + 0.5 * side))
+}
+
+/// The octant of `p` about a split point: bit `k` set when `p` is at or above it on axis `k`.
+#[inline(always)]
+pub(crate) fn octant_of(p: [f32; 3], mid: [f32; 3]) -> usize {
+    usize::from(p[0] >= mid[0])
+        | usize::from(p[1] >= mid[1]) << 1
+        | usize::from(p[2] >= mid[2]) << 2
+}
+
 /// Items per parallel task when one node's split is itself split up: the levels near the root
 /// hold a few nodes with most of the vertices, which one thread each would partition alone.
 const ITEMS_PER_TASK: usize = 1 << 16;
@@ -439,14 +457,8 @@ fn split_in_tasks(from: &[Item], to: &mut [Item], items_per_task: usize) -> Chil
     } else {
         bounds_of(from)
     };
-    let side = (0..3).map(|k| max[k] - min[k]).fold(0.0f32, f32::max);
-    if side > 0.0 {
-        let mid = [0, 1, 2].map(|k| min[k] + 0.5 * side);
-        let octant = |p: [f32; 3]| {
-            usize::from(p[0] >= mid[0])
-                | usize::from(p[1] >= mid[1]) << 1
-                | usize::from(p[2] >= mid[2]) << 2
-        };
+    if let Some(mid) = split_point(&Aabb { min, max }) {
+        let octant = |p: [f32; 3]| octant_of(p, mid);
         let count = |items: &[Item]| {
             let mut counts = [0u32; 8];
             for item in items {

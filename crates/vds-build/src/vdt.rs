@@ -15,9 +15,23 @@ use crate::tree::{Node, NodeBounds, VertexTree};
 /// Node `id` of `tree` as the format's record. A leaf's record holds its position and no
 /// bounds (radius 0, an empty cone), as the file stores it.
 fn record(tree: &VertexTree, id: u32) -> NodeRecord {
-    let f = |x: f32| F32::new(x);
     let node = &tree.nodes[id as usize];
-    let (proxy, error_radius, surface_error, sphere, cone, two_sided) = match tree.bounds_of(id) {
+    let leaf_position = if node.is_leaf() {
+        tree.leaf_positions[node.leaf_begin as usize]
+    } else {
+        [0.0; 3]
+    };
+    node_record(node, tree.bounds_of(id), leaf_position)
+}
+
+/// The format's record of `node`, with its bounds (an inner node) or its position (a leaf).
+pub(crate) fn node_record(
+    node: &Node,
+    bounds: Option<&NodeBounds>,
+    leaf_position: [f32; 3],
+) -> NodeRecord {
+    let f = |x: f32| F32::new(x);
+    let (proxy, error_radius, surface_error, sphere, cone, two_sided) = match bounds {
         Some(b) => (
             b.proxy,
             b.error_radius,
@@ -37,7 +51,7 @@ fn record(tree: &VertexTree, id: u32) -> NodeRecord {
             b.cone_two_sided,
         ),
         None => {
-            let p = tree.proxy(id);
+            let p = leaf_position;
             (
                 p,
                 0.0,
@@ -198,7 +212,7 @@ pub fn tree_content<'a>(
 }
 
 /// The same triangle, rotated (winding kept) so that its smallest corner comes first.
-fn leading_smallest(mut c: [u32; 3]) -> [u32; 3] {
+pub(crate) fn leading_smallest(mut c: [u32; 3]) -> [u32; 3] {
     let first = (0..3).min_by_key(|&k| c[k]).expect("three corners");
     c.rotate_left(first);
     c

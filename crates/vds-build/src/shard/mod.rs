@@ -1,0 +1,77 @@
+//! The sharded build: the same vertex tree as [`crate::build_tree`], made by independent jobs.
+//!
+//! The tight octree's top levels depend only on the bounds and counts of the vertices in
+//! each cell, so a small *top tree* can be planned first ([`plan`]). Its leaves, the *shard
+//! roots*, are octree nodes whose subtrees depend only on their own vertices in input order:
+//! each shard builds the subtrees of a contiguous run of roots ([`build_shard`]) with the
+//! in-memory builder's own clustering and attribute passes, and a merge ([`merge`]) fills the
+//! top nodes from the roots' accumulated sums, renumbers leaf ranks and nodes, and places the
+//! triangles whose corners lie under different roots. The result is the tree the in-memory
+//! build makes, node for node and bit for bit: the writer then makes the same file.
+//!
+//! What crosses shard borders:
+//! - A triangle with a corner in a shard is read by that shard: its leaf attributes (quadric,
+//!   cone, sphere) sum all of a vertex's triangles, in triangle order, with the corners that
+//!   lie elsewhere as plain positions.
+//! - A triangle whose two corners lie under one root belongs to a node of that root's subtree
+//!   (the deepest node supporting two corners); one whose corners lie under three roots
+//!   belongs to a top node. Either way its other corners' leaf ranks are only known to their
+//!   own shards, so every shard reports the ranks of its corners of such triangles
+//!   ([`CrossCorner`]) and the merge joins them.
+//! - Welding is exact: coincident vertices fall in one cell, so no weld crosses a border.
+//!
+//! Modules: [`plan`](self::plan) (the top tree and the shards), `part` (one shard's build),
+//! `file` (the `.vdtpart` file), `merge` (the top nodes, renumbering, the file's content).
+
+mod file;
+mod merge;
+mod part;
+pub mod plan;
+
+pub use file::{PART_MAGIC, read_part, write_part};
+pub use merge::merge;
+pub use part::{CrossCorner, RootPart, ShardPart, build_shard};
+pub use plan::{Plan, PlanMetadata, plan};
+
+use std::path::PathBuf;
+
+/// Why a plan, shard or merge failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ShardError {
+    /// The scene has no vertices.
+    #[error("nothing to build: the input has no triangles")]
+    Empty,
+    /// The input a shard read is not the one the plan was made from.
+    #[error("the input differs from the plan's: {0}")]
+    InputChanged(String),
+    /// The plan file is not a plan, or was edited.
+    #[error("{path}: not a valid plan: {reason}")]
+    BadPlan {
+        /// The plan file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A `.vdtpart` file is damaged, truncated or not a shard of this plan.
+    #[error("{path}: {reason}")]
+    BadPart {
+        /// The part file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The set of parts given to a merge is not the plan's shards, once each.
+    #[error("{0}")]
+    PartSet(String),
+    /// Writing an output failed (it is left as it was).
+    #[error(transparent)]
+    Output(#[from] vds_format::OutputError),
+    /// Reading a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+}

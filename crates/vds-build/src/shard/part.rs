@@ -1,0 +1,341 @@
+//! One shard's build: the subtrees of its run of roots, from the triangles that touch them.
+//!
+//! The shard keeps every triangle with a corner among its vertices, in input order, and
+//! numbers the vertices those triangles use (its own and the *ghost* corners that lie
+//! elsewhere) in input order. Each root's vertices, in that order, are clustered by the
+//! octree exactly as the in-memory build clusters that node's range, and the attribute pass
+//! runs over the root's subtree with the shard's triangles as the adjacency: a vertex's
+//! incident triangles are all there, in triangle order, so every sum is taken in the same
+//! order as in the in-memory build. What a root passes to its parent (its accumulated sums
+//! and sphere) goes into the part for the merge.
+
+use rayon::prelude::*;
+use vds_format::{NodeRecord, TriangleRecord};
+use vds_import::Scene;
+use zerocopy::little_endian::U32;
+
+use super::{Plan, ShardError};
+use crate::build::{Accumulator, Adjacency, Inputs, Sphere, compute_attributes, leaf_tables};
+use crate::isa::Isa;
+use crate::octree::cluster_with;
+use crate::tree::Node;
+use crate::vdt::{leading_smallest, node_record};
+
+/// One root's subtree, as the shard built it: node ids, leaf ranks and subtri ranges are the
+/// subtree's own (node 0 is the root, ranks start at 0).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RootPart {
+    /// The root's index in the plan.
+    pub root: u32,
+    /// The subtree's nodes, breadth-first; `subtri_begin` indexes `triangles`.
+    pub nodes: Vec<NodeRecord>,
+    /// Subtris whose three corners lie under the root, grouped by node, corners as the
+    /// subtree's leaf ranks.
+    pub triangles: Vec<TriangleRecord>,
+    /// What the root passes to its parent.
+    pub(crate) sums: Accumulator,
+    /// The root's bounding sphere as passed up (a leaf's is not in its record).
+    pub(crate) sphere: Sphere,
+}
+
+/// One corner of a triangle whose corners lie under two or three roots: the corner's root and
+/// leaf rank under it, reported by the shard that holds the corner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct CrossCorner {
+    /// The triangle's index in the welded scene.
+    pub triangle: u64,
+    /// Which corner (0..3).
+    pub corner: u8,
+    /// The root holding the corner.
+    pub root: u32,
+    /// The corner's leaf rank under its root.
+    pub rank: u32,
+    /// The triangle's part.
+    pub part: u32,
+    /// When two of the triangle's corners lie under this corner's root, the subtree node the
+    /// triangle is a subtri of; else `u32::MAX`.
+    pub owner: u32,
+}
+
+/// A shard's output: its roots' subtrees and its corners of triangles across roots.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShardPart {
+    /// The plan it was built for ([`Plan::id`]).
+    pub plan_id: u64,
+    /// The shard's index.
+    pub index: u32,
+    /// Its roots, in plan order.
+    pub roots: Vec<RootPart>,
+    /// Its corners of triangles whose corners lie under two or more roots, by triangle.
+    pub cross: Vec<CrossCorner>,
+}
+
+/// No root: a vertex outside the shard.
+const ELSEWHERE: u32 = u32::MAX;
+
+/// Builds shard `index` of `plan` from `scene` (welded, snapped to the plan's grid: the scene
+/// the plan was made from).
+pub fn build_shard(scene: &Scene, plan: &Plan, index: u32) -> Result<ShardPart, ShardError> {
+    build_shard_with(scene, plan, index, Isa::detect())
+}
+
+pub(crate) fn build_shard_with(
+    scene: &Scene,
+    plan: &Plan,
+    index: u32,
+    isa: Isa,
+) -> Result<ShardPart, ShardError> {
+    if index >= plan.shard_count() {
+        return Err(ShardError::InputChanged(format!(
+            "shard {index} of a plan of {} shards",
+            plan.shard_count()
+        )));
+    }
+    if scene.positions.len() != plan.vertices as usize
+        || scene.triangles.len() as u64 != plan.triangles
+    {
+        return Err(ShardError::InputChanged(format!(
+            "{} vertices and {} triangles, the plan has {} and {}",
+            scene.positions.len(),
+            scene.triangles.len(),
+            plan.vertices,
+            plan.triangles
+        )));
+    }
+    // Every vertex's root, and each root's vertex count checked against the plan.
+    let root_of: Vec<u32> = scene
+        .positions
+        .par_iter()
+        .map(|&p| plan.locate(p).unwrap_or(ELSEWHERE))
+        .collect();
+    let mut counts = vec![0u32; plan.roots.len()];
+    for &root in &root_of {
+        match counts.get_mut(root as usize) {
+            Some(count) => *count += 1,
+            None => {
+                return Err(ShardError::InputChanged(
+                    "a vertex lies where the plan found none".into(),
+                ));
+            }
+        }
+    }
+    for (root, &count) in counts.iter().enumerate() {
+        let node = plan.root_node(root as u32);
+        if count != node.leaf_end - node.leaf_begin {
+            return Err(ShardError::InputChanged(format!(
+                "root {root} holds {count} vertices, the plan counted {}",
+                node.leaf_end - node.leaf_begin
+            )));
+        }
+    }
+    let mine = plan.shard_roots(index);
+    let in_shard = |v: u32| mine.contains(&root_of[v as usize]);
+
+    // The triangles touching the shard, and the vertices they use, both in input order.
+    let kept: Vec<u32> = (0..scene.triangles.len() as u32)
+        .into_par_iter()
+        .filter(|&t| scene.triangles[t as usize].iter().any(|&v| in_shard(v)))
+        .collect();
+    let mut local_id = vec![u32::MAX; scene.positions.len()];
+    for &t in &kept {
+        for v in scene.triangles[t as usize] {
+            local_id[v as usize] = 0;
+        }
+    }
+    let mut global_id = Vec::new();
+    for (v, id) in local_id.iter_mut().enumerate() {
+        if *id == 0 {
+            *id = global_id.len() as u32;
+            global_id.push(v as u32);
+        }
+    }
+    let local = Scene {
+        positions: global_id
+            .iter()
+            .map(|&v| scene.positions[v as usize])
+            .collect(),
+        triangles: kept
+            .iter()
+            .map(|&t| scene.triangles[t as usize].map(|v| local_id[v as usize]))
+            .collect(),
+        ..Scene::default()
+    };
+    let local_root: Vec<u32> = global_id.iter().map(|&v| root_of[v as usize]).collect();
+    let adjacency = Adjacency::new(local.positions.len(), &local.triangles);
+
+    // Each root's vertices in input order.
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); mine.len()];
+    for (v, &root) in local_root.iter().enumerate() {
+        if mine.contains(&root) {
+            members[(root - mine.start) as usize].push(v as u32);
+        }
+    }
+    // Every local vertex's leaf rank under its root (vertices elsewhere: none).
+    let mut rank_of = vec![u32::MAX; local.positions.len()];
+    let mut subtrees = Vec::with_capacity(members.len());
+    for (k, vertices) in members.iter().enumerate() {
+        let subtree = Subtree::build(&local, &adjacency, vertices, isa);
+        for (rank, &v) in subtree.leaf_vertex.iter().enumerate() {
+            rank_of[v as usize] = rank as u32;
+        }
+        subtrees.push((mine.start + k as u32, subtree));
+    }
+
+    // Triangles: within one root, a subtri of its subtree; across roots, corners reported.
+    let mut pure: Vec<Vec<(u32, TriangleRecord)>> = vec![Vec::new(); subtrees.len()];
+    let mut cross = Vec::new();
+    for (local_t, &t) in kept.iter().enumerate() {
+        let corners = local.triangles[local_t];
+        let roots = corners.map(|v| local_root[v as usize]);
+        let part = scene.triangle_parts[t as usize];
+        let shared = |k: usize| roots.iter().filter(|&&r| r == roots[k]).count();
+        if roots[0] == roots[1] && roots[1] == roots[2] {
+            // Kept, so the root is one of this shard's.
+            let k = (roots[0] - mine.start) as usize;
+            let ranks = corners.map(|v| rank_of[v as usize]);
+            let owner = subtrees[k].1.owner(ranks);
+            pure[k].push((owner, record(leading_smallest(ranks), part)));
+            continue;
+        }
+        for k in 0..3 {
+            if !mine.contains(&roots[k]) {
+                continue;
+            }
+            let owner = if shared(k) == 2 {
+                let subtree = &subtrees[(roots[k] - mine.start) as usize].1;
+                // The corner under another root sorts last and stops no walk.
+                let ranks = [0, 1, 2].map(|j| {
+                    if roots[j] == roots[k] {
+                        rank_of[corners[j] as usize]
+                    } else {
+                        u32::MAX
+                    }
+                });
+                subtree.owner(ranks)
+            } else {
+                u32::MAX
+            };
+            cross.push(CrossCorner {
+                triangle: u64::from(t),
+                corner: k as u8,
+                root: roots[k],
+                rank: rank_of[corners[k] as usize],
+                part,
+                owner,
+            });
+        }
+    }
+
+    let roots = subtrees
+        .into_iter()
+        .zip(pure)
+        .map(|((root, subtree), triangles)| subtree.into_part(root, triangles))
+        .collect();
+    Ok(ShardPart {
+        plan_id: plan.id,
+        index,
+        roots,
+        cross,
+    })
+}
+
+fn record(corners: [u32; 3], part: u32) -> TriangleRecord {
+    TriangleRecord {
+        corners: corners.map(U32::new),
+        part: U32::new(part),
+    }
+}
+
+/// A root's subtree while the shard builds it.
+struct Subtree {
+    nodes: Vec<Node>,
+    bounds: Vec<crate::NodeBounds>,
+    leaf_positions: Vec<[f32; 3]>,
+    /// Local vertex of each leaf rank.
+    leaf_vertex: Vec<u32>,
+    leaf_node: Vec<u32>,
+    sums: Accumulator,
+    sphere: Sphere,
+}
+
+impl Subtree {
+    /// Clusters `vertices` (local ids, in input order) and fills their attributes.
+    fn build(scene: &Scene, adjacency: &Adjacency, vertices: &[u32], isa: Isa) -> Subtree {
+        let positions: Vec<[f32; 3]> = vertices
+            .iter()
+            .map(|&v| scene.positions[v as usize])
+            .collect();
+        let clustering = cluster_with(&positions, isa);
+        let (_, leaf_node) = leaf_tables(&clustering.leaf_vertex, &clustering.nodes);
+        let leaf_vertex: Vec<u32> = clustering
+            .leaf_vertex
+            .iter()
+            .map(|&i| vertices[i as usize])
+            .collect();
+        let (bounds, (sums, sphere)) = compute_attributes(
+            &clustering.nodes,
+            &clustering.level_starts,
+            &Inputs {
+                scene,
+                leaf_vertex: &leaf_vertex,
+                adjacency,
+                leaf_positions: &clustering.leaf_positions,
+                isa,
+            },
+        );
+        Subtree {
+            nodes: clustering.nodes,
+            bounds,
+            leaf_positions: clustering.leaf_positions,
+            leaf_vertex,
+            leaf_node,
+            sums,
+            sphere,
+        }
+    }
+
+    /// The node a triangle with corners of these leaf ranks is a subtri of (two or three
+    /// under this subtree; `u32::MAX` for one elsewhere), as [`crate::VertexTree::subtri_node`].
+    fn owner(&self, mut ranks: [u32; 3]) -> u32 {
+        ranks.sort_unstable();
+        let mut node = self.leaf_node[ranks[1] as usize];
+        loop {
+            let n = &self.nodes[node as usize];
+            if n.leaf_begin <= ranks[0] || n.leaf_end > ranks[2] {
+                return node;
+            }
+            node = n.parent;
+        }
+    }
+
+    /// The part of the root: records with subtri ranges over its triangles, grouped by node
+    /// and sorted within a node as the file stores them.
+    fn into_part(mut self, root: u32, mut owned: Vec<(u32, TriangleRecord)>) -> RootPart {
+        owned.sort_unstable_by_key(|(node, t)| (*node, t.corners.map(|c| c.get()), t.part.get()));
+        let mut at = 0usize;
+        for (id, node) in self.nodes.iter_mut().enumerate() {
+            let begin = at;
+            while at < owned.len() && owned[at].0 == id as u32 {
+                at += 1;
+            }
+            node.subtri_begin = begin as u32;
+            node.subtri_end = at as u32;
+        }
+        let nodes = self
+            .nodes
+            .iter()
+            .map(|node| {
+                let bounds = (!node.is_leaf()).then(|| &self.bounds[node.bounds as usize]);
+                let position = self.leaf_positions[node.leaf_begin as usize];
+                node_record(node, bounds, position)
+            })
+            .collect();
+        RootPart {
+            root,
+            nodes,
+            triangles: owned.into_iter().map(|(_, t)| t).collect(),
+            sums: self.sums,
+            sphere: self.sphere,
+        }
+    }
+}

@@ -1,0 +1,348 @@
+//! The sharded build (plan, shards, merge) writes the same file as the in-memory build, byte
+//! for byte, on real meshes, the bundled assembly, generated CAD scenes and soups made to hit
+//! the octree's corner cases, for several shard counts; part files round-trip, and a merge
+//! refuses a missing, duplicated, foreign, truncated or damaged part.
+
+use std::path::PathBuf;
+
+use vds_build::shard::{
+    Plan, PlanMetadata, ShardError, ShardPart, build_shard, merge, plan, read_part, write_part,
+};
+use vds_build::{build_tree, part_records, snap_to_grid, tree_content};
+use vds_format::{BuildInfo, Grid, Metadata, WriteOptions, encode};
+use vds_import::Scene;
+
+fn shared(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(name)
+}
+
+fn testdata(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../testdata")
+        .join(name)
+}
+
+/// Small pages, so that the layout is tested across many pages.
+fn options() -> WriteOptions {
+    WriteOptions {
+        zstd_level: 3,
+        page_bytes: 8192,
+    }
+}
+
+fn loaded(path: PathBuf) -> (Scene, Grid) {
+    let mut scene = vds_import::load_file(&path, &Default::default()).unwrap();
+    let grid = snap_to_grid(&mut scene);
+    (scene, grid)
+}
+
+fn snapped(mut scene: Scene) -> (Scene, Grid) {
+    let grid = snap_to_grid(&mut scene);
+    (scene, grid)
+}
+
+fn metadata_of(scene: &Scene) -> PlanMetadata {
+    PlanMetadata::of_scene(
+        scene,
+        "vds-build test".into(),
+        &options(),
+        vec![("input.obj".into(), 1234, 0xfeed)],
+    )
+}
+
+/// The file the in-memory build writes, with the metadata `vds-build` gives it.
+fn in_memory(scene: &Scene, grid: Grid) -> Vec<u8> {
+    let m = metadata_of(scene);
+    let tree = build_tree(scene);
+    let (center, radius) = tree.sphere(0);
+    let metadata = Metadata {
+        tool: m.tool.clone(),
+        build: BuildInfo {
+            weld: None,
+            zstd_level: m.zstd_level,
+            page_bytes: m.page_bytes,
+        },
+        inputs: vec![vds_format::InputInfo {
+            name: "input.obj".into(),
+            bytes: 1234,
+            content_hash: 0xfeed,
+        }],
+        part_names: scene.part_names.clone(),
+        parts: part_records(scene),
+        bounds_min: [0, 1, 2].map(|k| center[k] - radius),
+        bounds_max: [0, 1, 2].map(|k| center[k] + radius),
+        input_vertices: scene.stats.input_vertices,
+        input_triangles: scene.stats.input_triangles,
+        degree_histogram: tree.degree_histogram(),
+    };
+    encode(&tree_content(&tree, scene, metadata, grid), &options())
+        .unwrap()
+        .0
+}
+
+fn planned(scene: &Scene, grid: Grid, shards: u32) -> Plan {
+    plan(
+        &scene.positions,
+        scene.triangles.len() as u64,
+        grid,
+        shards,
+        metadata_of(scene),
+    )
+    .unwrap()
+}
+
+fn parts(scene: &Scene, plan: &Plan) -> Vec<ShardPart> {
+    (0..plan.shard_count())
+        .map(|k| build_shard(scene, plan, k).unwrap())
+        .collect()
+}
+
+fn sharded(scene: &Scene, grid: Grid, shards: u32) -> (Vec<u8>, Plan) {
+    let plan = planned(scene, grid, shards);
+    let mut parts = parts(scene, &plan);
+    // Any order will do.
+    parts.reverse();
+    let bytes = encode(&merge(&plan, &parts).unwrap(), &options())
+        .unwrap()
+        .0;
+    (bytes, plan)
+}
+
+fn assert_same_file(name: &str, scene: &Scene, grid: Grid, shard_counts: &[u32]) {
+    let expected = in_memory(scene, grid);
+    for &shards in shard_counts {
+        let (bytes, plan) = sharded(scene, grid, shards);
+        assert!(
+            bytes == expected,
+            "{name}, {shards} shards ({} roots, {} top nodes): the file differs",
+            plan.roots.len(),
+            plan.top.len()
+        );
+        // The test means something only if the model was really cut up.
+        if shards > 1 {
+            assert!(plan.roots.len() > 1, "{name}: one root");
+        }
+    }
+}
+
+#[test]
+fn sharded_builds_write_the_in_memory_file_on_real_meshes() {
+    for name in ["cow.obj", "bunny.obj", "bone.ply", "airplane.obj"] {
+        let (scene, grid) = loaded(shared(name));
+        assert_same_file(name, &scene, grid, &[1, 2, 3, 8]);
+    }
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    assert_same_file("as1_assembly.obj", &scene, grid, &[1, 2, 5, 16]);
+}
+
+#[test]
+fn sharded_builds_write_the_in_memory_file_on_generated_scenes() {
+    let generated = vds_gen::generate(150_000);
+    let scene = Scene {
+        positions: generated.positions,
+        triangles: generated.triangles,
+        triangle_parts: generated.triangle_parts,
+        part_names: (0..generated.part_count)
+            .map(|k| format!("part {k}"))
+            .collect(),
+        ..Default::default()
+    };
+    // Through the importer's weld, as a file would go.
+    let (scene, grid) = snapped(vds_import::weld(
+        vds_import::MeshSoup {
+            positions: scene.positions,
+            triangles: scene.triangles,
+            triangle_parts: scene.triangle_parts,
+            part_names: scene.part_names,
+            ..Default::default()
+        },
+        vds_import::Weld::Exact,
+    ));
+    assert_same_file("generated 150 k", &scene, grid, &[2, 4, 7, 32]);
+}
+
+/// Deterministic values in `[0, 1)`.
+fn randoms(mut seed: u64) -> impl FnMut() -> f32 {
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+#[test]
+fn sharded_builds_write_the_in_memory_file_on_corner_cases() {
+    // Unwelded coincident vertices in heaps (balanced-chunk splits at the top), a flat
+    // plate, a far-away speck, long slivers whose corners lie far apart (triangles across
+    // three roots), and vertices in many tiny clusters.
+    let mut random = randoms(5);
+    let mut positions = Vec::new();
+    let mut triangles = Vec::new();
+    for i in 0..3000u32 {
+        let p = match i % 6 {
+            0 => [0.5, 0.5, 0.5],
+            1 => [random(), random(), 0.0],
+            2 => [random() * 1e-4 + 7.0, 7.0, 7.0],
+            3 => [random(), random(), random()],
+            4 => [0.25, 0.75, 0.25],
+            _ => [(i % 17) as f32 * 0.01, (i % 13) as f32 * 0.01, 0.9],
+        };
+        positions.push(p);
+    }
+    let n = positions.len() as u32;
+    for i in 0..n {
+        let j = (i * 7 + 1) % n;
+        let k = (i * 13 + 5) % n;
+        if i != j && j != k && i != k {
+            triangles.push([i, j, k]);
+        }
+    }
+    let parts = triangles
+        .iter()
+        .enumerate()
+        .map(|(t, _)| (t % 3) as u32)
+        .collect();
+    let scene = Scene {
+        positions,
+        triangles,
+        triangle_parts: parts,
+        part_names: vec!["a".into(), "b".into(), "c".into()],
+        ..Default::default()
+    };
+    let (scene, grid) = snapped(scene);
+    assert_same_file("corner cases", &scene, grid, &[1, 2, 3, 6, 50]);
+
+    // One vertex per root at most: the plan splits down to single vertices.
+    let scene = Scene {
+        positions: vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 1.0, 1.0],
+        ],
+        triangles: vec![[0, 1, 2], [1, 3, 2]],
+        triangle_parts: vec![0, 0],
+        part_names: vec!["x".into()],
+        ..Default::default()
+    };
+    let (scene, grid) = snapped(scene);
+    assert_same_file("four vertices", &scene, grid, &[1, 2, 4, 9]);
+}
+
+fn temp_dir() -> tempfile::TempDir {
+    tempfile::tempdir().unwrap()
+}
+
+#[test]
+fn parts_round_trip_through_files_and_the_plan_through_json() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned(&scene, grid, 3);
+    let dir = temp_dir();
+    let plan_path = dir.path().join("plan.json");
+    plan.save(&plan_path).unwrap();
+    assert_eq!(Plan::load(&plan_path).unwrap(), plan);
+    for part in parts(&scene, &plan) {
+        let path = dir.path().join(format!("shard-{}.vdtpart", part.index));
+        write_part(&path, &part).unwrap();
+        assert_eq!(read_part(&path, &plan).unwrap(), part);
+    }
+}
+
+#[test]
+fn an_edited_plan_is_refused() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned(&scene, grid, 3);
+    let dir = temp_dir();
+    let path = dir.path().join("plan.json");
+    let mut edited = plan.clone();
+    edited.vertices += 1;
+    std::fs::write(&path, serde_json::to_vec(&edited).unwrap()).unwrap();
+    let error = Plan::load(&path).unwrap_err();
+    assert!(matches!(error, ShardError::BadPlan { .. }), "{error}");
+    std::fs::write(&path, b"{\"format\": 1").unwrap();
+    assert!(matches!(Plan::load(&path), Err(ShardError::BadPlan { .. })));
+}
+
+#[test]
+fn merge_refuses_a_missing_duplicated_or_foreign_part() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned(&scene, grid, 3);
+    let all = parts(&scene, &plan);
+
+    let missing = merge(&plan, &all[..2]).unwrap_err().to_string();
+    assert!(missing.contains("shard 2 of 3 is missing"), "{missing}");
+    let mut twice = all.clone();
+    twice.push(all[1].clone());
+    let duplicated = merge(&plan, &twice).unwrap_err().to_string();
+    assert!(
+        duplicated.contains("shard 1 is given twice"),
+        "{duplicated}"
+    );
+
+    let other = planned(&scene, grid, 4);
+    let mut foreign = all.clone();
+    foreign[0] = build_shard(&scene, &other, 0).unwrap();
+    let error = merge(&plan, &foreign).unwrap_err().to_string();
+    assert!(error.contains("another plan"), "{error}");
+
+    // As files: a foreign part names the plan it was built for.
+    let dir = temp_dir();
+    let path = dir.path().join("foreign.vdtpart");
+    write_part(&path, &foreign[0]).unwrap();
+    let error = read_part(&path, &plan).unwrap_err();
+    assert!(
+        matches!(&error, ShardError::BadPart { reason, .. } if reason.contains("another plan")),
+        "{error}"
+    );
+}
+
+#[test]
+fn truncated_or_damaged_parts_are_refused() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned(&scene, grid, 2);
+    let part = build_shard(&scene, &plan, 1).unwrap();
+    let dir = temp_dir();
+    let path = dir.path().join("shard-1.vdtpart");
+    write_part(&path, &part).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let broken = dir.path().join("broken.vdtpart");
+    let mut cases: Vec<(&str, Vec<u8>)> = vec![
+        ("empty", Vec::new()),
+        ("header only", bytes[..48].to_vec()),
+        ("half", bytes[..bytes.len() / 2].to_vec()),
+        ("one byte short", bytes[..bytes.len() - 1].to_vec()),
+    ];
+    for at in [3, 20, 60, bytes.len() / 2, bytes.len() - 3] {
+        let mut flipped = bytes.clone();
+        flipped[at] ^= 0x10;
+        cases.push(("a flipped bit", flipped));
+    }
+    for (what, data) in cases {
+        std::fs::write(&broken, &data).unwrap();
+        match read_part(&broken, &plan) {
+            Err(ShardError::BadPart { path, .. }) => assert_eq!(path, broken, "{what}"),
+            other => panic!("{what}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn a_shard_refuses_an_input_that_is_not_the_plans() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned(&scene, grid, 2);
+    let mut moved = scene.clone();
+    moved.positions[10][0] += 1000.0;
+    assert!(matches!(
+        build_shard(&moved, &plan, 0),
+        Err(ShardError::InputChanged(_))
+    ));
+    let mut fewer = scene.clone();
+    fewer.triangles.pop();
+    assert!(matches!(
+        build_shard(&fewer, &plan, 0),
+        Err(ShardError::InputChanged(_))
+    ));
+}
