@@ -94,15 +94,21 @@ pub fn write_part(path: &Path, part: &ShardPart) -> Result<(), ShardError> {
 
 /// The header of a part file: which shard of which plan it is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct PartHeader {
-    pub(crate) index: u32,
-    pub(crate) plan_id: u64,
+struct PartHeader {
+    index: u32,
+    plan_id: u64,
     body_bytes: u64,
     body_checksum: u64,
 }
 
-/// Reads and checks a part file's header (the merge sorts parts by it before reading any).
-pub(crate) fn read_header(path: &Path) -> Result<PartHeader, ShardError> {
+/// Which shard of which plan a part file is (its index and the plan's id), from its header
+/// alone: a merge checks the set of parts before it reads any.
+pub fn part_header(path: &Path) -> Result<(u32, u64), ShardError> {
+    read_header(path).map(|h| (h.index, h.plan_id))
+}
+
+/// Reads and checks a part file's header.
+fn read_header(path: &Path) -> Result<PartHeader, ShardError> {
     use std::io::Read;
     let bad = |reason: &str| ShardError::BadPart {
         path: path.to_path_buf(),

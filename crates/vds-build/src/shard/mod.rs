@@ -28,7 +28,7 @@ mod merge;
 mod part;
 pub mod plan;
 
-pub use file::{PART_MAGIC, read_part, write_part};
+pub use file::{PART_MAGIC, part_header, read_part, write_part};
 pub use merge::merge;
 pub use part::{CrossCorner, RootPart, ShardPart, build_shard};
 pub use plan::{Plan, PlanMetadata, plan};

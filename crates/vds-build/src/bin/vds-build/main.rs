@@ -238,7 +238,17 @@ fn peak_rss_bytes() -> Option<u64> {
     Some(kib * 1024)
 }
 
+mod sharded;
+
 fn main() {
+    let first = std::env::args_os().nth(1);
+    if first.is_some_and(|a| sharded::COMMANDS.iter().any(|c| a == *c)) {
+        if let Err(error) = sharded::main() {
+            eprintln!("vds-build: error: {error:#}");
+            std::process::exit(1);
+        }
+        return;
+    }
     let args = Args::parse();
     if let Err(error) = run(args) {
         eprintln!("vds-build: error: {error:#}");

@@ -1,0 +1,322 @@
+//! `vds-build plan | shard | merge`: the sharded build as independent jobs, for a batch
+//! scheduler (a job array, an indexed job, GNU parallel) or plain background processes.
+//!
+//! ```text
+//! vds-build plan INPUT... --shards N -o plan.json
+//! vds-build shard plan.json --index K -o shard-K.vdtpart      # K = 0 .. N-1, in any order
+//! vds-build merge plan.json shard-*.vdtpart -o OUT.vdt
+//! ```
+//!
+//! The output is the file `vds-build INPUT... -o OUT.vdt` writes, byte for byte.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use vds_build::shard::{self, Plan, PlanMetadata};
+use vds_import::{ImportOptions, Weld};
+
+use crate::{MAX_THREADS, check_output, hash_file, page_size, parse_size};
+
+/// The first arguments that select the sharded build's commands.
+pub const COMMANDS: [&str; 3] = ["plan", "shard", "merge"];
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "vds-build",
+    version,
+    about = "Build a vertex tree as independent jobs: plan, shards, merge"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+    /// Worker threads per job, 1 to 1024 (default: all cores).
+    #[arg(long, global = true, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_THREADS))]
+    threads: Option<usize>,
+    /// Print nothing but errors.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Read the inputs and plan the shards: the file's grid, the tree's top levels and which
+    /// shard builds which part of the model.
+    Plan {
+        /// Input meshes, as for an in-memory build.
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Number of shards (independent jobs).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=65536))]
+        shards: u32,
+        /// The plan file to write.
+        #[arg(short, long, value_name = "PLAN.json")]
+        output: PathBuf,
+        /// zstd level of the pages (1-22).
+        #[arg(long, default_value_t = vds_format::DEFAULT_ZSTD_LEVEL, value_parser = clap::value_parser!(i32).range(1..=22))]
+        zstd_level: i32,
+        /// Decoded bytes of tree records per page (4KiB to 1MiB).
+        #[arg(long, value_name = "SIZE", default_value = "128KiB", value_parser = page_size)]
+        page_bytes: u32,
+        /// Refuse inputs holding more triangles than this, all together.
+        #[arg(long, value_name = "N", default_value_t = ImportOptions::DEFAULT_MAX_TRIANGLES,
+              value_parser = clap::value_parser!(u64).range(1..))]
+        max_triangles: u64,
+        /// Refuse a .gz input that decompresses to more than this (and glTF external
+        /// buffers beyond it).
+        #[arg(long, value_name = "SIZE", default_value = "4GiB", value_parser = parse_size)]
+        max_decompressed_bytes: u64,
+        /// Let glTF buffer URIs name files outside the model's folder.
+        #[arg(long)]
+        allow_external_uris: bool,
+    },
+    /// Build one shard of a plan.
+    Shard {
+        /// The plan.
+        plan: PathBuf,
+        /// Which shard, from 0.
+        #[arg(long)]
+        index: u32,
+        /// The part file to write.
+        #[arg(short, long, value_name = "SHARD.vdtpart")]
+        output: PathBuf,
+    },
+    /// Join every shard's part into the .vdt file.
+    Merge {
+        /// The plan.
+        plan: PathBuf,
+        /// Every shard's part file, once each, in any order.
+        #[arg(required = true)]
+        parts: Vec<PathBuf>,
+        /// The .vdt file to write.
+        #[arg(short, long, value_name = "OUT.vdt")]
+        output: PathBuf,
+        /// Check the written file as `vds-info --verify` does.
+        #[arg(long)]
+        verify: bool,
+    },
+}
+
+/// Runs `vds-build plan | shard | merge` with the process's arguments.
+pub fn main() -> Result<()> {
+    let cli = Cli::parse();
+    if let Some(threads) = cli.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build_global()
+            .context("cannot set up the thread pool")?;
+    }
+    let start = Instant::now();
+    let say = |what: String| {
+        if !cli.quiet {
+            eprintln!(
+                "vds-build: {what} in {:.2} s",
+                start.elapsed().as_secs_f64()
+            );
+        }
+    };
+    match cli.command {
+        Command::Plan {
+            inputs,
+            shards,
+            output,
+            zstd_level,
+            page_bytes,
+            max_triangles,
+            max_decompressed_bytes,
+            allow_external_uris,
+        } => {
+            for input in &inputs {
+                check_output(&output, std::slice::from_ref(input))?;
+            }
+            let options = ImportOptions {
+                weld: Weld::Exact,
+                max_triangles,
+                max_decompressed_bytes,
+                allow_external_uris,
+            };
+            let mut scene = vds_import::load_files(&inputs, &options)?;
+            let grid = vds_build::snap_to_grid(&mut scene);
+            let mut files = Vec::new();
+            for input in &inputs {
+                let (content_hash, bytes) = hash_file(input)?;
+                files.push((file_name(input), bytes, content_hash));
+            }
+            let write = vds_format::WriteOptions {
+                zstd_level,
+                page_bytes,
+            };
+            let metadata = PlanMetadata::of_scene(&scene, tool(), &write, files);
+            let mut plan = shard::plan(
+                &scene.positions,
+                scene.triangles.len() as u64,
+                grid,
+                shards,
+                metadata,
+            )?;
+            plan.input_paths = inputs
+                .iter()
+                .map(|p| {
+                    std::path::absolute(p)
+                        .unwrap_or_else(|_| p.clone())
+                        .display()
+                        .to_string()
+                })
+                .collect();
+            plan.max_triangles = max_triangles;
+            plan.max_decompressed_bytes = max_decompressed_bytes;
+            plan.allow_external_uris = allow_external_uris;
+            plan.seal();
+            plan.save(&output)?;
+            say(format!(
+                "planned {} shards of {} roots ({} vertices, {} triangles)",
+                plan.shard_count(),
+                plan.roots.len(),
+                plan.vertices,
+                plan.triangles
+            ));
+        }
+        Command::Shard {
+            plan,
+            index,
+            output,
+        } => {
+            let plan = Plan::load(&plan)?;
+            if index >= plan.shard_count() {
+                bail!(
+                    "--index {index}: the plan has shards 0 to {}",
+                    plan.shard_count() - 1
+                );
+            }
+            let inputs: Vec<PathBuf> = plan.input_paths.iter().map(PathBuf::from).collect();
+            check_output(&output, &inputs)?;
+            for (input, (name, bytes, hash)) in inputs.iter().zip(&plan.metadata.inputs) {
+                let (content_hash, size) = hash_file(input)?;
+                if (content_hash, size) != (*hash, *bytes) {
+                    bail!(
+                        "{}: not the file {name} the plan was made from (changed since?)",
+                        input.display()
+                    );
+                }
+            }
+            let options = ImportOptions {
+                weld: Weld::Exact,
+                max_triangles: plan.max_triangles,
+                max_decompressed_bytes: plan.max_decompressed_bytes,
+                allow_external_uris: plan.allow_external_uris,
+            };
+            let mut scene = vds_import::load_files(&inputs, &options)?;
+            if vds_build::snap_to_grid(&mut scene) != plan.grid() {
+                bail!("the inputs' bounds differ from the plan's (changed since?)");
+            }
+            let part = shard::build_shard(&scene, &plan, index)?;
+            drop(scene);
+            shard::write_part(&output, &part)?;
+            say(format!(
+                "built shard {index} of {} ({} roots, {} triangles across roots)",
+                plan.shard_count(),
+                part.roots.len(),
+                part.cross.len()
+            ));
+        }
+        Command::Merge {
+            plan,
+            parts,
+            output,
+            verify,
+        } => {
+            let plan_path = plan;
+            let plan = Plan::load(&plan_path)?;
+            let mut inputs = parts.clone();
+            inputs.push(plan_path);
+            check_output(&output, &inputs)?;
+            let parts = read_parts(&plan, &parts)?;
+            let content = shard::merge(&plan, &parts)?;
+            drop(parts);
+            let options = vds_format::WriteOptions {
+                zstd_level: plan.metadata.zstd_level,
+                page_bytes: plan.metadata.page_bytes,
+            };
+            let report = vds_format::write_file(&output, &content, &options)
+                .with_context(|| format!("cannot write {}", output.display()))?;
+            drop(content);
+            if verify {
+                let verified = vds_format::VdtFile::open(&output)
+                    .map_err(vds_build::VerifyError::from)
+                    .and_then(|file| vds_build::verify_file(&file));
+                if let Err(error) = verified {
+                    let _ = std::fs::remove_file(&output);
+                    return Err(error)
+                        .with_context(|| format!("{}: does not verify", output.display()));
+                }
+            }
+            say(format!(
+                "merged {} shards into {} ({} bytes, {} pages)",
+                plan.shard_count(),
+                output.display(),
+                report.file_bytes,
+                report.pages
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Reads every part, after checking from their headers that they are the plan's shards,
+/// each once.
+fn read_parts(plan: &Plan, paths: &[PathBuf]) -> Result<Vec<shard::ShardPart>> {
+    let mut owner: Vec<Option<&Path>> = vec![None; plan.shard_count() as usize];
+    for path in paths {
+        let (index, plan_id) = shard::part_header(path)?;
+        if plan_id != plan.id {
+            bail!(
+                "{}: built for another plan (id {plan_id:016x}, this plan is {:016x})",
+                path.display(),
+                plan.id
+            );
+        }
+        match owner.get_mut(index as usize) {
+            Some(Some(earlier)) => bail!(
+                "{} and {} are both shard {index}",
+                earlier.display(),
+                path.display()
+            ),
+            Some(slot) => *slot = Some(path),
+            None => bail!(
+                "{}: shard {index}, but the plan has {}",
+                path.display(),
+                plan.shard_count()
+            ),
+        }
+    }
+    let missing: Vec<String> = owner
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.is_none())
+        .map(|(k, _)| k.to_string())
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "missing shard {} of {} (no part file given for it)",
+            missing.join(", "),
+            plan.shard_count()
+        );
+    }
+    let parts: Result<Vec<_>, _> = paths
+        .iter()
+        .map(|path| shard::read_part(path, plan))
+        .collect();
+    Ok(parts?)
+}
+
+fn file_name(input: &Path) -> String {
+    input.file_name().map_or_else(
+        || input.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
+}
+
+fn tool() -> String {
+    format!("vds-build {}", env!("CARGO_PKG_VERSION"))
+}

@@ -1,0 +1,216 @@
+//! `vds-build plan | shard | merge` as a user or a batch scheduler runs them: the recipes of
+//! `docs/scaling.md` (run from the document itself, shards as parallel processes) write the
+//! in-memory build's file byte for byte, and a merge with a wrong set of parts fails naming
+//! the file and writes nothing.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("vds-sharded-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn model(name: &str) -> PathBuf {
+    let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    match name {
+        "as1_assembly.obj" => {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../testdata/as1_assembly.obj")
+        }
+        _ => shared.join(name),
+    }
+}
+
+fn build(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_vds-build"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn succeeded(run: &std::process::Output) {
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+}
+
+/// The shell script that follows `<!-- test: NAME -->` in `docs/scaling.md`.
+fn recipe(name: &str) -> String {
+    let doc = std::fs::read_to_string(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../docs/scaling.md"),
+    )
+    .unwrap();
+    let marker = format!("<!-- test: {name} -->");
+    let after = &doc[doc.find(&marker).expect("the recipe's marker") + marker.len()..];
+    let body = after
+        .trim_start()
+        .strip_prefix("```sh\n")
+        .expect("a sh block after the marker");
+    body[..body.find("```").expect("the block's end")].to_string()
+}
+
+fn run_recipe(name: &str, input: &Path, shards: u32) {
+    let dir = temp_dir(name);
+    let expected = dir.join("in-memory.vdt");
+    succeeded(&build(&[path(input), "-o", path(&expected), "-q"]));
+    let output = dir.join("sharded.vdt");
+    let bin = PathBuf::from(env!("CARGO_BIN_EXE_vds-build"));
+    let search = format!(
+        "{}:{}",
+        bin.parent().unwrap().display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let run = Command::new("bash")
+        .args(["-euo", "pipefail", "-c", &recipe(name)])
+        .env("PATH", search)
+        .env("INPUT", input)
+        .env("N", shards.to_string())
+        .env("WORK", &dir)
+        .env("OUTPUT", &output)
+        .output()
+        .unwrap();
+    succeeded(&run);
+    let (a, b) = (
+        std::fs::read(&expected).unwrap(),
+        std::fs::read(&output).unwrap(),
+    );
+    assert!(
+        a == b,
+        "{name} recipe, {}: the merged file differs",
+        input.display()
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_background_process_recipe_writes_the_in_memory_file() {
+    run_recipe("background", &model("as1_assembly.obj"), 3);
+    run_recipe("background", &model("bunny.obj"), 4);
+}
+
+#[test]
+fn the_xargs_recipe_writes_the_in_memory_file() {
+    run_recipe("xargs", &model("cow.obj"), 5);
+}
+
+#[test]
+fn merge_with_a_wrong_set_of_parts_fails_and_writes_nothing() {
+    let dir = temp_dir("wrong-set");
+    let input = model("as1_assembly.obj");
+    let plan = dir.join("plan.json");
+    succeeded(&build(&[
+        "plan",
+        path(&input),
+        "--shards",
+        "3",
+        "-o",
+        path(&plan),
+        "-q",
+    ]));
+    let other = dir.join("other.json");
+    succeeded(&build(&[
+        "plan",
+        path(&input),
+        "--shards",
+        "2",
+        "-o",
+        path(&other),
+        "-q",
+    ]));
+    let part = |plan: &Path, k: u32, name: &str| {
+        let out = dir.join(name);
+        succeeded(&build(&[
+            "shard",
+            path(plan),
+            "--index",
+            &k.to_string(),
+            "-o",
+            path(&out),
+            "-q",
+        ]));
+        out
+    };
+    let parts: Vec<PathBuf> = (0..3)
+        .map(|k| part(&plan, k, &format!("s{k}.vdtpart")))
+        .collect();
+    let foreign = part(&other, 0, "foreign.vdtpart");
+    let truncated = dir.join("truncated.vdtpart");
+    let bytes = std::fs::read(&parts[2]).unwrap();
+    std::fs::write(&truncated, &bytes[..bytes.len() - 10]).unwrap();
+    let out = dir.join("out.vdt");
+    let cases: [(&[&Path], &str); 4] = [
+        (&[&parts[0], &parts[1]], "missing shard 2 of 3"),
+        (
+            &[&parts[0], &parts[1], &parts[1], &parts[2]],
+            "are both shard 1",
+        ),
+        (
+            &[&foreign, &parts[1], &parts[2]],
+            "foreign.vdtpart: built for another plan",
+        ),
+        (
+            &[&parts[0], &parts[1], &truncated],
+            "truncated.vdtpart: truncated or damaged",
+        ),
+    ];
+    for (given, message) in cases {
+        let mut args = vec!["merge", path(&plan)];
+        args.extend(given.iter().map(|p| path(p)));
+        args.extend(["-o", path(&out)]);
+        let run = build(&args);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(1), "{stderr}");
+        assert!(
+            stderr.contains(message),
+            "expected {message:?} in: {stderr}"
+        );
+        assert!(!out.exists(), "{message}: an output was written");
+    }
+    // The right set, then, writes a file that verifies.
+    let mut args = vec!["merge", path(&plan)];
+    args.extend(parts.iter().map(|p| path(p)));
+    args.extend(["-o", path(&out), "--verify", "-q"]);
+    succeeded(&build(&args));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_shard_refuses_a_changed_input_and_an_index_out_of_range() {
+    let dir = temp_dir("changed");
+    let input = dir.join("model.obj");
+    std::fs::copy(model("as1_assembly.obj"), &input).unwrap();
+    let plan = dir.join("plan.json");
+    succeeded(&build(&[
+        "plan",
+        path(&input),
+        "--shards",
+        "2",
+        "-o",
+        path(&plan),
+        "-q",
+    ]));
+    let out = dir.join("s.vdtpart");
+    let run = build(&["shard", path(&plan), "--index", "2", "-o", path(&out)]);
+    assert_eq!(run.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("the plan has shards 0 to 1"));
+    let mut text = std::fs::read(&input).unwrap();
+    text.extend_from_slice(b"v 100 100 100\nf 1 2 -1\n");
+    std::fs::write(&input, text).unwrap();
+    let run = build(&["shard", path(&plan), "--index", "0", "-o", path(&out)]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("model.obj: not the file model.obj the plan was made from"),
+        "{stderr}"
+    );
+    assert!(!out.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
