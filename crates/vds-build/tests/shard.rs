@@ -346,3 +346,35 @@ fn a_shard_refuses_an_input_that_is_not_the_plans() {
         Err(ShardError::InputChanged(_))
     ));
 }
+
+#[test]
+fn shard_inputs_round_trip_through_files() {
+    use vds_build::shard::{build_shard_from, read_spill, roots_of_vertices, write_spills};
+    let (scene, grid) = loaded(shared("cow.obj"));
+    let plan = planned(&scene, grid, 3);
+    let dir = temp_dir();
+    let paths: Vec<PathBuf> = (0..3)
+        .map(|k| dir.path().join(format!("shard-{k}.vdtin")))
+        .collect();
+    let root_of = roots_of_vertices(&scene, &plan).unwrap();
+    write_spills(&scene, &plan, &root_of, &paths).unwrap();
+    for (k, path) in paths.iter().enumerate() {
+        let input = read_spill(path, &plan, k as u32).unwrap();
+        assert_eq!(
+            build_shard_from(&plan, k as u32, input).unwrap(),
+            build_shard(&scene, &plan, k as u32).unwrap()
+        );
+        // Another shard's input is refused, and so is a damaged one.
+        let other = (k + 1) % 3;
+        assert!(read_spill(path, &plan, other as u32).is_err());
+        let mut bytes = std::fs::read(path).unwrap();
+        let at = bytes.len() - 5;
+        bytes[at] ^= 0x40;
+        let broken = dir.path().join("broken.vdtin");
+        std::fs::write(&broken, &bytes).unwrap();
+        assert!(matches!(
+            read_spill(&broken, &plan, k as u32),
+            Err(ShardError::BadPart { .. })
+        ));
+    }
+}

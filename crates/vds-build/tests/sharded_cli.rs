@@ -183,8 +183,8 @@ fn merge_with_a_wrong_set_of_parts_fails_and_writes_nothing() {
 }
 
 #[test]
-fn a_shard_refuses_a_changed_input_and_an_index_out_of_range() {
-    let dir = temp_dir("changed");
+fn a_shard_reads_only_its_own_input_file() {
+    let dir = temp_dir("inputs");
     let input = dir.join("model.obj");
     std::fs::copy(model("as1_assembly.obj"), &input).unwrap();
     let plan = dir.join("plan.json");
@@ -197,20 +197,39 @@ fn a_shard_refuses_a_changed_input_and_an_index_out_of_range() {
         path(&plan),
         "-q",
     ]));
+    let spill = |k: u32| dir.join(format!("plan.shard-{k}.vdtin"));
+    assert!(spill(0).exists() && spill(1).exists());
+    // The model is not needed any more.
+    std::fs::remove_file(&input).unwrap();
     let out = dir.join("s.vdtpart");
+    succeeded(&build(&[
+        "shard",
+        path(&plan),
+        "--index",
+        "1",
+        "-o",
+        path(&out),
+        "-q",
+    ]));
+    std::fs::remove_file(&out).unwrap();
+
     let run = build(&["shard", path(&plan), "--index", "2", "-o", path(&out)]);
     assert_eq!(run.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&run.stderr).contains("the plan has shards 0 to 1"));
-    let mut text = std::fs::read(&input).unwrap();
-    text.extend_from_slice(b"v 100 100 100\nf 1 2 -1\n");
-    std::fs::write(&input, text).unwrap();
-    let run = build(&["shard", path(&plan), "--index", "0", "-o", path(&out)]);
+    // Shard 0's input in shard 1's place.
+    std::fs::copy(spill(0), spill(1)).unwrap();
+    let run = build(&["shard", path(&plan), "--index", "1", "-o", path(&out)]);
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert_eq!(run.status.code(), Some(1), "{stderr}");
     assert!(
-        stderr.contains("model.obj: not the file model.obj the plan was made from"),
+        stderr.contains("plan.shard-1.vdtin: the input of shard 0"),
         "{stderr}"
     );
+    std::fs::remove_file(spill(1)).unwrap();
+    let run = build(&["shard", path(&plan), "--index", "1", "-o", path(&out)]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("plan.shard-1.vdtin"), "{stderr}");
     assert!(!out.exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -22,13 +22,14 @@
 //! every index a record holds is checked against the plan and the part before the merge uses
 //! it.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use vds_format::{NO_NODE, NodeRecord, TriangleRecord};
+use vds_import::Scene;
 use xxhash_rust::xxh3::xxh3_64;
-use zerocopy::{FromBytes, IntoBytes};
+use zerocopy::{FromBytes, FromZeros, IntoBytes};
 
-use super::part::{CrossCorner, RootPart, ShardPart};
+use super::part::{CrossCorner, RootPart, ShardPart, SpillTriangle};
 use super::{Plan, ShardError};
 use crate::bounds::{Aabb, NormalCone};
 use crate::build::{Accumulator, Sphere};
@@ -48,51 +49,128 @@ const PART_ZSTD_LEVEL: i32 = 1;
 
 /// Writes `part` to `path` (a temporary file, then renamed).
 pub fn write_part(path: &Path, part: &ShardPart) -> Result<(), ShardError> {
-    let mut body = Vec::new();
-    body.extend_from_slice(&(part.roots.len() as u32).to_le_bytes());
-    for root in &part.roots {
-        for n in [
-            root.root,
-            root.nodes.len() as u32,
-            root.triangles.len() as u32,
-        ] {
-            body.extend_from_slice(&n.to_le_bytes());
+    let mut out = BodyWriter::create(path)?;
+    let write = |out: &mut BodyWriter| -> std::io::Result<()> {
+        out.put(&(part.roots.len() as u32).to_le_bytes())?;
+        for root in &part.roots {
+            for n in [
+                root.root,
+                root.nodes.len() as u32,
+                root.triangles.len() as u32,
+            ] {
+                out.put(&n.to_le_bytes())?;
+            }
+            let mut sums = Vec::with_capacity(SUMS_BYTES);
+            put_sums(&mut sums, &root.sums, &root.sphere);
+            out.put(&sums)?;
+            out.put(root.nodes.as_bytes())?;
+            out.put(root.triangles.as_bytes())?;
         }
-        put_sums(&mut body, &root.sums, &root.sphere);
-        body.extend_from_slice(root.nodes.as_bytes());
-        body.extend_from_slice(root.triangles.as_bytes());
-    }
-    body.extend_from_slice(&(part.cross.len() as u64).to_le_bytes());
-    for c in &part.cross {
-        body.extend_from_slice(&c.triangle.to_le_bytes());
-        body.push(c.corner);
-        for n in [c.root, c.rank, c.part, c.owner] {
-            body.extend_from_slice(&n.to_le_bytes());
+        out.put(&(part.cross.len() as u64).to_le_bytes())?;
+        let mut record = Vec::with_capacity(CROSS_BYTES);
+        for c in &part.cross {
+            record.clear();
+            record.extend_from_slice(&c.triangle.to_le_bytes());
+            record.push(c.corner);
+            for n in [c.root, c.rank, c.part, c.owner] {
+                record.extend_from_slice(&n.to_le_bytes());
+            }
+            out.put(&record)?;
         }
-    }
-    let mut header = Vec::with_capacity(HEADER_BYTES);
-    header.extend_from_slice(&PART_MAGIC);
-    header.extend_from_slice(&PART_VERSION.to_le_bytes());
-    header.extend_from_slice(&part.index.to_le_bytes());
-    header.extend_from_slice(&part.plan_id.to_le_bytes());
-    header.extend_from_slice(&(body.len() as u64).to_le_bytes());
-    header.extend_from_slice(&xxh3_64(&body).to_le_bytes());
-    let checksum = xxh3_64(&header);
-    header.extend_from_slice(&checksum.to_le_bytes());
-    let compressed =
-        zstd::bulk::compress(&body, PART_ZSTD_LEVEL).map_err(|source| ShardError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    drop(body);
-    vds_format::write_atomically(path, |out| {
-        out.write_all(&header)?;
-        out.write_all(&compressed)
+        Ok(())
+    };
+    write(&mut out).map_err(|source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
     })?;
-    Ok(())
+    out.finish(PART_MAGIC, part.index, part.plan_id)
 }
 
-/// The header of a part file: which shard of which plan it is.
+/// A body streamed through zstd into a temporary file beside its target, hashed on the way;
+/// [`BodyWriter::finish`] writes the header in front and renames the file into place.
+struct BodyWriter {
+    path: PathBuf,
+    out: zstd::stream::write::Encoder<'static, std::io::BufWriter<tempfile::NamedTempFile>>,
+    hasher: xxhash_rust::xxh3::Xxh3,
+    bytes: u64,
+}
+
+impl BodyWriter {
+    fn create(path: &Path) -> Result<BodyWriter, ShardError> {
+        use std::io::Write;
+        let io = |source| ShardError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        vds_format::resolve_output(path)?;
+        let dir = path
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let mut file = tempfile::NamedTempFile::new_in(dir).map_err(io)?;
+        file.write_all(&[0u8; HEADER_BYTES]).map_err(io)?;
+        let out = zstd::stream::write::Encoder::new(std::io::BufWriter::new(file), PART_ZSTD_LEVEL)
+            .map_err(io)?;
+        Ok(BodyWriter {
+            path: path.to_path_buf(),
+            out,
+            hasher: xxhash_rust::xxh3::Xxh3::new(),
+            bytes: 0,
+        })
+    }
+
+    fn put(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        use std::io::Write;
+        self.out.write_all(bytes)?;
+        self.hasher.update(bytes);
+        self.bytes += bytes.len() as u64;
+        Ok(())
+    }
+
+    fn finish(self, magic: [u8; 8], index: u32, plan_id: u64) -> Result<(), ShardError> {
+        use std::io::{Seek, Write};
+        let path = self.path;
+        let io = |source| ShardError::Io {
+            path: path.clone(),
+            source,
+        };
+        let header = header_bytes(magic, index, plan_id, self.bytes, self.hasher.digest());
+        let mut file = self
+            .out
+            .finish()
+            .map_err(io)?
+            .into_inner()
+            .map_err(|e| io(e.into_error()))?;
+        file.rewind().map_err(io)?;
+        file.write_all(&header).map_err(io)?;
+        file.as_file().sync_all().map_err(io)?;
+        file.persist(&path).map_err(|e| io(e.error))?;
+        Ok(())
+    }
+}
+
+/// A header: `magic`, the version, the shard's index, the plan's id, the body's length and
+/// checksum, and the header's own checksum.
+fn header_bytes(
+    magic: [u8; 8],
+    index: u32,
+    plan_id: u64,
+    body_bytes: u64,
+    body_checksum: u64,
+) -> Vec<u8> {
+    let mut header = Vec::with_capacity(HEADER_BYTES);
+    header.extend_from_slice(&magic);
+    header.extend_from_slice(&PART_VERSION.to_le_bytes());
+    header.extend_from_slice(&index.to_le_bytes());
+    header.extend_from_slice(&plan_id.to_le_bytes());
+    header.extend_from_slice(&body_bytes.to_le_bytes());
+    header.extend_from_slice(&body_checksum.to_le_bytes());
+    let checksum = xxh3_64(&header);
+    header.extend_from_slice(&checksum.to_le_bytes());
+    header
+}
+
+/// The header of a part or spill file: which shard of which plan it is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct PartHeader {
     index: u32,
@@ -104,11 +182,11 @@ struct PartHeader {
 /// Which shard of which plan a part file is (its index and the plan's id), from its header
 /// alone: a merge checks the set of parts before it reads any.
 pub fn part_header(path: &Path) -> Result<(u32, u64), ShardError> {
-    read_header(path).map(|h| (h.index, h.plan_id))
+    read_header(path, PART_MAGIC).map(|h| (h.index, h.plan_id))
 }
 
-/// Reads and checks a part file's header.
-fn read_header(path: &Path) -> Result<PartHeader, ShardError> {
+/// Reads and checks the header of a file that should start with `magic`.
+fn read_header(path: &Path, magic: [u8; 8]) -> Result<PartHeader, ShardError> {
     use std::io::Read;
     let bad = |reason: &str| ShardError::BadPart {
         path: path.to_path_buf(),
@@ -127,8 +205,12 @@ fn read_header(path: &Path) -> Result<PartHeader, ShardError> {
             n => filled += n,
         }
     }
-    if header[..8] != PART_MAGIC {
-        return Err(bad("not a .vdtpart file (wrong magic)"));
+    if header[..8] != magic {
+        return Err(bad(if magic == PART_MAGIC {
+            "not a .vdtpart file (wrong magic)"
+        } else {
+            "not a shard input file (wrong magic)"
+        }));
     }
     let u32_at = |at: usize| u32::from_le_bytes(header[at..at + 4].try_into().expect("4 bytes"));
     let u64_at = |at: usize| u64::from_le_bytes(header[at..at + 8].try_into().expect("8 bytes"));
@@ -155,7 +237,7 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
         path: path.to_path_buf(),
         reason,
     };
-    let header = read_header(path)?;
+    let header = read_header(path, PART_MAGIC)?;
     if header.plan_id != plan.id {
         return Err(bad(format!(
             "built for another plan (id {:016x}, this plan is {:016x})",
@@ -189,21 +271,140 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
             header.body_bytes
         )));
     }
-    let data = std::fs::read(path).map_err(|source| ShardError::Io {
+    let body = read_body(path, &header)?;
+    let part = parse_body(&body, plan, header).map_err(bad)?;
+    Ok(part)
+}
+
+/// Reads the body of a file whose header is `header` into `out` (the body's stated length),
+/// checked against its checksum.
+fn read_body_into(path: &Path, header: &PartHeader, out: &mut [u8]) -> Result<(), ShardError> {
+    use std::io::{Read, Seek};
+    let bad = |reason: String| ShardError::BadPart {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let io = |source| ShardError::Io {
         path: path.to_path_buf(),
         source,
-    })?;
-    if data.len() < HEADER_BYTES {
-        return Err(bad("truncated: shorter than a part header".into()));
-    }
-    let body = zstd::bulk::decompress(&data[HEADER_BYTES..], header.body_bytes as usize)
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    file.seek(std::io::SeekFrom::Start(HEADER_BYTES as u64))
+        .map_err(io)?;
+    let mut decoder = zstd::stream::read::Decoder::new(file).map_err(io)?;
+    decoder
+        .read_exact(out)
         .map_err(|e| bad(format!("truncated or damaged body ({e})")))?;
-    drop(data);
+    let mut rest = [0u8; 1];
+    if decoder
+        .read(&mut rest)
+        .map_err(|e| bad(format!("damaged body ({e})")))?
+        != 0
+    {
+        return Err(bad("a body longer than its header states".into()));
+    }
+    if xxh3_64(out) != header.body_checksum {
+        return Err(bad("truncated or damaged body (checksum mismatch)".into()));
+    }
+    Ok(())
+}
+
+/// The body of a file whose header is `header`, checked against its length and checksum.
+/// Memory grows with the bytes the stream really holds, up to the stated length.
+fn read_body(path: &Path, header: &PartHeader) -> Result<Vec<u8>, ShardError> {
+    use std::io::{Read, Seek};
+    let bad = |reason: String| ShardError::BadPart {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let io = |source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    file.seek(std::io::SeekFrom::Start(HEADER_BYTES as u64))
+        .map_err(io)?;
+    let mut body = Vec::new();
+    zstd::stream::read::Decoder::new(file)
+        .map_err(io)?
+        .take(header.body_bytes)
+        .read_to_end(&mut body)
+        .map_err(|e| bad(format!("truncated or damaged body ({e})")))?;
     if body.len() as u64 != header.body_bytes || xxh3_64(&body) != header.body_checksum {
         return Err(bad("truncated or damaged body (checksum mismatch)".into()));
     }
-    let part = parse_body(&body, plan, header).map_err(bad)?;
-    Ok(part)
+    Ok(body)
+}
+
+/// The first eight bytes of a shard's input file.
+pub const SPILL_MAGIC: [u8; 8] = *b"VDTSPILL";
+const SPILL_BYTES: usize = size_of::<SpillTriangle>();
+
+/// Writes every shard's input file (`paths[k]` for shard `k`) in one pass over `scene`'s
+/// triangles: each goes to the shards its corners lie in (`root_of`, from
+/// [`super::roots_of_vertices`]). Each file is written beside its target and renamed into place
+/// when complete.
+pub fn write_spills(
+    scene: &Scene,
+    plan: &Plan,
+    root_of: &[u32],
+    paths: &[PathBuf],
+) -> Result<(), ShardError> {
+    let shard_of_root: Vec<u32> = (0..plan.shard_count())
+        .flat_map(|k| plan.shard_roots(k).map(move |_| k))
+        .collect();
+    let mut spills = paths
+        .iter()
+        .map(|path| BodyWriter::create(path))
+        .collect::<Result<Vec<_>, _>>()?;
+    for t in 0..scene.triangles.len() {
+        let mut shards = scene.triangles[t].map(|v| shard_of_root[root_of[v as usize] as usize]);
+        shards.sort_unstable();
+        let record = super::part::spill_triangle(scene, t);
+        for (k, &shard) in shards.iter().enumerate() {
+            if k > 0 && shards[k - 1] == shard {
+                continue;
+            }
+            let spill = &mut spills[shard as usize];
+            spill
+                .put(record.as_bytes())
+                .map_err(|source| ShardError::Io {
+                    path: paths[shard as usize].clone(),
+                    source,
+                })?;
+        }
+    }
+    for (k, spill) in spills.into_iter().enumerate() {
+        spill.finish(SPILL_MAGIC, k as u32, plan.id)?;
+    }
+    Ok(())
+}
+
+/// Reads shard `index`'s input file, which must be for `plan`.
+pub fn read_spill(path: &Path, plan: &Plan, index: u32) -> Result<Vec<SpillTriangle>, ShardError> {
+    let bad = |reason: String| ShardError::BadPart {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let header = read_header(path, SPILL_MAGIC)?;
+    if header.plan_id != plan.id || header.index != index {
+        return Err(bad(format!(
+            "the input of shard {} of plan {:016x}, not of shard {index} of this plan ({:016x})",
+            header.index, header.plan_id, plan.id
+        )));
+    }
+    if header.body_bytes % SPILL_BYTES as u64 != 0
+        || header.body_bytes / SPILL_BYTES as u64 > plan.triangles
+    {
+        return Err(bad(format!(
+            "states {} bytes of triangles; the plan has {} triangles",
+            header.body_bytes, plan.triangles
+        )));
+    }
+    let count = (header.body_bytes / SPILL_BYTES as u64) as usize;
+    let mut triangles = vec![SpillTriangle::new_zeroed(); count];
+    read_body_into(path, &header, triangles.as_mut_bytes())?;
+    Ok(triangles)
 }
 
 /// A cursor over the body that fails on reads past its end.

@@ -28,9 +28,14 @@ mod merge;
 mod part;
 pub mod plan;
 
-pub use file::{PART_MAGIC, part_header, read_part, write_part};
+pub use file::{
+    PART_MAGIC, SPILL_MAGIC, part_header, read_part, read_spill, write_part, write_spills,
+};
 pub use merge::merge;
-pub use part::{CrossCorner, RootPart, ShardPart, build_shard};
+pub use part::{
+    CrossCorner, RootPart, ShardPart, SpillTriangle, build_shard, build_shard_from,
+    roots_of_vertices, spill_of, spill_triangle,
+};
 pub use plan::{Plan, PlanMetadata, plan};
 
 use std::path::PathBuf;

@@ -12,7 +12,8 @@
 use rayon::prelude::*;
 use vds_format::{NodeRecord, TriangleRecord};
 use vds_import::Scene;
-use zerocopy::little_endian::U32;
+use zerocopy::little_endian::{F32, U32, U64};
+use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use super::{Plan, ShardError};
 use crate::build::{Accumulator, Adjacency, Inputs, Sphere, compute_attributes, leaf_tables};
@@ -73,24 +74,27 @@ pub struct ShardPart {
 /// No root: a vertex outside the shard.
 const ELSEWHERE: u32 = u32::MAX;
 
-/// Builds shard `index` of `plan` from `scene` (welded, snapped to the plan's grid: the scene
-/// the plan was made from).
-pub fn build_shard(scene: &Scene, plan: &Plan, index: u32) -> Result<ShardPart, ShardError> {
-    build_shard_with(scene, plan, index, Isa::detect())
+/// One triangle as a shard reads it: its index in the welded scene, its part, and each
+/// corner's welded vertex id and position. A shard's input is every triangle with a corner
+/// under one of its roots, in scene order (what `vds-build plan` spills to each shard's file).
+#[derive(
+    Debug, Clone, Copy, PartialEq, FromBytes, IntoBytes, KnownLayout, Immutable, Unaligned,
+)]
+#[repr(C)]
+pub struct SpillTriangle {
+    /// Index in the welded scene.
+    pub triangle: U64,
+    /// Part id.
+    pub part: U32,
+    /// The corners' welded vertex ids.
+    pub vertices: [U32; 3],
+    /// The corners' positions (snapped to the plan's grid).
+    pub positions: [[F32; 3]; 3],
 }
 
-pub(crate) fn build_shard_with(
-    scene: &Scene,
-    plan: &Plan,
-    index: u32,
-    isa: Isa,
-) -> Result<ShardPart, ShardError> {
-    if index >= plan.shard_count() {
-        return Err(ShardError::InputChanged(format!(
-            "shard {index} of a plan of {} shards",
-            plan.shard_count()
-        )));
-    }
+/// The root of every vertex of `scene` (welded, snapped: the scene the plan was made from),
+/// checked against the plan's counts.
+pub fn roots_of_vertices(scene: &Scene, plan: &Plan) -> Result<Vec<u32>, ShardError> {
     if scene.positions.len() != plan.vertices as usize
         || scene.triangles.len() as u64 != plan.triangles
     {
@@ -102,7 +106,6 @@ pub(crate) fn build_shard_with(
             plan.triangles
         )));
     }
-    // Every vertex's root, and each root's vertex count checked against the plan.
     let root_of: Vec<u32> = scene
         .positions
         .par_iter()
@@ -119,8 +122,18 @@ pub(crate) fn build_shard_with(
             }
         }
     }
-    for (root, &count) in counts.iter().enumerate() {
-        let node = plan.root_node(root as u32);
+    check_counts(plan, 0..plan.roots.len() as u32, &counts)?;
+    Ok(root_of)
+}
+
+/// Each root's vertex count, from `counts` (indexed from `roots.start`), against the plan's.
+fn check_counts(
+    plan: &Plan,
+    roots: std::ops::Range<u32>,
+    counts: &[u32],
+) -> Result<(), ShardError> {
+    for (root, &count) in roots.zip(counts) {
+        let node = plan.root_node(root);
         if count != node.leaf_end - node.leaf_begin {
             return Err(ShardError::InputChanged(format!(
                 "root {root} holds {count} vertices, the plan counted {}",
@@ -128,39 +141,139 @@ pub(crate) fn build_shard_with(
             )));
         }
     }
-    let mine = plan.shard_roots(index);
-    let in_shard = |v: u32| mine.contains(&root_of[v as usize]);
+    Ok(())
+}
 
-    // The triangles touching the shard, and the vertices they use, both in input order.
-    let kept: Vec<u32> = (0..scene.triangles.len() as u32)
+/// Shard `index`'s input: the triangles of `scene` with a corner under one of its roots
+/// (`root_of` from [`roots_of_vertices`]), in scene order.
+pub fn spill_of(scene: &Scene, plan: &Plan, root_of: &[u32], index: u32) -> Vec<SpillTriangle> {
+    let mine = plan.shard_roots(index);
+    (0..scene.triangles.len())
         .into_par_iter()
-        .filter(|&t| scene.triangles[t as usize].iter().any(|&v| in_shard(v)))
+        .filter_map(|t| {
+            let corners = scene.triangles[t];
+            corners
+                .iter()
+                .any(|&v| mine.contains(&root_of[v as usize]))
+                .then(|| spill_triangle(scene, t))
+        })
+        .collect()
+}
+
+/// Triangle `t` of `scene` as a shard reads it.
+pub fn spill_triangle(scene: &Scene, t: usize) -> SpillTriangle {
+    let corners = scene.triangles[t];
+    SpillTriangle {
+        triangle: U64::new(t as u64),
+        part: U32::new(scene.triangle_parts[t]),
+        vertices: corners.map(U32::new),
+        positions: corners.map(|v| scene.positions[v as usize].map(F32::new)),
+    }
+}
+
+/// Builds shard `index` of `plan` from `scene` (welded, snapped to the plan's grid: the scene
+/// the plan was made from).
+pub fn build_shard(scene: &Scene, plan: &Plan, index: u32) -> Result<ShardPart, ShardError> {
+    check_index(plan, index)?;
+    let root_of = roots_of_vertices(scene, plan)?;
+    build_shard_from(plan, index, spill_of(scene, plan, &root_of, index))
+}
+
+fn check_index(plan: &Plan, index: u32) -> Result<(), ShardError> {
+    if index >= plan.shard_count() {
+        return Err(ShardError::InputChanged(format!(
+            "shard {index} of a plan of {} shards",
+            plan.shard_count()
+        )));
+    }
+    Ok(())
+}
+
+/// Builds shard `index` of `plan` from its input (see [`SpillTriangle`]), which it frees as
+/// soon as it has read it.
+pub fn build_shard_from(
+    plan: &Plan,
+    index: u32,
+    input: Vec<SpillTriangle>,
+) -> Result<ShardPart, ShardError> {
+    build_shard_with(plan, index, input, Isa::detect())
+}
+
+pub(crate) fn build_shard_with(
+    plan: &Plan,
+    index: u32,
+    input: Vec<SpillTriangle>,
+    isa: Isa,
+) -> Result<ShardPart, ShardError> {
+    check_index(plan, index)?;
+    let changed = |what: &str| Err(ShardError::InputChanged(what.to_string()));
+    if input
+        .windows(2)
+        .any(|w| w[0].triangle.get() >= w[1].triangle.get())
+        || input
+            .last()
+            .is_some_and(|t| t.triangle.get() >= plan.triangles)
+    {
+        return changed("triangles out of order or past the plan's count");
+    }
+    let mine = plan.shard_roots(index);
+
+    // The vertices the triangles use, in welded order, and each one's root.
+    let mut global_id: Vec<u32> = input
+        .iter()
+        .flat_map(|t| t.vertices.map(|v| v.get()))
         .collect();
-    let mut local_id = vec![u32::MAX; scene.positions.len()];
-    for &t in &kept {
-        for v in scene.triangles[t as usize] {
-            local_id[v as usize] = 0;
+    global_id.par_sort_unstable();
+    global_id.dedup();
+    let local_of = |v: u32| global_id.binary_search(&v).expect("listed above") as u32;
+    let mut positions = vec![None; global_id.len()];
+    let mut triangles = Vec::with_capacity(input.len());
+    let ids: Vec<(u64, u32)> = input
+        .iter()
+        .map(|t| (t.triangle.get(), t.part.get()))
+        .collect();
+    for t in &input {
+        let corners = t.vertices.map(|v| local_of(v.get()));
+        for k in 0..3 {
+            let p = t.positions[k].map(|c| c.get());
+            match &mut positions[corners[k] as usize] {
+                slot @ None => *slot = Some(p),
+                Some(q) if q.map(f32::to_bits) == p.map(f32::to_bits) => {}
+                Some(_) => return changed("one vertex at two positions"),
+            }
         }
+        triangles.push(corners);
     }
-    let mut global_id = Vec::new();
-    for (v, id) in local_id.iter_mut().enumerate() {
-        if *id == 0 {
-            *id = global_id.len() as u32;
-            global_id.push(v as u32);
-        }
-    }
+    drop(input);
     let local = Scene {
-        positions: global_id
-            .iter()
-            .map(|&v| scene.positions[v as usize])
+        positions: positions
+            .into_iter()
+            .map(|p| p.expect("every vertex is a corner"))
             .collect(),
-        triangles: kept
-            .iter()
-            .map(|&t| scene.triangles[t as usize].map(|v| local_id[v as usize]))
-            .collect(),
+        triangles,
         ..Scene::default()
     };
-    let local_root: Vec<u32> = global_id.iter().map(|&v| root_of[v as usize]).collect();
+    let local_root: Vec<u32> = local
+        .positions
+        .par_iter()
+        .map(|&p| {
+            plan.locate(p)
+                .filter(|r| mine.contains(r))
+                .unwrap_or(ELSEWHERE)
+        })
+        .collect();
+    if local
+        .triangles
+        .iter()
+        .any(|c| c.iter().all(|&v| local_root[v as usize] == ELSEWHERE))
+    {
+        return changed("a triangle with no corner in the shard");
+    }
+    let mut counts = vec![0u32; mine.len()];
+    for &root in local_root.iter().filter(|&&r| r != ELSEWHERE) {
+        counts[(root - mine.start) as usize] += 1;
+    }
+    check_counts(plan, mine.clone(), &counts)?;
     let adjacency = Adjacency::new(local.positions.len(), &local.triangles);
 
     // Each root's vertices in input order.
@@ -184,10 +297,9 @@ pub(crate) fn build_shard_with(
     // Triangles: within one root, a subtri of its subtree; across roots, corners reported.
     let mut pure: Vec<Vec<(u32, TriangleRecord)>> = vec![Vec::new(); subtrees.len()];
     let mut cross = Vec::new();
-    for (local_t, &t) in kept.iter().enumerate() {
-        let corners = local.triangles[local_t];
+    for (&(t, part), corners) in ids.iter().zip(&local.triangles) {
+        let corners = *corners;
         let roots = corners.map(|v| local_root[v as usize]);
-        let part = scene.triangle_parts[t as usize];
         let shared = |k: usize| roots.iter().filter(|&&r| r == roots[k]).count();
         if roots[0] == roots[1] && roots[1] == roots[2] {
             // Kept, so the root is one of this shard's.
@@ -216,7 +328,7 @@ pub(crate) fn build_shard_with(
                 u32::MAX
             };
             cross.push(CrossCorner {
-                triangle: u64::from(t),
+                triangle: t,
                 corner: k as u8,
                 root: roots[k],
                 rank: rank_of[corners[k] as usize],

@@ -108,14 +108,9 @@ pub struct Plan {
     /// XXH3-64 of the plan's JSON with this field 0: every part names the plan it was built
     /// for, and a plan edited by hand no longer matches its id.
     pub id: u64,
-    /// The input files, as given to `vds-build plan` (shards read them again).
-    pub input_paths: Vec<String>,
-    /// Import limits the shards read the inputs with.
-    pub max_triangles: u64,
-    /// See `vds_import::ImportOptions::max_decompressed_bytes`.
-    pub max_decompressed_bytes: u64,
-    /// See `vds_import::ImportOptions::allow_external_uris`.
-    pub allow_external_uris: bool,
+    /// Each shard's input file (written by `vds-build plan`), named relative to the plan's
+    /// folder; empty when the plan's maker passes shards their input another way.
+    pub spills: Vec<String>,
     /// The grid's origin and step, as `f32` bits.
     pub grid: ([u32; 3], u32),
     /// Welded vertices (leaves).
@@ -276,6 +271,14 @@ impl Plan {
                 }
             }
         }
+        if !self.spills.is_empty() && self.spills.len() != self.shard_count() as usize
+            || self.spills.iter().any(|name| {
+                let path = Path::new(name);
+                path.components().count() != 1 || path.file_name().is_none()
+            })
+        {
+            return Err("shard input files must be one plain file name per shard".into());
+        }
         if roots_seen as usize != self.roots.len() {
             return Err("a listed root is not a top node's".into());
         }
@@ -421,10 +424,7 @@ pub fn plan(
     let mut plan = Plan {
         format: PLAN_FORMAT,
         id: 0,
-        input_paths: Vec::new(),
-        max_triangles: 0,
-        max_decompressed_bytes: 0,
-        allow_external_uris: false,
+        spills: Vec::new(),
         grid: (grid.origin.map(f32::to_bits), grid.step.to_bits()),
         vertices,
         triangles,

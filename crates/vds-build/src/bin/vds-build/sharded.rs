@@ -155,19 +155,23 @@ pub fn main() -> Result<()> {
                 shards,
                 metadata,
             )?;
-            plan.input_paths = inputs
-                .iter()
-                .map(|p| {
-                    std::path::absolute(p)
-                        .unwrap_or_else(|_| p.clone())
-                        .display()
-                        .to_string()
-                })
+            // Each shard's input beside the plan: `PLAN.shard-K.vdtin`.
+            let stem = output
+                .file_stem()
+                .map_or_else(|| "plan".into(), |s| s.to_string_lossy().into_owned());
+            plan.spills = (0..plan.shard_count())
+                .map(|k| format!("{stem}.shard-{k}.vdtin"))
                 .collect();
-            plan.max_triangles = max_triangles;
-            plan.max_decompressed_bytes = max_decompressed_bytes;
-            plan.allow_external_uris = allow_external_uris;
             plan.seal();
+            let folder = folder_of(&output);
+            let paths: Vec<PathBuf> = plan.spills.iter().map(|name| folder.join(name)).collect();
+            for path in &paths {
+                check_output(path, &inputs)?;
+            }
+            let root_of = shard::roots_of_vertices(&scene, &plan)?;
+            shard::write_spills(&scene, &plan, &root_of, &paths)?;
+            drop(scene);
+            // Last, so that a plan on disk always has its shards' inputs.
             plan.save(&output)?;
             say(format!(
                 "planned {} shards of {} roots ({} vertices, {} triangles)",
@@ -182,36 +186,24 @@ pub fn main() -> Result<()> {
             index,
             output,
         } => {
-            let plan = Plan::load(&plan)?;
+            let plan_path = plan;
+            let plan = Plan::load(&plan_path)?;
             if index >= plan.shard_count() {
                 bail!(
                     "--index {index}: the plan has shards 0 to {}",
                     plan.shard_count() - 1
                 );
             }
-            let inputs: Vec<PathBuf> = plan.input_paths.iter().map(PathBuf::from).collect();
-            check_output(&output, &inputs)?;
-            for (input, (name, bytes, hash)) in inputs.iter().zip(&plan.metadata.inputs) {
-                let (content_hash, size) = hash_file(input)?;
-                if (content_hash, size) != (*hash, *bytes) {
-                    bail!(
-                        "{}: not the file {name} the plan was made from (changed since?)",
-                        input.display()
-                    );
-                }
-            }
-            let options = ImportOptions {
-                weld: Weld::Exact,
-                max_triangles: plan.max_triangles,
-                max_decompressed_bytes: plan.max_decompressed_bytes,
-                allow_external_uris: plan.allow_external_uris,
+            let Some(name) = plan.spills.get(index as usize) else {
+                bail!(
+                    "{}: names no input files for its shards",
+                    plan_path.display()
+                );
             };
-            let mut scene = vds_import::load_files(&inputs, &options)?;
-            if vds_build::snap_to_grid(&mut scene) != plan.grid() {
-                bail!("the inputs' bounds differ from the plan's (changed since?)");
-            }
-            let part = shard::build_shard(&scene, &plan, index)?;
-            drop(scene);
+            let spill = folder_of(&plan_path).join(name);
+            check_output(&output, &[spill.clone(), plan_path.clone()])?;
+            let input = shard::read_spill(&spill, &plan, index)?;
+            let part = shard::build_shard_from(&plan, index, input)?;
             shard::write_part(&output, &part)?;
             say(format!(
                 "built shard {index} of {} ({} roots, {} triangles across roots)",
@@ -308,6 +300,13 @@ fn read_parts(plan: &Plan, paths: &[PathBuf]) -> Result<Vec<shard::ShardPart>> {
         .map(|path| shard::read_part(path, plan))
         .collect();
     Ok(parts?)
+}
+
+/// The folder a file is in (`.` for a bare name).
+fn folder_of(path: &Path) -> PathBuf {
+    path.parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .map_or_else(|| PathBuf::from("."), Path::to_path_buf)
 }
 
 fn file_name(input: &Path) -> String {
