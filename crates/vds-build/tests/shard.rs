@@ -104,9 +104,7 @@ fn sharded(scene: &Scene, grid: Grid, shards: u32) -> (Vec<u8>, Plan) {
     let mut parts = parts(scene, &plan);
     // Any order will do.
     parts.reverse();
-    let bytes = encode(&merge(&plan, &parts).unwrap(), &options())
-        .unwrap()
-        .0;
+    let bytes = encode(&merge(&plan, parts).unwrap(), &options()).unwrap().0;
     (bytes, plan)
 }
 
@@ -272,11 +270,11 @@ fn merge_refuses_a_missing_duplicated_or_foreign_part() {
     let plan = planned(&scene, grid, 3);
     let all = parts(&scene, &plan);
 
-    let missing = merge(&plan, &all[..2]).unwrap_err().to_string();
+    let missing = merge(&plan, all[..2].to_vec()).unwrap_err().to_string();
     assert!(missing.contains("shard 2 of 3 is missing"), "{missing}");
     let mut twice = all.clone();
     twice.push(all[1].clone());
-    let duplicated = merge(&plan, &twice).unwrap_err().to_string();
+    let duplicated = merge(&plan, twice).unwrap_err().to_string();
     assert!(
         duplicated.contains("shard 1 is given twice"),
         "{duplicated}"
@@ -285,7 +283,7 @@ fn merge_refuses_a_missing_duplicated_or_foreign_part() {
     let other = planned(&scene, grid, 4);
     let mut foreign = all.clone();
     foreign[0] = build_shard(&scene, &other, 0).unwrap();
-    let error = merge(&plan, &foreign).unwrap_err().to_string();
+    let error = merge(&plan, foreign.clone()).unwrap_err().to_string();
     assert!(error.contains("another plan"), "{error}");
 
     // As files: a foreign part names the plan it was built for.

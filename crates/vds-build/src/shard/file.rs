@@ -271,7 +271,9 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
             header.body_bytes
         )));
     }
-    let body = read_body(path, &header)?;
+    // The length is bounded by the plan above: read into a buffer of exactly that size.
+    let mut body = vec![0u8; header.body_bytes as usize];
+    read_body_into(path, &header, &mut body)?;
     let part = parse_body(&body, plan, header).map_err(bad)?;
     Ok(part)
 }
@@ -307,33 +309,6 @@ fn read_body_into(path: &Path, header: &PartHeader, out: &mut [u8]) -> Result<()
         return Err(bad("truncated or damaged body (checksum mismatch)".into()));
     }
     Ok(())
-}
-
-/// The body of a file whose header is `header`, checked against its length and checksum.
-/// Memory grows with the bytes the stream really holds, up to the stated length.
-fn read_body(path: &Path, header: &PartHeader) -> Result<Vec<u8>, ShardError> {
-    use std::io::{Read, Seek};
-    let bad = |reason: String| ShardError::BadPart {
-        path: path.to_path_buf(),
-        reason,
-    };
-    let io = |source| ShardError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut file = std::fs::File::open(path).map_err(io)?;
-    file.seek(std::io::SeekFrom::Start(HEADER_BYTES as u64))
-        .map_err(io)?;
-    let mut body = Vec::new();
-    zstd::stream::read::Decoder::new(file)
-        .map_err(io)?
-        .take(header.body_bytes)
-        .read_to_end(&mut body)
-        .map_err(|e| bad(format!("truncated or damaged body ({e})")))?;
-    if body.len() as u64 != header.body_bytes || xxh3_64(&body) != header.body_checksum {
-        return Err(bad("truncated or damaged body (checksum mismatch)".into()));
-    }
-    Ok(body)
 }
 
 /// The first eight bytes of a shard's input file.

@@ -12,9 +12,10 @@ use rayon::prelude::*;
 use vds_format::{
     BuildInfo, InputInfo, Metadata, NO_PART, NodeRecord, PartInfo, TreeContent, TriangleRecord,
 };
+use zerocopy::FromZeros;
 use zerocopy::little_endian::{U16, U32};
 
-use super::part::{CrossCorner, RootPart, ShardPart};
+use super::part::{CrossCorner, ShardPart};
 use super::{Plan, ShardError};
 use crate::build::{Accumulator, Sphere, absorb_on, inner_attributes_on};
 use crate::isa::Isa;
@@ -23,10 +24,8 @@ use crate::vdt::{leading_smallest, node_record};
 
 /// Joins the parts of every shard of `plan` (any order, each once) into the content of the
 /// `.vdt` file the in-memory build of the same input writes.
-pub fn merge(plan: &Plan, parts: &[ShardPart]) -> Result<TreeContent, ShardError> {
-    let isa = Isa::detect();
-    let set = |reason: String| ShardError::PartSet(reason);
-    let mut by_index: Vec<Option<&ShardPart>> = vec![None; plan.shard_count() as usize];
+pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<TreeContent, ShardError> {
+    let mut by_index: Vec<Option<ShardPart>> = vec![None; plan.shard_count() as usize];
     for part in parts {
         if part.plan_id != plan.id {
             return Err(set(format!(
@@ -46,47 +45,100 @@ pub fn merge(plan: &Plan, parts: &[ShardPart]) -> Result<TreeContent, ShardError
             plan.shard_count()
         )));
     }
-    let roots: Vec<&RootPart> = by_index.iter().flatten().flat_map(|p| &p.roots).collect();
-    if roots.len() != plan.roots.len() || roots.iter().enumerate().any(|(r, p)| p.root != r as u32)
-    {
-        return Err(set("the parts do not hold the plan's roots".into()));
-    }
+    merge_in_order(plan, |k| {
+        Ok(by_index[k as usize]
+            .take()
+            .expect("every shard is present, once"))
+    })
+}
 
+fn set(reason: String) -> ShardError {
+    ShardError::PartSet(reason)
+}
+
+/// [`merge`], asking `part` for each shard in index order: one part's records are held at a
+/// time, and freed once moved into the file's.
+pub fn merge_in_order(
+    plan: &Plan,
+    mut part: impl FnMut(u32) -> Result<ShardPart, ShardError>,
+) -> Result<TreeContent, ShardError> {
+    let isa = Isa::detect();
     let top = &plan.top;
-    let offset = |r: usize| plan.root_node(r as u32).leaf_begin;
-    // Each root's first id for its nodes below the root.
-    let mut base = Vec::with_capacity(roots.len());
-    let mut next = top.len() as u64;
-    for part in &roots {
-        base.push(next as u32);
-        next += part.nodes.len() as u64 - 1;
-    }
-    if next > u64::from(u32::MAX) {
-        return Err(set(format!("{next} nodes, more than a file holds")));
-    }
-    let global = |r: usize, local: u32| {
+    // The top tree's nodes keep their ids (its leaves are the roots); each root's other nodes
+    // follow, from `base[root]`.
+    // Room for the most nodes a tree of this many leaves has (2V - 1): pages of it that are
+    // never written are never touched, and the array is never copied as it grows.
+    let mut records: Vec<NodeRecord> = Vec::with_capacity(2 * plan.vertices as usize);
+    records.resize(top.len(), NodeRecord::new_zeroed());
+    let mut base = vec![0u32; plan.roots.len()];
+    let global = |base: &[u32], r: usize, local: u32| {
         if local == 0 {
             plan.roots[r]
         } else {
             base[r] + local - 1
         }
     };
-
+    let mut up: Vec<(Accumulator, Sphere)> =
+        vec![(Accumulator::EMPTY, Sphere::default()); top.len()];
     // Leaf positions by global rank, for the top nodes' error radii.
     let mut leaf_positions = vec![[0.0f32; 3]; plan.vertices as usize];
-    for (r, part) in roots.iter().enumerate() {
-        for n in part.nodes.iter().filter(|n| n.child_count == 0) {
-            leaf_positions[(offset(r) + n.leaf_begin.get()) as usize] = n.proxy.map(|c| c.get());
+    let mut owned: Vec<(u32, TriangleRecord)> = Vec::with_capacity(plan.triangles as usize);
+    let mut cross: Vec<CrossCorner> = Vec::new();
+    for k in 0..plan.shard_count() {
+        let shard = part(k)?;
+        let expected = plan.shard_roots(k);
+        if shard.plan_id != plan.id
+            || shard.index != k
+            || shard.roots.len() != expected.len()
+            || shard.roots.iter().zip(expected).any(|(p, r)| p.root != r)
+        {
+            return Err(set(format!("shard {k} does not hold the plan's roots")));
+        }
+        cross.extend_from_slice(&shard.cross);
+        for root in shard.roots {
+            let r = root.root as usize;
+            let root_top = &top[plan.roots[r] as usize];
+            let offset = root_top.leaf_begin;
+            base[r] = records.len() as u32;
+            if records.len() as u64 + root.nodes.len() as u64 > u64::from(u32::MAX) {
+                return Err(set("more nodes than a file holds".into()));
+            }
+            up[plan.roots[r] as usize] = (root.sums, root.sphere);
+            for (local, n) in root.nodes.iter().enumerate() {
+                if n.child_count == 0 {
+                    leaf_positions[(offset + n.leaf_begin.get()) as usize] =
+                        n.proxy.map(|c| c.get());
+                }
+                let mut moved = *n;
+                moved.parent = U32::new(if local == 0 {
+                    root_top.parent
+                } else {
+                    global(&base, r, n.parent.get())
+                });
+                if n.child_count > 0 {
+                    moved.first_child = U32::new(global(&base, r, n.first_child.get()));
+                }
+                let depth = n.depth.get().checked_add(root_top.depth);
+                moved.depth =
+                    U16::new(depth.ok_or_else(|| set("a tree deeper than a file holds".into()))?);
+                moved.leaf_begin = U32::new(n.leaf_begin.get() + offset);
+                moved.leaf_end = U32::new(n.leaf_end.get() + offset);
+                if local == 0 {
+                    records[plan.roots[r] as usize] = moved;
+                } else {
+                    records.push(moved);
+                }
+                let begin = n.subtri_begin.get() as usize;
+                for t in &root.triangles[begin..begin + n.subtri_count.get() as usize] {
+                    let mut t = *t;
+                    t.corners = t.corners.map(|c| U32::new(c.get() + offset));
+                    owned.push((global(&base, r, local as u32), t));
+                }
+            }
         }
     }
 
     // The top nodes' attributes, children (later ids) first.
-    let mut up: Vec<(Accumulator, Sphere)> =
-        vec![(Accumulator::EMPTY, Sphere::default()); top.len()];
-    let mut top_records = vec![None; top.len()];
-    for (r, part) in roots.iter().enumerate() {
-        up[plan.roots[r] as usize] = (part.sums, part.sphere);
-    }
     for id in (0..top.len()).rev() {
         let t = &top[id];
         if t.root.is_some() {
@@ -107,58 +159,12 @@ pub fn merge(plan: &Plan, parts: &[ShardPart]) -> Result<TreeContent, ShardError
         let (bounds, sphere) =
             inner_attributes_on(isa, &node, spheres.into_iter(), &sum, &leaf_positions);
         up[id] = (sum, sphere);
-        top_records[id] = Some(node_record(&node, Some(&bounds), [0.0; 3]));
+        records[id] = node_record(&node, Some(&bounds), [0.0; 3]);
     }
     drop(leaf_positions);
+    let offset = |r: usize| plan.root_node(r as u32).leaf_begin;
+    let global = |r: usize, local: u32| global(&base, r, local);
 
-    // Every record, with global ids, depths and ranks; subtri ranges are set below.
-    let mut records: Vec<NodeRecord> = Vec::with_capacity(next as usize);
-    let moved = |r: usize, local: u32, n: &NodeRecord| -> Result<NodeRecord, ShardError> {
-        let root_top = &top[plan.roots[r] as usize];
-        let mut n = *n;
-        n.parent = U32::new(if local == 0 {
-            root_top.parent
-        } else {
-            global(r, n.parent.get())
-        });
-        if n.child_count > 0 {
-            n.first_child = U32::new(global(r, n.first_child.get()));
-        }
-        let depth = n.depth.get().checked_add(root_top.depth);
-        n.depth = U16::new(depth.ok_or_else(|| set("a tree deeper than a file holds".into()))?);
-        n.leaf_begin = U32::new(n.leaf_begin.get() + root_top.leaf_begin);
-        n.leaf_end = U32::new(n.leaf_end.get() + root_top.leaf_begin);
-        Ok(n)
-    };
-    for (id, t) in top.iter().enumerate() {
-        records.push(match t.root {
-            Some(r) => moved(r as usize, 0, &roots[r as usize].nodes[0])?,
-            None => top_records[id].expect("filled above"),
-        });
-    }
-    for (r, part) in roots.iter().enumerate() {
-        for (local, n) in part.nodes.iter().enumerate().skip(1) {
-            records.push(moved(r, local as u32, n)?);
-        }
-    }
-
-    // Triangles with their owners' global ids: each root's own, then those across roots.
-    let mut owned: Vec<(u32, TriangleRecord)> = Vec::with_capacity(plan.triangles as usize);
-    for (r, part) in roots.iter().enumerate() {
-        for (local, n) in part.nodes.iter().enumerate() {
-            let begin = n.subtri_begin.get() as usize;
-            for t in &part.triangles[begin..begin + n.subtri_count.get() as usize] {
-                let mut t = *t;
-                t.corners = t.corners.map(|c| U32::new(c.get() + offset(r)));
-                owned.push((global(r, local as u32), t));
-            }
-        }
-    }
-    let mut cross: Vec<CrossCorner> = by_index
-        .iter()
-        .flatten()
-        .flat_map(|p| p.cross.iter().copied())
-        .collect();
     cross.par_sort_unstable();
     for corners in cross.chunk_by(|a, b| a.triangle == b.triangle) {
         let t = corners[0].triangle;

@@ -223,9 +223,10 @@ pub fn main() -> Result<()> {
             let mut inputs = parts.clone();
             inputs.push(plan_path);
             check_output(&output, &inputs)?;
-            let parts = read_parts(&plan, &parts)?;
-            let content = shard::merge(&plan, &parts)?;
-            drop(parts);
+            let parts = parts_in_order(&plan, &parts)?;
+            // One part in memory at a time.
+            let content =
+                shard::merge_in_order(&plan, |k| shard::read_part(parts[k as usize], &plan))?;
             let options = vds_format::WriteOptions {
                 zstd_level: plan.metadata.zstd_level,
                 page_bytes: plan.metadata.page_bytes,
@@ -255,9 +256,9 @@ pub fn main() -> Result<()> {
     Ok(())
 }
 
-/// Reads every part, after checking from their headers that they are the plan's shards,
-/// each once.
-fn read_parts(plan: &Plan, paths: &[PathBuf]) -> Result<Vec<shard::ShardPart>> {
+/// The part files in shard order, after checking from their headers that they are the
+/// plan's shards, each once.
+fn parts_in_order<'a>(plan: &Plan, paths: &'a [PathBuf]) -> Result<Vec<&'a Path>> {
     let mut owner: Vec<Option<&Path>> = vec![None; plan.shard_count() as usize];
     for path in paths {
         let (index, plan_id) = shard::part_header(path)?;
@@ -295,11 +296,7 @@ fn read_parts(plan: &Plan, paths: &[PathBuf]) -> Result<Vec<shard::ShardPart>> {
             plan.shard_count()
         );
     }
-    let parts: Result<Vec<_>, _> = paths
-        .iter()
-        .map(|path| shard::read_part(path, plan))
-        .collect();
-    Ok(parts?)
+    Ok(owner.into_iter().flatten().collect())
 }
 
 /// The folder a file is in (`.` for a bare name).
