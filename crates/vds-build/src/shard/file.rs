@@ -188,40 +188,44 @@ pub fn part_header(path: &Path) -> Result<(u32, u64), ShardError> {
 /// Reads and checks the header of a file that should start with `magic`.
 fn read_header(path: &Path, magic: [u8; 8]) -> Result<PartHeader, ShardError> {
     use std::io::Read;
-    let bad = |reason: &str| ShardError::BadPart {
-        path: path.to_path_buf(),
-        reason: reason.to_string(),
-    };
     let io = |source| ShardError::Io {
         path: path.to_path_buf(),
         source,
     };
-    let mut header = [0u8; HEADER_BYTES];
-    let mut file = std::fs::File::open(path).map_err(io)?;
-    let mut filled = 0;
-    while filled < HEADER_BYTES {
-        match file.read(&mut header[filled..]).map_err(io)? {
-            0 => return Err(bad("truncated: shorter than a part header")),
-            n => filled += n,
-        }
-    }
+    let mut header = Vec::with_capacity(HEADER_BYTES);
+    std::fs::File::open(path)
+        .map_err(io)?
+        .take(HEADER_BYTES as u64)
+        .read_to_end(&mut header)
+        .map_err(io)?;
+    parse_header(&header, magic).map_err(|reason| ShardError::BadPart {
+        path: path.to_path_buf(),
+        reason,
+    })
+}
+
+/// The header at the start of `data`, checked.
+fn parse_header(data: &[u8], magic: [u8; 8]) -> Result<PartHeader, String> {
+    let Some(header) = data.get(..HEADER_BYTES) else {
+        return Err("truncated: shorter than a part header".into());
+    };
     if header[..8] != magic {
-        return Err(bad(if magic == PART_MAGIC {
-            "not a .vdtpart file (wrong magic)"
+        return Err(if magic == PART_MAGIC {
+            "not a .vdtpart file (wrong magic)".into()
         } else {
-            "not a shard input file (wrong magic)"
-        }));
+            "not a shard input file (wrong magic)".into()
+        });
     }
     let u32_at = |at: usize| u32::from_le_bytes(header[at..at + 4].try_into().expect("4 bytes"));
     let u64_at = |at: usize| u64::from_le_bytes(header[at..at + 8].try_into().expect("8 bytes"));
     if xxh3_64(&header[..40]) != u64_at(40) {
-        return Err(bad("damaged header (checksum mismatch)"));
+        return Err("damaged header (checksum mismatch)".into());
     }
     if u32_at(8) != PART_VERSION {
-        return Err(bad(&format!(
+        return Err(format!(
             "part format {}, this build reads {PART_VERSION}",
             u32_at(8)
-        )));
+        ));
     }
     Ok(PartHeader {
         index: u32_at(12),
@@ -231,29 +235,10 @@ fn read_header(path: &Path, magic: [u8; 8]) -> Result<PartHeader, ShardError> {
     })
 }
 
-/// Reads part file `path`, which must be a shard of `plan`, and checks every index it holds.
-pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
-    let bad = |reason: String| ShardError::BadPart {
-        path: path.to_path_buf(),
-        reason,
-    };
-    let header = read_header(path, PART_MAGIC)?;
-    if header.plan_id != plan.id {
-        return Err(bad(format!(
-            "built for another plan (id {:016x}, this plan is {:016x})",
-            header.plan_id, plan.id
-        )));
-    }
-    if header.index >= plan.shard_count() {
-        return Err(bad(format!(
-            "shard {} of a plan of {} shards",
-            header.index,
-            plan.shard_count()
-        )));
-    }
-    let roots = plan.shard_roots(header.index);
-    // The most a shard's body can hold: a subtree has fewer than twice its vertices in nodes,
-    // a triangle is stored once, and a triangle has three corners.
+/// The most body bytes shard `index` of `plan` can hold: a subtree has fewer than twice its
+/// vertices in nodes, a triangle is stored once, and a triangle has three corners.
+fn body_limit(plan: &Plan, index: u32) -> u64 {
+    let roots = plan.shard_roots(index);
     let vertices: u64 = roots
         .clone()
         .map(|r| {
@@ -261,27 +246,13 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
             u64::from(n.leaf_end - n.leaf_begin)
         })
         .sum();
-    let limit = 12
-        + roots.len() as u64 * (12 + SUMS_BYTES as u64)
+    12 + roots.len() as u64 * (12 + SUMS_BYTES as u64)
         + 2 * vertices * NODE_BYTES as u64
-        + plan.triangles * (TRIANGLE_BYTES as u64 + 3 * CROSS_BYTES as u64);
-    if header.body_bytes > limit {
-        return Err(bad(format!(
-            "states a body of {} bytes, more than its shard can hold ({limit})",
-            header.body_bytes
-        )));
-    }
-    // The length is bounded by the plan above: read into a buffer of exactly that size.
-    let mut body = vec![0u8; header.body_bytes as usize];
-    read_body_into(path, &header, &mut body)?;
-    let part = parse_body(&body, plan, header).map_err(bad)?;
-    Ok(part)
+        + plan.triangles * (TRIANGLE_BYTES as u64 + 3 * CROSS_BYTES as u64)
 }
 
-/// Reads the body of a file whose header is `header` into `out` (the body's stated length),
-/// checked against its checksum.
-fn read_body_into(path: &Path, header: &PartHeader, out: &mut [u8]) -> Result<(), ShardError> {
-    use std::io::{Read, Seek};
+/// Reads part file `path`, which must be a shard of `plan`, and checks every index it holds.
+pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     let bad = |reason: String| ShardError::BadPart {
         path: path.to_path_buf(),
         reason,
@@ -290,25 +261,94 @@ fn read_body_into(path: &Path, header: &PartHeader, out: &mut [u8]) -> Result<()
         path: path.to_path_buf(),
         source,
     };
+    let header = read_header(path, PART_MAGIC)?;
+    // The most a shard's body can compress to, so that a file is read whole only when its
+    // size is plausible (what it states is checked in `part_from_bytes`).
+    let most = HEADER_BYTES as u64
+        + if header.index < plan.shard_count() {
+            zstd::zstd_safe::compress_bound(body_limit(plan, header.index) as usize) as u64
+        } else {
+            0
+        };
+    let size = std::fs::metadata(path).map_err(io)?.len();
+    if size > most {
+        return Err(bad(format!("{size} bytes, more than its shard can hold")));
+    }
+    let data = std::fs::read(path).map_err(io)?;
+    part_from_bytes(&data, plan).map_err(bad)
+}
+
+/// A part from the bytes of a `.vdtpart` file, which must be a shard of `plan`; every index
+/// it holds is checked. (What [`read_part`] does once it has read the file.)
+pub fn part_from_bytes(data: &[u8], plan: &Plan) -> Result<ShardPart, String> {
+    let header = parse_header(data, PART_MAGIC)?;
+    if header.plan_id != plan.id {
+        return Err(format!(
+            "built for another plan (id {:016x}, this plan is {:016x})",
+            header.plan_id, plan.id
+        ));
+    }
+    if header.index >= plan.shard_count() {
+        return Err(format!(
+            "shard {} of a plan of {} shards",
+            header.index,
+            plan.shard_count()
+        ));
+    }
+    let limit = body_limit(plan, header.index);
+    if header.body_bytes > limit {
+        return Err(format!(
+            "states a body of {} bytes, more than its shard can hold ({limit})",
+            header.body_bytes
+        ));
+    }
+    // Bounded by the plan above: decoded into a buffer of exactly the stated size.
+    let mut body = vec![0u8; header.body_bytes as usize];
+    decode_body(&data[HEADER_BYTES..], &header, &mut body)?;
+    parse_body(&body, plan, header)
+}
+
+/// Decodes a body of exactly `out.len()` bytes from the zstd stream `compressed` and checks
+/// it against the header's checksum.
+fn decode_body(
+    compressed: impl std::io::Read,
+    header: &PartHeader,
+    out: &mut [u8],
+) -> Result<(), String> {
+    use std::io::Read;
+    let mut decoder =
+        zstd::stream::read::Decoder::new(compressed).map_err(|e| format!("damaged body ({e})"))?;
+    decoder
+        .read_exact(out)
+        .map_err(|e| format!("truncated or damaged body ({e})"))?;
+    let mut rest = [0u8; 1];
+    let more = decoder
+        .read(&mut rest)
+        .map_err(|e| format!("damaged body ({e})"))?;
+    if more != 0 {
+        return Err("a body longer than its header states".into());
+    }
+    if xxh3_64(out) != header.body_checksum {
+        return Err("truncated or damaged body (checksum mismatch)".into());
+    }
+    Ok(())
+}
+
+/// Reads the body of a file whose header is `header` into `out` (the body's stated length),
+/// streaming from the file, checked against its checksum.
+fn read_body_into(path: &Path, header: &PartHeader, out: &mut [u8]) -> Result<(), ShardError> {
+    use std::io::Seek;
+    let io = |source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
     let mut file = std::fs::File::open(path).map_err(io)?;
     file.seek(std::io::SeekFrom::Start(HEADER_BYTES as u64))
         .map_err(io)?;
-    let mut decoder = zstd::stream::read::Decoder::new(file).map_err(io)?;
-    decoder
-        .read_exact(out)
-        .map_err(|e| bad(format!("truncated or damaged body ({e})")))?;
-    let mut rest = [0u8; 1];
-    if decoder
-        .read(&mut rest)
-        .map_err(|e| bad(format!("damaged body ({e})")))?
-        != 0
-    {
-        return Err(bad("a body longer than its header states".into()));
-    }
-    if xxh3_64(out) != header.body_checksum {
-        return Err(bad("truncated or damaged body (checksum mismatch)".into()));
-    }
-    Ok(())
+    decode_body(std::io::BufReader::new(file), header, out).map_err(|reason| ShardError::BadPart {
+        path: path.to_path_buf(),
+        reason,
+    })
 }
 
 /// The first eight bytes of a shard's input file.
@@ -508,6 +548,25 @@ fn get_sums(c: &mut Cursor) -> Result<(Accumulator, Sphere), String> {
         center: c.f32s()?,
         radius: c.f32()?,
     };
+    // A root holds a vertex, so its boxes are not empty; every sum of finite inputs is finite.
+    let finite = |xs: &[f64]| xs.iter().all(|x| x.is_finite());
+    let boxes_hold = [&sums.vertex_box, &sums.triangle_box].iter().all(|b| {
+        (0..3).all(|k| b.min[k].is_finite() && b.max[k].is_finite() && b.min[k] <= b.max[k])
+    });
+    let cones = [Some(sums.cone), sums.two_sided].into_iter().flatten();
+    if !finite(&sums.quadric.a)
+        || !finite(&sums.quadric.b)
+        || !sums.quadric.c.is_finite()
+        || !finite(&sums.position_sum)
+        || !boxes_hold
+        || !cones
+            .into_iter()
+            .all(|c| finite(&c.axis) && c.half_angle.is_finite())
+        || !sphere.center.iter().all(|x| x.is_finite())
+        || !(sphere.radius.is_finite() && sphere.radius >= 0.0)
+    {
+        return Err("a root's sums are not finite".into());
+    }
     Ok((sums, sphere))
 }
 
@@ -604,6 +663,13 @@ fn check_subtree(
     }
     let mut seen = vec![false; leaves as usize];
     for (id, n) in nodes.iter().enumerate() {
+        let floats = n.proxy.iter().chain(&n.sphere).chain(&n.cone);
+        if !floats
+            .chain([&n.error_radius, &n.surface_error])
+            .all(|x| x.get().is_finite())
+        {
+            return Err(format!("node {id} has a value that is not finite"));
+        }
         let (begin, end) = (n.leaf_begin.get(), n.leaf_end.get());
         if begin >= end || end > leaves {
             return Err(format!("node {id} has leaf range {begin}..{end}"));
@@ -616,7 +682,10 @@ fn check_subtree(
             return Err(format!("node {id}'s subtris lie past the triangles"));
         }
         if n.child_count == 0 {
-            if end != begin + 1 || std::mem::replace(&mut seen[begin as usize], true) {
+            if end != begin + 1
+                || n.first_child.get() != NO_NODE
+                || std::mem::replace(&mut seen[begin as usize], true)
+            {
                 return Err(format!("leaf {id} does not hold one rank of its own"));
             }
         } else if n.child_count > 8
@@ -629,6 +698,30 @@ fn check_subtree(
     if seen.iter().any(|&s| !s) {
         return Err("a rank no leaf holds".into());
     }
+    // A tree: every node but the root is the child of exactly the node its parent field
+    // names, one level below it, and children partition their parent's ranks in order.
+    let mut adopted = vec![false; nodes.len()];
+    for (id, n) in nodes.iter().enumerate() {
+        let first = n.first_child.get() as usize;
+        let mut at = n.leaf_begin.get();
+        for c in first..first + usize::from(n.child_count) {
+            let child = &nodes[c];
+            if child.parent.get() as usize != id
+                || child.depth.get() != n.depth.get().wrapping_add(1)
+                || child.leaf_begin.get() != at
+                || std::mem::replace(&mut adopted[c], true)
+            {
+                return Err(format!("node {c} is not a child of node {id}"));
+            }
+            at = child.leaf_end.get();
+        }
+        if n.child_count > 0 && at != n.leaf_end.get() {
+            return Err(format!("node {id}'s children do not cover its ranks"));
+        }
+    }
+    if root.depth.get() != 0 || adopted.iter().skip(1).any(|&a| !a) {
+        return Err("a node outside the tree".into());
+    }
     if triangles
         .iter()
         .any(|t| t.corners.iter().any(|c| c.get() >= leaves))
@@ -636,4 +729,101 @@ fn check_subtree(
         return Err("a triangle corner past its vertices".into());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small scene: a bumpy grid of triangles, some sharing corners across cells.
+    fn scene() -> Scene {
+        let n = 24u32;
+        let mut scene = Scene::default();
+        for y in 0..n {
+            for x in 0..n {
+                let z = ((x * 7 + y * 3) % 5) as f32 * 0.1;
+                scene.positions.push([x as f32, y as f32, z]);
+            }
+        }
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = y * n + x;
+                scene.triangles.push([v, v + 1, v + n]);
+                scene.triangles.push([v + 1, v + n + 1, v + n]);
+            }
+        }
+        scene.triangle_parts = vec![0; scene.triangles.len()];
+        scene.part_names = vec!["grid".into()];
+        scene
+    }
+
+    /// Parts whose bodies are damaged but carry valid checksums (as a hostile file would):
+    /// reading them never panics, and neither does merging and encoding one that reads.
+    #[test]
+    fn damaged_bodies_with_valid_checksums_never_panic() {
+        let mut scene = scene();
+        let grid = crate::snap_to_grid(&mut scene);
+        for shards in [1, 2] {
+            let plan = super::super::plan(
+                &scene.positions,
+                scene.triangles.len() as u64,
+                grid,
+                shards,
+                Default::default(),
+            )
+            .unwrap();
+            let part = super::super::build_shard(&scene, &plan, 0).unwrap();
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("p.vdtpart");
+            write_part(&path, &part).unwrap();
+            let file = std::fs::read(&path).unwrap();
+            let body = zstd::decode_all(&file[HEADER_BYTES..]).unwrap();
+            let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+            let mut random = move || {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                seed
+            };
+            let (mut read, mut merged) = (0, 0);
+            for round in 0..3000 {
+                let mut damaged = body.clone();
+                match round % 3 {
+                    0 => {
+                        let at = random() as usize % damaged.len();
+                        damaged[at] ^= 1 << (random() % 8);
+                    }
+                    1 => {
+                        let at = random() as usize % (damaged.len() - 4);
+                        let value = [0u32, 1, 2, 0xff, u32::MAX, 0x8000_0000][round % 6];
+                        damaged[at..at + 4].copy_from_slice(&value.to_le_bytes());
+                    }
+                    _ => damaged.truncate(random() as usize % damaged.len()),
+                }
+                let mut bytes = header_bytes(
+                    PART_MAGIC,
+                    0,
+                    plan.id,
+                    damaged.len() as u64,
+                    xxh3_64(&damaged),
+                );
+                bytes.extend(zstd::encode_all(&damaged[..], 1).unwrap());
+                let Ok(part) = part_from_bytes(&bytes, &plan) else {
+                    continue;
+                };
+                read += 1;
+                if shards == 1
+                    && let Ok(content) = super::super::merge(&plan, vec![part])
+                {
+                    merged += 1;
+                    let _ = vds_format::encode(&content, &Default::default());
+                }
+            }
+            // Flips in float fields leave a readable part: the test reaches the merge.
+            assert!(read > 100, "{read} of 3000 damaged parts read");
+            if shards == 1 {
+                assert!(merged > 100, "{merged} merged");
+            }
+        }
+    }
 }

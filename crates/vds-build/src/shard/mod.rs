@@ -29,7 +29,8 @@ mod part;
 pub mod plan;
 
 pub use file::{
-    PART_MAGIC, SPILL_MAGIC, part_header, read_part, read_spill, write_part, write_spills,
+    PART_MAGIC, SPILL_MAGIC, part_from_bytes, part_header, read_part, read_spill, write_part,
+    write_spills,
 };
 pub use merge::{merge, merge_in_order};
 pub use part::{

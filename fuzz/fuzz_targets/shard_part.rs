@@ -1,0 +1,56 @@
+//! Fuzzes the sharded build's `.vdtpart` reader and the merge behind it: a part for a
+//! one-shard plan of a small grid is read from the input; one that reads is merged and
+//! encoded. Any input must give an error or a file, never a panic, hang or huge allocation.
+//!
+//! Checksums stop most raw mutations before the body; the unit test
+//! `shard::file::tests::damaged_bodies_with_valid_checksums_never_panic` damages bodies
+//! behind valid checksums, which a fuzzer rarely reaches.
+#![no_main]
+
+use std::sync::OnceLock;
+
+use libfuzzer_sys::fuzz_target;
+use vds_build::shard::{Plan, merge, part_from_bytes, plan};
+
+/// The plan every input is read against: one shard of a 16 × 16 grid of triangles.
+fn the_plan() -> &'static Plan {
+    static PLAN: OnceLock<Plan> = OnceLock::new();
+    PLAN.get_or_init(|| {
+        let n = 16u32;
+        let mut scene = vds_import::Scene::default();
+        for y in 0..n {
+            for x in 0..n {
+                scene
+                    .positions
+                    .push([x as f32, y as f32, ((x + y) % 3) as f32]);
+            }
+        }
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = y * n + x;
+                scene.triangles.push([v, v + 1, v + n]);
+                scene.triangles.push([v + 1, v + n + 1, v + n]);
+            }
+        }
+        scene.triangle_parts = vec![0; scene.triangles.len()];
+        let grid = vds_build::snap_to_grid(&mut scene);
+        plan(
+            &scene.positions,
+            scene.triangles.len() as u64,
+            grid,
+            1,
+            Default::default(),
+        )
+        .expect("a plan of a grid")
+    })
+}
+
+fuzz_target!(|data: &[u8]| {
+    let plan = the_plan();
+    let Ok(part) = part_from_bytes(data, plan) else {
+        return;
+    };
+    if let Ok(content) = merge(plan, vec![part]) {
+        let _ = vds_format::encode(&content, &Default::default());
+    }
+});
