@@ -242,10 +242,16 @@ fn parts_round_trip_through_files_and_the_plan_through_json() {
     let plan_path = dir.path().join("plan.json");
     plan.save(&plan_path).unwrap();
     assert_eq!(Plan::load(&plan_path).unwrap(), plan);
+    let root_of = vds_build::shard::roots_of_vertices(&scene, &plan).unwrap();
     for part in parts(&scene, &plan) {
         let path = dir.path().join(format!("shard-{}.vdtpart", part.index));
         write_part(&path, &part).unwrap();
         assert_eq!(read_part(&path, &plan).unwrap(), part);
+        // Written root by root as the shard builds them: the same bytes.
+        let streamed = dir.path().join("streamed.vdtpart");
+        let input = vds_build::shard::spill_of(&scene, &plan, &root_of, part.index);
+        vds_build::shard::write_shard(&streamed, &plan, part.index, input).unwrap();
+        assert_eq!(std::fs::read(&streamed).unwrap(), std::fs::read(&path).unwrap());
     }
 }
 

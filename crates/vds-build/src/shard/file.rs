@@ -50,40 +50,79 @@ const PART_ZSTD_LEVEL: i32 = 1;
 /// Writes `part` to `path` (a temporary file, then renamed).
 pub fn write_part(path: &Path, part: &ShardPart) -> Result<(), ShardError> {
     let mut out = BodyWriter::create(path)?;
-    let write = |out: &mut BodyWriter| -> std::io::Result<()> {
-        out.put(&(part.roots.len() as u32).to_le_bytes())?;
-        for root in &part.roots {
-            for n in [
-                root.root,
-                root.nodes.len() as u32,
-                root.triangles.len() as u32,
-            ] {
-                out.put(&n.to_le_bytes())?;
-            }
-            let mut sums = Vec::with_capacity(SUMS_BYTES);
-            put_sums(&mut sums, &root.sums, &root.sphere);
-            out.put(&sums)?;
-            out.put(root.nodes.as_bytes())?;
-            out.put(root.triangles.as_bytes())?;
-        }
-        out.put(&(part.cross.len() as u64).to_le_bytes())?;
-        let mut record = Vec::with_capacity(CROSS_BYTES);
-        for c in &part.cross {
-            record.clear();
-            record.extend_from_slice(&c.triangle.to_le_bytes());
-            record.push(c.corner);
-            for n in [c.root, c.rank, c.part, c.owner] {
-                record.extend_from_slice(&n.to_le_bytes());
-            }
-            out.put(&record)?;
-        }
-        Ok(())
-    };
-    write(&mut out).map_err(|source| ShardError::Io {
+    let io = |source| ShardError::Io {
         path: path.to_path_buf(),
         source,
-    })?;
+    };
+    out.put(&(part.roots.len() as u32).to_le_bytes())
+        .map_err(io)?;
+    for root in &part.roots {
+        put_root(&mut out, root).map_err(io)?;
+    }
+    put_cross(&mut out, &part.cross).map_err(io)?;
     out.finish(PART_MAGIC, part.index, part.plan_id)
+}
+
+/// Builds shard `index` of `plan` from its input and writes its part to `path`, each root as
+/// soon as it is built (what [`super::build_shard_from`] and [`write_part`] do, without
+/// holding every root's records at once). Returns the number of cross-root corners.
+pub fn write_shard(
+    path: &Path,
+    plan: &Plan,
+    index: u32,
+    input: Vec<SpillTriangle>,
+) -> Result<usize, ShardError> {
+    let mut out = BodyWriter::create(path)?;
+    let io = |source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    if index >= plan.shard_count() {
+        return Err(ShardError::InputChanged(format!(
+            "shard {index} of a plan of {} shards",
+            plan.shard_count()
+        )));
+    }
+    out.put(&(plan.shard_roots(index).len() as u32).to_le_bytes())
+        .map_err(io)?;
+    let cross = super::build_shard_into(plan, index, input, |root| {
+        put_root(&mut out, &root).map_err(io)
+    })?;
+    put_cross(&mut out, &cross).map_err(io)?;
+    out.finish(PART_MAGIC, index, plan.id)?;
+    Ok(cross.len())
+}
+
+/// One root's entry of a part's body.
+fn put_root(out: &mut BodyWriter, root: &RootPart) -> std::io::Result<()> {
+    for n in [
+        root.root,
+        root.nodes.len() as u32,
+        root.triangles.len() as u32,
+    ] {
+        out.put(&n.to_le_bytes())?;
+    }
+    let mut sums = Vec::with_capacity(SUMS_BYTES);
+    put_sums(&mut sums, &root.sums, &root.sphere);
+    out.put(&sums)?;
+    out.put(root.nodes.as_bytes())?;
+    out.put(root.triangles.as_bytes())
+}
+
+/// The cross-root corners at the end of a part's body.
+fn put_cross(out: &mut BodyWriter, cross: &[CrossCorner]) -> std::io::Result<()> {
+    out.put(&(cross.len() as u64).to_le_bytes())?;
+    let mut record = Vec::with_capacity(CROSS_BYTES);
+    for c in cross {
+        record.clear();
+        record.extend_from_slice(&c.triangle.to_le_bytes());
+        record.push(c.corner);
+        for n in [c.root, c.rank, c.part, c.owner] {
+            record.extend_from_slice(&n.to_le_bytes());
+        }
+        out.put(&record)?;
+    }
+    Ok(())
 }
 
 /// A body streamed through zstd into a temporary file beside its target, hashed on the way;

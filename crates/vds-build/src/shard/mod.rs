@@ -30,12 +30,12 @@ pub mod plan;
 
 pub use file::{
     PART_MAGIC, SPILL_MAGIC, part_from_bytes, part_header, read_part, read_spill, write_part,
-    write_spills,
+    write_shard, write_spills,
 };
 pub use merge::{merge, merge_in_order};
 pub use part::{
     CrossCorner, RootPart, ShardPart, SpillTriangle, build_shard, build_shard_from,
-    roots_of_vertices, spill_of, spill_triangle,
+    build_shard_into, roots_of_vertices, spill_of, spill_triangle,
 };
 pub use plan::{Plan, PlanMetadata, plan};
 

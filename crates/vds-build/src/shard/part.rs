@@ -196,15 +196,38 @@ pub fn build_shard_from(
     index: u32,
     input: Vec<SpillTriangle>,
 ) -> Result<ShardPart, ShardError> {
-    build_shard_with(plan, index, input, Isa::detect())
+    let mut roots = Vec::new();
+    let cross = build_shard_into(plan, index, input, |root| {
+        roots.push(root);
+        Ok(())
+    })?;
+    Ok(ShardPart {
+        plan_id: plan.id,
+        index,
+        roots,
+        cross,
+    })
 }
 
-pub(crate) fn build_shard_with(
+/// [`build_shard_from`], handing each root's part to `each_root` as soon as it is made (in
+/// plan order), so that a caller writing them out never holds them all; returns the shard's
+/// cross-root corners.
+pub fn build_shard_into(
+    plan: &Plan,
+    index: u32,
+    input: Vec<SpillTriangle>,
+    each_root: impl FnMut(RootPart) -> Result<(), ShardError>,
+) -> Result<Vec<CrossCorner>, ShardError> {
+    build_shard_with(plan, index, input, Isa::detect(), each_root)
+}
+
+fn build_shard_with(
     plan: &Plan,
     index: u32,
     input: Vec<SpillTriangle>,
     isa: Isa,
-) -> Result<ShardPart, ShardError> {
+    mut each_root: impl FnMut(RootPart) -> Result<(), ShardError>,
+) -> Result<Vec<CrossCorner>, ShardError> {
     check_index(plan, index)?;
     let changed = |what: &str| Err(ShardError::InputChanged(what.to_string()));
     if input
@@ -338,17 +361,11 @@ pub(crate) fn build_shard_with(
         }
     }
 
-    let roots = subtrees
-        .into_iter()
-        .zip(pure)
-        .map(|((root, subtree), triangles)| subtree.into_part(root, triangles))
-        .collect();
-    Ok(ShardPart {
-        plan_id: plan.id,
-        index,
-        roots,
-        cross,
-    })
+    drop((local, adjacency, ids, rank_of, local_root));
+    for ((root, subtree), triangles) in subtrees.into_iter().zip(pure) {
+        each_root(subtree.into_part(root, triangles))?;
+    }
+    Ok(cross)
 }
 
 fn record(corners: [u32; 3], part: u32) -> TriangleRecord {

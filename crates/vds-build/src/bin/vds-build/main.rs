@@ -49,6 +49,33 @@ fn release_freed_memory() {
     }
 }
 
+/// Makes the allocator hand freed memory back to the kernel at once from now on, instead of
+/// keeping it for reuse (`.cargo/config.toml`). The sharded build's jobs exist to bound memory:
+/// each frees large buffers (a shard's input, a part once merged) whose pages other threads'
+/// arenas would not reuse, so kept pages only raise the peak. On the 10 M scene the merge
+/// peaks at 1.08 GB instead of 1.49 GB, 5 % slower.
+#[allow(unsafe_code)]
+fn return_freed_memory_at_once() {
+    let zero: libc::ssize_t = 0;
+    // The default for arenas made from now on (rayon's threads get theirs when first used),
+    // and arena 0, the main thread's, which exists already.
+    for name in [&b"arenas.dirty_decay_ms\0"[..], &b"arena.0.dirty_decay_ms\0"[..]] {
+        // SAFETY: the name is a NUL-terminated string naming a writable `ssize_t` control
+        // (jemalloc(3)); the new value points to a live `ssize_t` of the size passed, and no
+        // old value is asked for (null pointers). Setting a decay time only changes when
+        // unused pages are purged, never a live allocation. A failure leaves the default.
+        unsafe {
+            tikv_jemalloc_sys::mallctl(
+                name.as_ptr().cast(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                (&zero as *const libc::ssize_t).cast_mut().cast(),
+                size_of::<libc::ssize_t>(),
+            );
+        }
+    }
+}
+
 #[derive(Parser, Debug)]
 #[command(
     version,
@@ -243,6 +270,7 @@ mod sharded;
 fn main() {
     let first = std::env::args_os().nth(1);
     if first.is_some_and(|a| sharded::COMMANDS.iter().any(|c| a == *c)) {
+        return_freed_memory_at_once();
         if let Err(error) = sharded::main() {
             eprintln!("vds-build: error: {error:#}");
             std::process::exit(1);

@@ -203,13 +203,11 @@ pub fn main() -> Result<()> {
             let spill = folder_of(&plan_path).join(name);
             check_output(&output, &[spill.clone(), plan_path.clone()])?;
             let input = shard::read_spill(&spill, &plan, index)?;
-            let part = shard::build_shard_from(&plan, index, input)?;
-            shard::write_part(&output, &part)?;
+            let cross = shard::write_shard(&output, &plan, index, input)?;
             say(format!(
-                "built shard {index} of {} ({} roots, {} triangles across roots)",
+                "built shard {index} of {} ({} roots, {cross} corners of triangles across roots)",
                 plan.shard_count(),
-                part.roots.len(),
-                part.cross.len()
+                plan.shard_roots(index).len(),
             ));
         }
         Command::Merge {
