@@ -1,7 +1,7 @@
 //! The sharded build: the same vertex tree as [`crate::build_tree`], made by independent jobs.
 //!
 //! The tight octree's top levels depend only on the bounds and counts of the vertices in
-//! each cell, so a small *top tree* can be planned first ([`plan`]). Its leaves, the *shard
+//! each cell, so a small *top tree* can be planned first ([`plan()`]). Its leaves, the *shard
 //! roots*, are octree nodes whose subtrees depend only on their own vertices in input order:
 //! each shard builds the subtrees of a contiguous run of roots ([`build_shard`]) with the
 //! in-memory builder's own clustering and attribute passes, and a merge ([`merge`]) fills the
@@ -20,7 +20,7 @@
 //!   ([`CrossCorner`]) and the merge joins them.
 //! - Welding is exact: coincident vertices fall in one cell, so no weld crosses a border.
 //!
-//! Modules: [`plan`](self::plan) (the top tree and the shards), `part` (one shard's build),
+//! Modules: [`mod@plan`] (the top tree and the shards), `part` (one shard's build),
 //! `file` (the `.vdtpart` file), `merge` (the top nodes, renumbering, the file's content).
 
 mod file;
