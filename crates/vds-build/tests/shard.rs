@@ -249,9 +249,12 @@ fn parts_round_trip_through_files_and_the_plan_through_json() {
         assert_eq!(read_part(&path, &plan).unwrap(), part);
         // Written root by root as the shard builds them: the same bytes.
         let streamed = dir.path().join("streamed.vdtpart");
-        let input = vds_build::shard::spill_of(&scene, &plan, &root_of, part.index);
+        let input = vds_build::shard::shard_input_of(&scene, &plan, &root_of, part.index);
         vds_build::shard::write_shard(&streamed, &plan, part.index, input).unwrap();
-        assert_eq!(std::fs::read(&streamed).unwrap(), std::fs::read(&path).unwrap());
+        assert_eq!(
+            std::fs::read(&streamed).unwrap(),
+            std::fs::read(&path).unwrap()
+        );
     }
 }
 
@@ -298,7 +301,7 @@ fn merge_refuses_a_missing_duplicated_or_foreign_part() {
     write_part(&path, &foreign[0]).unwrap();
     let error = read_part(&path, &plan).unwrap_err();
     assert!(
-        matches!(&error, ShardError::BadPart { reason, .. } if reason.contains("another plan")),
+        matches!(&error, ShardError::BadFile { reason, .. } if reason.contains("another plan")),
         "{error}"
     );
 }
@@ -327,7 +330,7 @@ fn truncated_or_damaged_parts_are_refused() {
     for (what, data) in cases {
         std::fs::write(&broken, &data).unwrap();
         match read_part(&broken, &plan) {
-            Err(ShardError::BadPart { path, .. }) => assert_eq!(path, broken, "{what}"),
+            Err(ShardError::BadFile { path, .. }) => assert_eq!(path, broken, "{what}"),
             other => panic!("{what}: {other:?}"),
         }
     }
@@ -353,32 +356,43 @@ fn a_shard_refuses_an_input_that_is_not_the_plans() {
 
 #[test]
 fn shard_inputs_round_trip_through_files() {
-    use vds_build::shard::{build_shard_from, read_spill, roots_of_vertices, write_spills};
+    use vds_build::shard::{
+        build_shard_from, read_shard_input, roots_of_vertices, shard_triangle_counts,
+        write_shard_inputs,
+    };
     let (scene, grid) = loaded(shared("cow.obj"));
-    let plan = planned(&scene, grid, 3);
+    let mut plan = planned(&scene, grid, 3);
     let dir = temp_dir();
     let paths: Vec<PathBuf> = (0..3)
         .map(|k| dir.path().join(format!("shard-{k}.vdtin")))
         .collect();
     let root_of = roots_of_vertices(&scene, &plan).unwrap();
-    write_spills(&scene, &plan, &root_of, &paths).unwrap();
+    // Without the shards' triangle counts in the plan, an input is not read.
+    write_shard_inputs(&scene, &plan, &root_of, &paths).unwrap();
+    assert!(matches!(
+        read_shard_input(&paths[0], &plan, 0),
+        Err(ShardError::BadFile { .. })
+    ));
+    plan.shard_triangles = shard_triangle_counts(&scene, &plan, &root_of);
+    plan.seal();
+    write_shard_inputs(&scene, &plan, &root_of, &paths).unwrap();
     for (k, path) in paths.iter().enumerate() {
-        let input = read_spill(path, &plan, k as u32).unwrap();
+        let input = read_shard_input(path, &plan, k as u32).unwrap();
         assert_eq!(
             build_shard_from(&plan, k as u32, input).unwrap(),
             build_shard(&scene, &plan, k as u32).unwrap()
         );
         // Another shard's input is refused, and so is a damaged one.
         let other = (k + 1) % 3;
-        assert!(read_spill(path, &plan, other as u32).is_err());
+        assert!(read_shard_input(path, &plan, other as u32).is_err());
         let mut bytes = std::fs::read(path).unwrap();
         let at = bytes.len() - 5;
         bytes[at] ^= 0x40;
         let broken = dir.path().join("broken.vdtin");
         std::fs::write(&broken, &bytes).unwrap();
         assert!(matches!(
-            read_spill(&broken, &plan, k as u32),
-            Err(ShardError::BadPart { .. })
+            read_shard_input(&broken, &plan, k as u32),
+            Err(ShardError::BadFile { .. })
         ));
     }
 }

@@ -31,7 +31,7 @@ pub use layout::{
     OLDEST_READABLE_VERSION, PageEntry, TRIANGLE_BYTES, TriangleRecord, VDT_MAGIC, VDT_VERSION,
 };
 pub use metadata::{BuildInfo, InputInfo, MAX_PARTS, Metadata, NO_PART, PartInfo};
-pub use output::{OutputError, resolve_output, same_file, write_atomically};
+pub use output::{AtomicFile, OutputError, resolve_output, same_file, write_atomically};
 pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};
 pub use write::{
     DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, NodeSource, TreeContent, WriteOptions, WriteReport,

@@ -324,10 +324,8 @@ pub fn remove_stale_partials(target: &Path) -> std::io::Result<usize> {
     Ok(removed)
 }
 
-/// Writes `path` atomically with what `write` puts into the writer it is given: to a
-/// temporary file beside the target (locked while written), synced, then renamed over the
-/// target. Stale partials of the same target are removed first. An error leaves the target
-/// as it was and removes the temporary file.
+/// Writes `path` atomically with what `write` puts into the writer it is given:
+/// [`AtomicFile::create`], `write`, [`AtomicFile::commit`].
 ///
 /// # Errors
 /// [`OutputError::NotRegularFile`] when `path` names something that is not a regular file
@@ -336,67 +334,134 @@ pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> Result<(), OutputError> {
-    let io = |cause| OutputError::Io {
+    let mut file = AtomicFile::create(path)?;
+    write(&mut file).map_err(|cause| OutputError::Io {
         path: path.to_path_buf(),
         cause,
-    };
-    let target = resolve_output(path)?;
-    // Best effort: a directory that cannot be listed fails the create below with its reason.
-    let _ = remove_stale_partials(&target);
-    let temporary = partial_path(&target);
-    let mut attempt = 0;
-    let file = loop {
-        attempt += 1;
-        // `create_new` refuses an existing name, a symbolic link included, so nothing planted
-        // at the temporary name is written through.
-        let file = match File::options()
-            .write(true)
-            .create_new(true)
-            .open(&temporary)
-        {
-            Ok(file) => file,
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                return Err(io(std::io::Error::new(
-                    e.kind(),
-                    format!(
-                        "{} exists and is locked: another write of this file is under way",
-                        temporary.display()
-                    ),
-                )));
-            }
-            Err(e) => return Err(io(e)),
+    })?;
+    file.commit()
+}
+
+/// A file being written atomically: a temporary file beside the target (`.NAME.PID.partial`,
+/// locked while written), synced and renamed over the target by [`AtomicFile::commit`].
+/// Stale partials of the same target are removed when it is created. Dropped without a
+/// commit (an error, a panic), it removes its temporary file and leaves the target as it was.
+/// Several may be open at once for different targets.
+pub struct AtomicFile {
+    out: Option<BufWriter<File>>,
+    temporary: PathBuf,
+    target: PathBuf,
+    path: PathBuf,
+}
+
+impl AtomicFile {
+    /// Starts writing `path`.
+    ///
+    /// # Errors
+    /// [`OutputError::NotRegularFile`] when `path` names something that is not a regular
+    /// file (see [`resolve_output`]); [`OutputError::Io`] when the temporary file cannot be
+    /// made.
+    pub fn create(path: &Path) -> Result<AtomicFile, OutputError> {
+        let io = |cause| OutputError::Io {
+            path: path.to_path_buf(),
+            cause,
         };
-        lock_for_writing(&file);
-        if still_named(&file, &temporary) {
-            break file;
-        }
-        if attempt == CREATE_ATTEMPTS {
-            return Err(io(std::io::Error::other(format!(
-                "{} kept being removed while it was created",
-                temporary.display()
-            ))));
-        }
-    };
-    let result = (|| {
-        let mut out = BufWriter::new(file);
-        write(&mut out)?;
-        let file = out.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
-        // Renamed while the lock is held, so no cleaner takes it for stale before.
-        std::fs::rename(&temporary, &target)?;
-        drop(file);
-        // The rename is durable once the directory is synced; failing to sync it (some
-        // filesystems refuse) loses nothing written so far.
-        if let Ok(directory) = File::open(directory_of(&target)) {
-            let _ = directory.sync_all();
-        }
-        Ok(())
-    })();
-    if let Err(cause) = result {
-        let _ = std::fs::remove_file(&temporary);
-        return Err(io(cause));
+        let target = resolve_output(path)?;
+        // Best effort: a directory that cannot be listed fails the create below with its
+        // reason.
+        let _ = remove_stale_partials(&target);
+        let temporary = partial_path(&target);
+        let mut attempt = 0;
+        let file = loop {
+            attempt += 1;
+            // `create_new` refuses an existing name, a symbolic link included, so nothing
+            // planted at the temporary name is written through.
+            let file = match File::options()
+                .write(true)
+                .create_new(true)
+                .open(&temporary)
+            {
+                Ok(file) => file,
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    return Err(io(std::io::Error::new(
+                        e.kind(),
+                        format!(
+                            "{} exists and is locked: another write of this file is under way",
+                            temporary.display()
+                        ),
+                    )));
+                }
+                Err(e) => return Err(io(e)),
+            };
+            lock_for_writing(&file);
+            if still_named(&file, &temporary) {
+                break file;
+            }
+            if attempt == CREATE_ATTEMPTS {
+                return Err(io(std::io::Error::other(format!(
+                    "{} kept being removed while it was created",
+                    temporary.display()
+                ))));
+            }
+        };
+        Ok(AtomicFile {
+            out: Some(BufWriter::new(file)),
+            temporary,
+            target,
+            path: path.to_path_buf(),
+        })
     }
-    Ok(())
+
+    /// Syncs the file and renames it over the target.
+    ///
+    /// # Errors
+    /// [`OutputError::Io`] when a step fails; the target is then as it was.
+    pub fn commit(mut self) -> Result<(), OutputError> {
+        let out = self.out.take().expect("a file is committed once");
+        let result = (|| {
+            let file = out.into_inner().map_err(|e| e.into_error())?;
+            file.sync_all()?;
+            // Renamed while the lock is held, so no cleaner takes it for stale before.
+            std::fs::rename(&self.temporary, &self.target)?;
+            drop(file);
+            // The rename is durable once the directory is synced; failing to sync it (some
+            // filesystems refuse) loses nothing written so far.
+            if let Ok(directory) = File::open(directory_of(&self.target)) {
+                let _ = directory.sync_all();
+            }
+            Ok(())
+        })();
+        result.map_err(|cause| {
+            let _ = std::fs::remove_file(&self.temporary);
+            OutputError::Io {
+                path: self.path.clone(),
+                cause,
+            }
+        })
+    }
+}
+
+impl Write for AtomicFile {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        self.out.as_mut().expect("not committed").write(bytes)
+    }
+
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        self.out.as_mut().expect("not committed").write_all(bytes)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.out.as_mut().expect("not committed").flush()
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if let Some(out) = self.out.take() {
+            drop(out.into_parts());
+            let _ = std::fs::remove_file(&self.temporary);
+        }
+    }
 }
 
 #[cfg(test)]

@@ -68,10 +68,14 @@ pub fn merge_in_order(
     // follow, from `base[root]`.
     // Room for the most nodes a tree of this many leaves has (2V - 1): pages of it that are
     // never written are never touched, and the array is never copied as it grows.
-    let mut records: Vec<NodeRecord> = Vec::with_capacity(2 * plan.vertices as usize);
+    let mut records: Vec<NodeRecord> = Vec::new();
+    // `try_`: the figures come from the plan, a file; one that states more than memory holds
+    // gets the array grown part by part instead (and fails when the parts really are that
+    // large).
+    let _ = records.try_reserve_exact(2 * plan.vertices as usize);
     records.resize(top.len(), NodeRecord::new_zeroed());
     let mut base = vec![0u32; plan.roots.len()];
-    let global = |base: &[u32], r: usize, local: u32| {
+    let id_in = |base: &[u32], r: usize, local: u32| {
         if local == 0 {
             plan.roots[r]
         } else {
@@ -81,8 +85,10 @@ pub fn merge_in_order(
     let mut up: Vec<(Accumulator, Sphere)> =
         vec![(Accumulator::EMPTY, Sphere::default()); top.len()];
     // Leaf positions by global rank, for the top nodes' error radii.
-    let mut leaf_positions = vec![[0.0f32; 3]; plan.vertices as usize];
-    let mut owned: Vec<(u32, TriangleRecord)> = Vec::with_capacity(plan.triangles as usize);
+    let mut leaf_positions: Vec<[f32; 3]> = Vec::new();
+    let mut owned: Vec<(u32, TriangleRecord)> = Vec::new();
+    let _ = leaf_positions.try_reserve_exact(plan.vertices as usize);
+    let _ = owned.try_reserve_exact(plan.triangles as usize);
     let mut cross: Vec<CrossCorner> = Vec::new();
     for k in 0..plan.shard_count() {
         let shard = part(k)?;
@@ -104,6 +110,8 @@ pub fn merge_in_order(
                 return Err(set("more nodes than a file holds".into()));
             }
             up[plan.roots[r] as usize] = (root.sums, root.sphere);
+            // Roots come in leaf order: this one's leaves extend the positions.
+            leaf_positions.resize(root_top.leaf_end as usize, [0.0; 3]);
             for (local, n) in root.nodes.iter().enumerate() {
                 if n.child_count == 0 {
                     leaf_positions[(offset + n.leaf_begin.get()) as usize] =
@@ -113,10 +121,10 @@ pub fn merge_in_order(
                 moved.parent = U32::new(if local == 0 {
                     root_top.parent
                 } else {
-                    global(&base, r, n.parent.get())
+                    id_in(&base, r, n.parent.get())
                 });
                 if n.child_count > 0 {
-                    moved.first_child = U32::new(global(&base, r, n.first_child.get()));
+                    moved.first_child = U32::new(id_in(&base, r, n.first_child.get()));
                 }
                 let depth = n.depth.get().checked_add(root_top.depth);
                 moved.depth =
@@ -132,7 +140,7 @@ pub fn merge_in_order(
                 for t in &root.triangles[begin..begin + n.subtri_count.get() as usize] {
                     let mut t = *t;
                     t.corners = t.corners.map(|c| U32::new(c.get() + offset));
-                    owned.push((global(&base, r, local as u32), t));
+                    owned.push((id_in(&base, r, local as u32), t));
                 }
             }
         }
@@ -163,7 +171,7 @@ pub fn merge_in_order(
     }
     drop(leaf_positions);
     let offset = |r: usize| plan.root_node(r as u32).leaf_begin;
-    let global = |r: usize, local: u32| global(&base, r, local);
+    let global = |r: usize, local: u32| id_in(&base, r, local);
 
     cross.par_sort_unstable();
     for corners in cross.chunk_by(|a, b| a.triangle == b.triangle) {

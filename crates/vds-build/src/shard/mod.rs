@@ -21,22 +21,24 @@
 //! - Welding is exact: coincident vertices fall in one cell, so no weld crosses a border.
 //!
 //! Modules: [`mod@plan`] (the top tree and the shards), `part` (one shard's build),
-//! `file` (the `.vdtpart` file), `merge` (the top nodes, renumbering, the file's content).
+//! `container` (the layout of the build's files), `input_file` (a shard's input, `.vdtin`),
+//! `part_file` (a shard's output, `.vdtpart`), `merge` (the top nodes, renumbering, the
+//! file's content).
 
-mod file;
+mod container;
+mod input_file;
 mod merge;
 mod part;
+mod part_file;
 pub mod plan;
 
-pub use file::{
-    PART_MAGIC, SPILL_MAGIC, part_from_bytes, part_header, read_part, read_spill, write_part,
-    write_shard, write_spills,
-};
+pub use input_file::{INPUT_MAGIC, read_shard_input, shard_triangle_counts, write_shard_inputs};
 pub use merge::{merge, merge_in_order};
 pub use part::{
-    CrossCorner, RootPart, ShardPart, SpillTriangle, build_shard, build_shard_from,
-    build_shard_into, roots_of_vertices, spill_of, spill_triangle,
+    CrossCorner, InputTriangle, RootPart, ShardPart, build_shard, build_shard_from,
+    build_shard_into, input_triangle, roots_of_vertices, shard_input_of,
 };
+pub use part_file::{PART_MAGIC, part_from_bytes, part_header, read_part, write_part, write_shard};
 pub use plan::{Plan, PlanMetadata, plan};
 
 use std::path::PathBuf;
@@ -58,13 +60,21 @@ pub enum ShardError {
         /// What is wrong.
         reason: String,
     },
-    /// A `.vdtpart` file is damaged, truncated or not a shard of this plan.
+    /// A shard's input or part file is damaged, truncated or not for this plan and shard.
     #[error("{path}: {reason}")]
-    BadPart {
-        /// The part file.
+    BadFile {
+        /// The file.
         path: PathBuf,
         /// What is wrong.
         reason: String,
+    },
+    /// A shard index the plan does not have.
+    #[error("shard {index}: the plan has shards 0 to {}", shards - 1)]
+    NoSuchShard {
+        /// The index asked for.
+        index: u32,
+        /// The plan's shard count.
+        shards: u32,
     },
     /// The set of parts given to a merge is not the plan's shards, once each.
     #[error("{0}")]

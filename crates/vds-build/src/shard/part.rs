@@ -76,12 +76,13 @@ const ELSEWHERE: u32 = u32::MAX;
 
 /// One triangle as a shard reads it: its index in the welded scene, its part, and each
 /// corner's welded vertex id and position. A shard's input is every triangle with a corner
-/// under one of its roots, in scene order (what `vds-build plan` spills to each shard's file).
+/// under one of its roots, in scene order (what `vds-build plan` writes to each shard's input
+/// file).
 #[derive(
     Debug, Clone, Copy, PartialEq, FromBytes, IntoBytes, KnownLayout, Immutable, Unaligned,
 )]
 #[repr(C)]
-pub struct SpillTriangle {
+pub struct InputTriangle {
     /// Index in the welded scene.
     pub triangle: U64,
     /// Part id.
@@ -146,7 +147,12 @@ fn check_counts(
 
 /// Shard `index`'s input: the triangles of `scene` with a corner under one of its roots
 /// (`root_of` from [`roots_of_vertices`]), in scene order.
-pub fn spill_of(scene: &Scene, plan: &Plan, root_of: &[u32], index: u32) -> Vec<SpillTriangle> {
+pub fn shard_input_of(
+    scene: &Scene,
+    plan: &Plan,
+    root_of: &[u32],
+    index: u32,
+) -> Vec<InputTriangle> {
     let mine = plan.shard_roots(index);
     (0..scene.triangles.len())
         .into_par_iter()
@@ -155,15 +161,15 @@ pub fn spill_of(scene: &Scene, plan: &Plan, root_of: &[u32], index: u32) -> Vec<
             corners
                 .iter()
                 .any(|&v| mine.contains(&root_of[v as usize]))
-                .then(|| spill_triangle(scene, t))
+                .then(|| input_triangle(scene, t))
         })
         .collect()
 }
 
 /// Triangle `t` of `scene` as a shard reads it.
-pub fn spill_triangle(scene: &Scene, t: usize) -> SpillTriangle {
+pub fn input_triangle(scene: &Scene, t: usize) -> InputTriangle {
     let corners = scene.triangles[t];
-    SpillTriangle {
+    InputTriangle {
         triangle: U64::new(t as u64),
         part: U32::new(scene.triangle_parts[t]),
         vertices: corners.map(U32::new),
@@ -174,27 +180,17 @@ pub fn spill_triangle(scene: &Scene, t: usize) -> SpillTriangle {
 /// Builds shard `index` of `plan` from `scene` (welded, snapped to the plan's grid: the scene
 /// the plan was made from).
 pub fn build_shard(scene: &Scene, plan: &Plan, index: u32) -> Result<ShardPart, ShardError> {
-    check_index(plan, index)?;
+    plan.check_index(index)?;
     let root_of = roots_of_vertices(scene, plan)?;
-    build_shard_from(plan, index, spill_of(scene, plan, &root_of, index))
+    build_shard_from(plan, index, shard_input_of(scene, plan, &root_of, index))
 }
 
-fn check_index(plan: &Plan, index: u32) -> Result<(), ShardError> {
-    if index >= plan.shard_count() {
-        return Err(ShardError::InputChanged(format!(
-            "shard {index} of a plan of {} shards",
-            plan.shard_count()
-        )));
-    }
-    Ok(())
-}
-
-/// Builds shard `index` of `plan` from its input (see [`SpillTriangle`]), which it frees as
+/// Builds shard `index` of `plan` from its input (see [`InputTriangle`]), which it frees as
 /// soon as it has read it.
 pub fn build_shard_from(
     plan: &Plan,
     index: u32,
-    input: Vec<SpillTriangle>,
+    input: Vec<InputTriangle>,
 ) -> Result<ShardPart, ShardError> {
     let mut roots = Vec::new();
     let cross = build_shard_into(plan, index, input, |root| {
@@ -215,7 +211,7 @@ pub fn build_shard_from(
 pub fn build_shard_into(
     plan: &Plan,
     index: u32,
-    input: Vec<SpillTriangle>,
+    input: Vec<InputTriangle>,
     each_root: impl FnMut(RootPart) -> Result<(), ShardError>,
 ) -> Result<Vec<CrossCorner>, ShardError> {
     build_shard_with(plan, index, input, Isa::detect(), each_root)
@@ -224,11 +220,11 @@ pub fn build_shard_into(
 fn build_shard_with(
     plan: &Plan,
     index: u32,
-    input: Vec<SpillTriangle>,
+    input: Vec<InputTriangle>,
     isa: Isa,
     mut each_root: impl FnMut(RootPart) -> Result<(), ShardError>,
 ) -> Result<Vec<CrossCorner>, ShardError> {
-    check_index(plan, index)?;
+    plan.check_index(index)?;
     let changed = |what: &str| Err(ShardError::InputChanged(what.to_string()));
     if input
         .windows(2)

@@ -7,9 +7,11 @@
 //! splits. The split itself is the octree's ([`crate::octree`]): the same split point and
 //! octant test, children in octant order. A node stops being split, and becomes a *shard
 //! root*, when it holds at most an eighth of a shard's share of the vertices, when its
-//! vertices coincide, or when rounding would leave them in one octant (the octree then cuts
-//! balanced chunks, which depend on the vertex order the shard sees anyway). Roots are handed
-//! to shards in leaf order, a contiguous run each, balanced by vertex count.
+//! vertices coincide, when rounding would leave them in one octant (the octree then cuts
+//! balanced chunks, which depend on the vertex order the shard sees anyway), or at depth
+//! [`MAX_TOP_DEPTH`] (which bounds the passes; such a root may hold more than a shard's share,
+//! and its shard is then larger than the others). Roots are handed to shards in leaf order, a
+//! contiguous run each, balanced by vertex count.
 
 use std::path::Path;
 
@@ -26,7 +28,7 @@ pub const PLAN_FORMAT: u32 = 1;
 
 /// Top levels deeper than this are not split further: a shard's subtree is as good a place
 /// for them, and it bounds the plan's passes over the input.
-const MAX_TOP_DEPTH: u16 = 12;
+pub const MAX_TOP_DEPTH: u16 = 12;
 
 /// One node of the top tree. Its children are `first_child .. first_child + child_count`,
 /// one per non-empty octant (`octants`, bit `k` for octant `k`) in octant order.
@@ -105,12 +107,15 @@ impl PlanMetadata {
 pub struct Plan {
     /// [`PLAN_FORMAT`].
     pub format: u32,
-    /// XXH3-64 of the plan's JSON with this field 0: every part names the plan it was built
-    /// for, and a plan edited by hand no longer matches its id.
+    /// XXH3-64 of the plan's compact JSON (`serde_json::to_vec`) with this field 0: every
+    /// part names the plan it was built for, and a plan edited by hand no longer matches its
+    /// id. (The file itself is written pretty-printed.)
     pub id: u64,
     /// Each shard's input file (written by `vds-build plan`), named relative to the plan's
     /// folder; empty when the plan's maker passes shards their input another way.
-    pub spills: Vec<String>,
+    pub input_files: Vec<String>,
+    /// How many triangles each shard's input holds (those with a corner in the shard).
+    pub shard_triangles: Vec<u64>,
     /// The grid's origin and step, as `f32` bits.
     pub grid: ([u32; 3], u32),
     /// Welded vertices (leaves).
@@ -171,6 +176,31 @@ impl Plan {
         }
     }
 
+    /// Sets the id from the contents: call after changing any field.
+    pub fn seal(&mut self) {
+        self.id = self.digest();
+    }
+
+    /// The most triangles shard `index`'s input holds: its count when the plan records one,
+    /// else every triangle.
+    pub fn triangles_of_shard(&self, index: u32) -> u64 {
+        self.shard_triangles
+            .get(index as usize)
+            .copied()
+            .unwrap_or(self.triangles)
+    }
+
+    /// Refuses a shard index the plan does not have.
+    pub fn check_index(&self, index: u32) -> Result<(), ShardError> {
+        if index >= self.shard_count() {
+            return Err(ShardError::NoSuchShard {
+                index,
+                shards: self.shard_count(),
+            });
+        }
+        Ok(())
+    }
+
     /// The plan's id: XXH3-64 of its JSON with `id` 0.
     fn digest(&self) -> u64 {
         let mut unnamed = self.clone();
@@ -228,8 +258,19 @@ impl Plan {
         if top.is_empty() || self.vertices == 0 {
             return Err("an empty top tree".into());
         }
-        if top[0].leaf_begin != 0 || top[0].leaf_end != self.vertices || top[0].depth != 0 {
+        if top[0].leaf_begin != 0
+            || top[0].leaf_end != self.vertices
+            || top[0].depth != 0
+            || top[0].parent != u32::MAX
+        {
             return Err("the root does not span every vertex".into());
+        }
+        // Triangle ids are `u32` in the builder, as in the in-memory build.
+        if self.triangles > u64::from(u32::MAX) {
+            return Err(format!(
+                "{} triangles, more than a build holds",
+                self.triangles
+            ));
         }
         let mut roots_seen = 0u32;
         for (id, node) in top.iter().enumerate() {
@@ -258,7 +299,7 @@ impl Plan {
                     let mut at = node.leaf_begin;
                     for child in &top[first..first + count as usize] {
                         if child.parent != id as u32
-                            || child.depth != node.depth + 1
+                            || Some(child.depth) != node.depth.checked_add(1)
                             || child.leaf_begin != at
                         {
                             return Err(format!("top node {id}: children do not partition it"));
@@ -271,8 +312,8 @@ impl Plan {
                 }
             }
         }
-        if !self.spills.is_empty() && self.spills.len() != self.shard_count() as usize
-            || self.spills.iter().any(|name| {
+        if !self.input_files.is_empty() && self.input_files.len() != self.shard_count() as usize
+            || self.input_files.iter().any(|name| {
                 let path = Path::new(name);
                 path.components().count() != 1 || path.file_name().is_none()
             })
@@ -290,6 +331,9 @@ impl Plan {
             }
             at = node.leaf_end;
         }
+        if at != self.vertices {
+            return Err("the roots do not cover every vertex".into());
+        }
         let starts = &self.shard_starts;
         if starts.len() < 2
             || starts[0] != 0
@@ -298,12 +342,18 @@ impl Plan {
         {
             return Err("shards do not cover the roots in order".into());
         }
+        if !self.shard_triangles.is_empty()
+            && (self.shard_triangles.len() != self.shard_count() as usize
+                || self.shard_triangles.iter().any(|&n| n > self.triangles))
+        {
+            return Err("a shard's triangle count that does not fit the plan".into());
+        }
         Ok(())
     }
 }
 
-/// Plans a sharded build of `positions` (welded and snapped to `grid`, in input order) into
-/// `shards` shards. `triangles` and `metadata` are recorded for the shards and the merge.
+/// Plans a sharded build of `positions` (welded and snapped to `grid`, in input order, every
+/// one used by a triangle, as an imported scene's are) into `shards` shards. `triangles` and `metadata` are recorded for the shards and the merge.
 pub fn plan(
     positions: &[[f32; 3]],
     triangles: u64,
@@ -424,7 +474,8 @@ pub fn plan(
     let mut plan = Plan {
         format: PLAN_FORMAT,
         id: 0,
-        spills: Vec::new(),
+        input_files: Vec::new(),
+        shard_triangles: Vec::new(),
         grid: (grid.origin.map(f32::to_bits), grid.step.to_bits()),
         vertices,
         triangles,
@@ -435,13 +486,6 @@ pub fn plan(
     };
     plan.seal();
     Ok(plan)
-}
-
-impl Plan {
-    /// Sets the id from the contents: call after changing any field.
-    pub fn seal(&mut self) {
-        self.id = self.digest();
-    }
 }
 
 /// Cuts the roots (in leaf order) into `shards` contiguous runs of about equal vertex counts:

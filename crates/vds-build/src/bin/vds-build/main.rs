@@ -59,7 +59,10 @@ fn return_freed_memory_at_once() {
     let zero: libc::ssize_t = 0;
     // The default for arenas made from now on (rayon's threads get theirs when first used),
     // and arena 0, the main thread's, which exists already.
-    for name in [&b"arenas.dirty_decay_ms\0"[..], &b"arena.0.dirty_decay_ms\0"[..]] {
+    for name in [
+        &b"arenas.dirty_decay_ms\0"[..],
+        &b"arena.0.dirty_decay_ms\0"[..],
+    ] {
         // SAFETY: the name is a NUL-terminated string naming a writable `ssize_t` control
         // (jemalloc(3)); the new value points to a live `ssize_t` of the size passed, and no
         // old value is asked for (null pointers). Setting a decay time only changes when

@@ -127,9 +127,7 @@ pub fn main() -> Result<()> {
             max_decompressed_bytes,
             allow_external_uris,
         } => {
-            for input in &inputs {
-                check_output(&output, std::slice::from_ref(input))?;
-            }
+            check_output(&output, &inputs)?;
             let options = ImportOptions {
                 weld: Weld::Exact,
                 max_triangles,
@@ -137,6 +135,11 @@ pub fn main() -> Result<()> {
                 allow_external_uris,
             };
             let mut scene = vds_import::load_files(&inputs, &options)?;
+            if !cli.quiet {
+                for warning in &scene.warnings {
+                    eprintln!("vds-build: warning: {warning}");
+                }
+            }
             let grid = vds_build::snap_to_grid(&mut scene);
             let mut files = Vec::new();
             for input in &inputs {
@@ -159,17 +162,22 @@ pub fn main() -> Result<()> {
             let stem = output
                 .file_stem()
                 .map_or_else(|| "plan".into(), |s| s.to_string_lossy().into_owned());
-            plan.spills = (0..plan.shard_count())
+            plan.input_files = (0..plan.shard_count())
                 .map(|k| format!("{stem}.shard-{k}.vdtin"))
                 .collect();
+            let root_of = shard::roots_of_vertices(&scene, &plan)?;
+            plan.shard_triangles = shard::shard_triangle_counts(&scene, &plan, &root_of);
             plan.seal();
             let folder = folder_of(&output);
-            let paths: Vec<PathBuf> = plan.spills.iter().map(|name| folder.join(name)).collect();
+            let paths: Vec<PathBuf> = plan
+                .input_files
+                .iter()
+                .map(|name| folder.join(name))
+                .collect();
             for path in &paths {
                 check_output(path, &inputs)?;
             }
-            let root_of = shard::roots_of_vertices(&scene, &plan)?;
-            shard::write_spills(&scene, &plan, &root_of, &paths)?;
+            shard::write_shard_inputs(&scene, &plan, &root_of, &paths)?;
             drop(scene);
             // Last, so that a plan on disk always has its shards' inputs.
             plan.save(&output)?;
@@ -187,22 +195,22 @@ pub fn main() -> Result<()> {
             output,
         } => {
             let plan_path = plan;
-            let plan = Plan::load(&plan_path)?;
+            let plan = load_plan(&plan_path)?;
             if index >= plan.shard_count() {
                 bail!(
                     "--index {index}: the plan has shards 0 to {}",
                     plan.shard_count() - 1
                 );
             }
-            let Some(name) = plan.spills.get(index as usize) else {
+            let Some(name) = plan.input_files.get(index as usize) else {
                 bail!(
                     "{}: names no input files for its shards",
                     plan_path.display()
                 );
             };
-            let spill = folder_of(&plan_path).join(name);
-            check_output(&output, &[spill.clone(), plan_path.clone()])?;
-            let input = shard::read_spill(&spill, &plan, index)?;
+            let input_file = folder_of(&plan_path).join(name);
+            check_output(&output, &[input_file.clone(), plan_path.clone()])?;
+            let input = shard::read_shard_input(&input_file, &plan, index)?;
             let cross = shard::write_shard(&output, &plan, index, input)?;
             say(format!(
                 "built shard {index} of {} ({} roots, {cross} corners of triangles across roots)",
@@ -217,7 +225,7 @@ pub fn main() -> Result<()> {
             verify,
         } => {
             let plan_path = plan;
-            let plan = Plan::load(&plan_path)?;
+            let plan = load_plan(&plan_path)?;
             let mut inputs = parts.clone();
             inputs.push(plan_path);
             check_output(&output, &inputs)?;
@@ -295,6 +303,21 @@ fn parts_in_order<'a>(plan: &Plan, paths: &'a [PathBuf]) -> Result<Vec<&'a Path>
         );
     }
     Ok(owner.into_iter().flatten().collect())
+}
+
+/// Reads a plan made by this very version: the jobs of one build must all run the same
+/// `vds-build`, or the file would be one that no single version writes.
+fn load_plan(path: &Path) -> Result<Plan> {
+    let plan = Plan::load(path)?;
+    if plan.metadata.tool != tool() {
+        bail!(
+            "{}: made by {}, this is {}; run every job of a build with one version",
+            path.display(),
+            plan.metadata.tool,
+            tool()
+        );
+    }
+    Ok(plan)
 }
 
 /// The folder a file is in (`.` for a bare name).

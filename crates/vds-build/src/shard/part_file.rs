@@ -1,35 +1,29 @@
-//! The `.vdtpart` file: one shard's output, read by the merge.
+//! A shard's part (`.vdtpart`): what the merge needs of each of its roots and its corners of
+//! triangles across roots. The file's layout is the sharded build's container
+//! ([`super::container`]); its body is:
 //!
-//! A 48-byte header, then one zstd frame of the body. Every number is little-endian.
+//! - the root count (`u32`);
+//! - per root: its index, node count and triangle count (`u32` each), its accumulated sums
+//!   and sphere ([`SUMS_BYTES`] bytes: the quadric's 10, the position sum's 3 `f64`, the
+//!   vertex and triangle boxes' 12 `f32`, the one-sided cone's axis and angle as 4 `f64`, a
+//!   byte saying whether a two-sided cone follows and its 4 `f64`, the sphere's 4 `f32`), its
+//!   node records and its triangle records (the `.vdt` record layouts, subtree ids and ranks);
+//! - the cross-corner count (`u64`) and the cross corners, 25 bytes each (triangle `u64`,
+//!   corner `u8`, root, rank, part and owner `u32`).
 //!
-//! | header bytes | field |
-//! |---|---|
-//! | 0..8 | [`PART_MAGIC`] |
-//! | 8..12 | format version (1) |
-//! | 12..16 | shard index |
-//! | 16..24 | the plan's id |
-//! | 24..32 | body length, uncompressed |
-//! | 32..40 | XXH3-64 of the uncompressed body |
-//! | 40..48 | XXH3-64 of header bytes 0..40 |
-//!
-//! The body: the root count (`u32`); per root its index, node count and triangle count
-//! (`u32` each), its accumulated sums and sphere ([`SUMS_BYTES`]), its node records and its
-//! triangle records (the `.vdt` record layouts); then the cross-corner count (`u64`) and the
-//! cross corners, 25 bytes each (triangle `u64`, corner `u8`, root, rank, part, owner `u32`).
-//!
-//! The reader treats the file as hostile: the body's length is bounded by what the plan
-//! allows the shard to hold before anything is allocated, the checksums are checked, and
-//! every index a record holds is checked against the plan and the part before the merge uses
-//! it.
+//! The reader checks every index a record holds against the plan and the subtree, that the
+//! subtree is a tree whose leaves hold each rank once, and that every value is finite, before
+//! the merge uses it.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use vds_format::{NO_NODE, NodeRecord, TriangleRecord};
-use vds_import::Scene;
-use xxhash_rust::xxh3::xxh3_64;
-use zerocopy::{FromBytes, FromZeros, IntoBytes};
+use zerocopy::{FromBytes, IntoBytes};
 
-use super::part::{CrossCorner, RootPart, ShardPart, SpillTriangle};
+use super::container::{
+    BodyWriter, HEADER_BYTES, TRAILER_BYTES, decode_body, parse_header, parse_trailer, read_ends,
+};
+use super::part::{CrossCorner, InputTriangle, RootPart, ShardPart};
 use super::{Plan, ShardError};
 use crate::bounds::{Aabb, NormalCone};
 use crate::build::{Accumulator, Sphere};
@@ -37,64 +31,45 @@ use crate::quadric::Quadric;
 
 /// The first eight bytes of a `.vdtpart` file.
 pub const PART_MAGIC: [u8; 8] = *b"VDTPART\0";
-const PART_VERSION: u32 = 1;
-const HEADER_BYTES: usize = 48;
+/// What errors call the file.
+const WHAT: &str = ".vdtpart file";
 /// Bytes of a root's sums and sphere in the body.
 const SUMS_BYTES: usize = 10 * 8 + 3 * 8 + 12 * 4 + 4 * 8 + 1 + 4 * 8 + 4 * 4;
 const CROSS_BYTES: usize = 8 + 1 + 4 * 4;
 const NODE_BYTES: usize = vds_format::layout::NODE_BYTES;
 const TRIANGLE_BYTES: usize = vds_format::layout::TRIANGLE_BYTES;
-/// zstd level of parts: they are read once, by the merge.
-const PART_ZSTD_LEVEL: i32 = 1;
 
 /// Writes `part` to `path` (a temporary file, then renamed).
 pub fn write_part(path: &Path, part: &ShardPart) -> Result<(), ShardError> {
-    let mut out = BodyWriter::create(path)?;
-    let io = |source| ShardError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    out.put(&(part.roots.len() as u32).to_le_bytes())
-        .map_err(io)?;
+    let mut out = BodyWriter::create(path, PART_MAGIC, part.index, part.plan_id)?;
+    out.put(&(part.roots.len() as u32).to_le_bytes())?;
     for root in &part.roots {
-        put_root(&mut out, root).map_err(io)?;
+        put_root(&mut out, root)?;
     }
-    put_cross(&mut out, &part.cross).map_err(io)?;
-    out.finish(PART_MAGIC, part.index, part.plan_id)
+    put_cross(&mut out, &part.cross)?;
+    out.finish()
 }
 
 /// Builds shard `index` of `plan` from its input and writes its part to `path`, each root as
-/// soon as it is built (what [`super::build_shard_from`] and [`write_part`] do, without
-/// holding every root's records at once). Returns the number of cross-root corners.
+/// soon as it is built: what [`super::build_shard_from`] and [`write_part`] do, without
+/// holding every root's records at once. Returns the number of cross-root corners.
 pub fn write_shard(
     path: &Path,
     plan: &Plan,
     index: u32,
-    input: Vec<SpillTriangle>,
+    input: Vec<InputTriangle>,
 ) -> Result<usize, ShardError> {
-    let mut out = BodyWriter::create(path)?;
-    let io = |source| ShardError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    if index >= plan.shard_count() {
-        return Err(ShardError::InputChanged(format!(
-            "shard {index} of a plan of {} shards",
-            plan.shard_count()
-        )));
-    }
-    out.put(&(plan.shard_roots(index).len() as u32).to_le_bytes())
-        .map_err(io)?;
-    let cross = super::build_shard_into(plan, index, input, |root| {
-        put_root(&mut out, &root).map_err(io)
-    })?;
-    put_cross(&mut out, &cross).map_err(io)?;
-    out.finish(PART_MAGIC, index, plan.id)?;
+    plan.check_index(index)?;
+    let mut out = BodyWriter::create(path, PART_MAGIC, index, plan.id)?;
+    out.put(&(plan.shard_roots(index).len() as u32).to_le_bytes())?;
+    let cross = super::build_shard_into(plan, index, input, |root| put_root(&mut out, &root))?;
+    put_cross(&mut out, &cross)?;
+    out.finish()?;
     Ok(cross.len())
 }
 
 /// One root's entry of a part's body.
-fn put_root(out: &mut BodyWriter, root: &RootPart) -> std::io::Result<()> {
+fn put_root(out: &mut BodyWriter, root: &RootPart) -> Result<(), ShardError> {
     for n in [
         root.root,
         root.nodes.len() as u32,
@@ -110,7 +85,7 @@ fn put_root(out: &mut BodyWriter, root: &RootPart) -> std::io::Result<()> {
 }
 
 /// The cross-root corners at the end of a part's body.
-fn put_cross(out: &mut BodyWriter, cross: &[CrossCorner]) -> std::io::Result<()> {
+fn put_cross(out: &mut BodyWriter, cross: &[CrossCorner]) -> Result<(), ShardError> {
     out.put(&(cross.len() as u64).to_le_bytes())?;
     let mut record = Vec::with_capacity(CROSS_BYTES);
     for c in cross {
@@ -125,157 +100,9 @@ fn put_cross(out: &mut BodyWriter, cross: &[CrossCorner]) -> std::io::Result<()>
     Ok(())
 }
 
-/// A body streamed through zstd into a temporary file beside its target, hashed on the way;
-/// [`BodyWriter::finish`] writes the header in front and renames the file into place.
-struct BodyWriter {
-    path: PathBuf,
-    out: zstd::stream::write::Encoder<'static, std::io::BufWriter<tempfile::NamedTempFile>>,
-    hasher: xxhash_rust::xxh3::Xxh3,
-    bytes: u64,
-}
-
-impl BodyWriter {
-    fn create(path: &Path) -> Result<BodyWriter, ShardError> {
-        use std::io::Write;
-        let io = |source| ShardError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        vds_format::resolve_output(path)?;
-        let dir = path
-            .parent()
-            .filter(|d| !d.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let mut file = tempfile::NamedTempFile::new_in(dir).map_err(io)?;
-        file.write_all(&[0u8; HEADER_BYTES]).map_err(io)?;
-        let out = zstd::stream::write::Encoder::new(std::io::BufWriter::new(file), PART_ZSTD_LEVEL)
-            .map_err(io)?;
-        Ok(BodyWriter {
-            path: path.to_path_buf(),
-            out,
-            hasher: xxhash_rust::xxh3::Xxh3::new(),
-            bytes: 0,
-        })
-    }
-
-    fn put(&mut self, bytes: &[u8]) -> std::io::Result<()> {
-        use std::io::Write;
-        self.out.write_all(bytes)?;
-        self.hasher.update(bytes);
-        self.bytes += bytes.len() as u64;
-        Ok(())
-    }
-
-    fn finish(self, magic: [u8; 8], index: u32, plan_id: u64) -> Result<(), ShardError> {
-        use std::io::{Seek, Write};
-        let path = self.path;
-        let io = |source| ShardError::Io {
-            path: path.clone(),
-            source,
-        };
-        let header = header_bytes(magic, index, plan_id, self.bytes, self.hasher.digest());
-        let mut file = self
-            .out
-            .finish()
-            .map_err(io)?
-            .into_inner()
-            .map_err(|e| io(e.into_error()))?;
-        file.rewind().map_err(io)?;
-        file.write_all(&header).map_err(io)?;
-        file.as_file().sync_all().map_err(io)?;
-        file.persist(&path).map_err(|e| io(e.error))?;
-        Ok(())
-    }
-}
-
-/// A header: `magic`, the version, the shard's index, the plan's id, the body's length and
-/// checksum, and the header's own checksum.
-fn header_bytes(
-    magic: [u8; 8],
-    index: u32,
-    plan_id: u64,
-    body_bytes: u64,
-    body_checksum: u64,
-) -> Vec<u8> {
-    let mut header = Vec::with_capacity(HEADER_BYTES);
-    header.extend_from_slice(&magic);
-    header.extend_from_slice(&PART_VERSION.to_le_bytes());
-    header.extend_from_slice(&index.to_le_bytes());
-    header.extend_from_slice(&plan_id.to_le_bytes());
-    header.extend_from_slice(&body_bytes.to_le_bytes());
-    header.extend_from_slice(&body_checksum.to_le_bytes());
-    let checksum = xxh3_64(&header);
-    header.extend_from_slice(&checksum.to_le_bytes());
-    header
-}
-
-/// The header of a part or spill file: which shard of which plan it is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct PartHeader {
-    index: u32,
-    plan_id: u64,
-    body_bytes: u64,
-    body_checksum: u64,
-}
-
-/// Which shard of which plan a part file is (its index and the plan's id), from its header
-/// alone: a merge checks the set of parts before it reads any.
-pub fn part_header(path: &Path) -> Result<(u32, u64), ShardError> {
-    read_header(path, PART_MAGIC).map(|h| (h.index, h.plan_id))
-}
-
-/// Reads and checks the header of a file that should start with `magic`.
-fn read_header(path: &Path, magic: [u8; 8]) -> Result<PartHeader, ShardError> {
-    use std::io::Read;
-    let io = |source| ShardError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut header = Vec::with_capacity(HEADER_BYTES);
-    std::fs::File::open(path)
-        .map_err(io)?
-        .take(HEADER_BYTES as u64)
-        .read_to_end(&mut header)
-        .map_err(io)?;
-    parse_header(&header, magic).map_err(|reason| ShardError::BadPart {
-        path: path.to_path_buf(),
-        reason,
-    })
-}
-
-/// The header at the start of `data`, checked.
-fn parse_header(data: &[u8], magic: [u8; 8]) -> Result<PartHeader, String> {
-    let Some(header) = data.get(..HEADER_BYTES) else {
-        return Err("truncated: shorter than a part header".into());
-    };
-    if header[..8] != magic {
-        return Err(if magic == PART_MAGIC {
-            "not a .vdtpart file (wrong magic)".into()
-        } else {
-            "not a shard input file (wrong magic)".into()
-        });
-    }
-    let u32_at = |at: usize| u32::from_le_bytes(header[at..at + 4].try_into().expect("4 bytes"));
-    let u64_at = |at: usize| u64::from_le_bytes(header[at..at + 8].try_into().expect("8 bytes"));
-    if xxh3_64(&header[..40]) != u64_at(40) {
-        return Err("damaged header (checksum mismatch)".into());
-    }
-    if u32_at(8) != PART_VERSION {
-        return Err(format!(
-            "part format {}, this build reads {PART_VERSION}",
-            u32_at(8)
-        ));
-    }
-    Ok(PartHeader {
-        index: u32_at(12),
-        plan_id: u64_at(16),
-        body_bytes: u64_at(24),
-        body_checksum: u64_at(32),
-    })
-}
-
 /// The most body bytes shard `index` of `plan` can hold: a subtree has fewer than twice its
-/// vertices in nodes, a triangle is stored once, and a triangle has three corners.
+/// vertices in nodes, and each of the shard's input triangles is stored once or has at most
+/// three corners reported.
 fn body_limit(plan: &Plan, index: u32) -> u64 {
     let roots = plan.shard_roots(index);
     let vertices: u64 = roots
@@ -285,14 +112,21 @@ fn body_limit(plan: &Plan, index: u32) -> u64 {
             u64::from(n.leaf_end - n.leaf_begin)
         })
         .sum();
+    let triangles = plan.triangles_of_shard(index);
     12 + roots.len() as u64 * (12 + SUMS_BYTES as u64)
         + 2 * vertices * NODE_BYTES as u64
-        + plan.triangles * (TRIANGLE_BYTES as u64 + 3 * CROSS_BYTES as u64)
+        + triangles * (TRIANGLE_BYTES as u64).max(3 * CROSS_BYTES as u64)
+}
+
+/// Which shard of which plan a part file is (its index and the plan's id), from its header
+/// and trailer alone: a merge checks the set of parts before it reads any.
+pub fn part_header(path: &Path) -> Result<(u32, u64), ShardError> {
+    read_ends(path, PART_MAGIC, WHAT).map(|(h, _)| (h.index, h.plan_id))
 }
 
 /// Reads part file `path`, which must be a shard of `plan`, and checks every index it holds.
 pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
-    let bad = |reason: String| ShardError::BadPart {
+    let bad = |reason: String| ShardError::BadFile {
         path: path.to_path_buf(),
         reason,
     };
@@ -300,10 +134,11 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
         path: path.to_path_buf(),
         source,
     };
-    let header = read_header(path, PART_MAGIC)?;
+    let (header, _) = read_ends(path, PART_MAGIC, WHAT)?;
     // The most a shard's body can compress to, so that a file is read whole only when its
     // size is plausible (what it states is checked in `part_from_bytes`).
-    let most = HEADER_BYTES as u64
+    let most = HEADER_BYTES
+        + TRAILER_BYTES
         + if header.index < plan.shard_count() {
             zstd::zstd_safe::compress_bound(body_limit(plan, header.index) as usize) as u64
         } else {
@@ -320,7 +155,7 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
 /// A part from the bytes of a `.vdtpart` file, which must be a shard of `plan`; every index
 /// it holds is checked. (What [`read_part`] does once it has read the file.)
 pub fn part_from_bytes(data: &[u8], plan: &Plan) -> Result<ShardPart, String> {
-    let header = parse_header(data, PART_MAGIC)?;
+    let header = parse_header(data, PART_MAGIC, WHAT)?;
     if header.plan_id != plan.id {
         return Err(format!(
             "built for another plan (id {:016x}, this plan is {:016x})",
@@ -334,131 +169,19 @@ pub fn part_from_bytes(data: &[u8], plan: &Plan) -> Result<ShardPart, String> {
             plan.shard_count()
         ));
     }
+    let trailer = parse_trailer(data)?;
     let limit = body_limit(plan, header.index);
-    if header.body_bytes > limit {
+    if trailer.body_bytes > limit {
         return Err(format!(
             "states a body of {} bytes, more than its shard can hold ({limit})",
-            header.body_bytes
+            trailer.body_bytes
         ));
     }
     // Bounded by the plan above: decoded into a buffer of exactly the stated size.
-    let mut body = vec![0u8; header.body_bytes as usize];
-    decode_body(&data[HEADER_BYTES..], &header, &mut body)?;
-    parse_body(&body, plan, header)
-}
-
-/// Decodes a body of exactly `out.len()` bytes from the zstd stream `compressed` and checks
-/// it against the header's checksum.
-fn decode_body(
-    compressed: impl std::io::Read,
-    header: &PartHeader,
-    out: &mut [u8],
-) -> Result<(), String> {
-    use std::io::Read;
-    let mut decoder =
-        zstd::stream::read::Decoder::new(compressed).map_err(|e| format!("damaged body ({e})"))?;
-    decoder
-        .read_exact(out)
-        .map_err(|e| format!("truncated or damaged body ({e})"))?;
-    let mut rest = [0u8; 1];
-    let more = decoder
-        .read(&mut rest)
-        .map_err(|e| format!("damaged body ({e})"))?;
-    if more != 0 {
-        return Err("a body longer than its header states".into());
-    }
-    if xxh3_64(out) != header.body_checksum {
-        return Err("truncated or damaged body (checksum mismatch)".into());
-    }
-    Ok(())
-}
-
-/// Reads the body of a file whose header is `header` into `out` (the body's stated length),
-/// streaming from the file, checked against its checksum.
-fn read_body_into(path: &Path, header: &PartHeader, out: &mut [u8]) -> Result<(), ShardError> {
-    use std::io::Seek;
-    let io = |source| ShardError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut file = std::fs::File::open(path).map_err(io)?;
-    file.seek(std::io::SeekFrom::Start(HEADER_BYTES as u64))
-        .map_err(io)?;
-    decode_body(std::io::BufReader::new(file), header, out).map_err(|reason| ShardError::BadPart {
-        path: path.to_path_buf(),
-        reason,
-    })
-}
-
-/// The first eight bytes of a shard's input file.
-pub const SPILL_MAGIC: [u8; 8] = *b"VDTSPILL";
-const SPILL_BYTES: usize = size_of::<SpillTriangle>();
-
-/// Writes every shard's input file (`paths[k]` for shard `k`) in one pass over `scene`'s
-/// triangles: each goes to the shards its corners lie in (`root_of`, from
-/// [`super::roots_of_vertices`]). Each file is written beside its target and renamed into place
-/// when complete.
-pub fn write_spills(
-    scene: &Scene,
-    plan: &Plan,
-    root_of: &[u32],
-    paths: &[PathBuf],
-) -> Result<(), ShardError> {
-    let shard_of_root: Vec<u32> = (0..plan.shard_count())
-        .flat_map(|k| plan.shard_roots(k).map(move |_| k))
-        .collect();
-    let mut spills = paths
-        .iter()
-        .map(|path| BodyWriter::create(path))
-        .collect::<Result<Vec<_>, _>>()?;
-    for t in 0..scene.triangles.len() {
-        let mut shards = scene.triangles[t].map(|v| shard_of_root[root_of[v as usize] as usize]);
-        shards.sort_unstable();
-        let record = super::part::spill_triangle(scene, t);
-        for (k, &shard) in shards.iter().enumerate() {
-            if k > 0 && shards[k - 1] == shard {
-                continue;
-            }
-            let spill = &mut spills[shard as usize];
-            spill
-                .put(record.as_bytes())
-                .map_err(|source| ShardError::Io {
-                    path: paths[shard as usize].clone(),
-                    source,
-                })?;
-        }
-    }
-    for (k, spill) in spills.into_iter().enumerate() {
-        spill.finish(SPILL_MAGIC, k as u32, plan.id)?;
-    }
-    Ok(())
-}
-
-/// Reads shard `index`'s input file, which must be for `plan`.
-pub fn read_spill(path: &Path, plan: &Plan, index: u32) -> Result<Vec<SpillTriangle>, ShardError> {
-    let bad = |reason: String| ShardError::BadPart {
-        path: path.to_path_buf(),
-        reason,
-    };
-    let header = read_header(path, SPILL_MAGIC)?;
-    if header.plan_id != plan.id || header.index != index {
-        return Err(bad(format!(
-            "the input of shard {} of plan {:016x}, not of shard {index} of this plan ({:016x})",
-            header.index, header.plan_id, plan.id
-        )));
-    }
-    if header.body_bytes % SPILL_BYTES as u64 != 0
-        || header.body_bytes / SPILL_BYTES as u64 > plan.triangles
-    {
-        return Err(bad(format!(
-            "states {} bytes of triangles; the plan has {} triangles",
-            header.body_bytes, plan.triangles
-        )));
-    }
-    let count = (header.body_bytes / SPILL_BYTES as u64) as usize;
-    let mut triangles = vec![SpillTriangle::new_zeroed(); count];
-    read_body_into(path, &header, triangles.as_mut_bytes())?;
-    Ok(triangles)
+    let mut body = vec![0u8; trailer.body_bytes as usize];
+    let compressed = &data[HEADER_BYTES as usize..data.len() - TRAILER_BYTES as usize];
+    decode_body(compressed, &trailer, &mut body)?;
+    parse_body(&body, plan, header.index)
 }
 
 /// A cursor over the body that fails on reads past its end.
@@ -609,9 +332,10 @@ fn get_sums(c: &mut Cursor) -> Result<(Accumulator, Sphere), String> {
     Ok((sums, sphere))
 }
 
-fn parse_body(body: &[u8], plan: &Plan, header: PartHeader) -> Result<ShardPart, String> {
+fn parse_body(body: &[u8], plan: &Plan, index: u32) -> Result<ShardPart, String> {
     let mut c = Cursor { bytes: body };
-    let expected = plan.shard_roots(header.index);
+    let expected = plan.shard_roots(index);
+    let first_root = expected.start;
     let root_count = c.u32()?;
     if root_count != expected.len() as u32 {
         return Err(format!(
@@ -658,12 +382,16 @@ fn parse_body(body: &[u8], plan: &Plan, header: PartHeader) -> Result<ShardPart,
             part: c.u32()?,
             owner: c.u32()?,
         };
-        let Some(local) = roots.iter().find(|r| r.root == corner.root) else {
-            return Err(format!(
-                "a cross corner under root {}, not this shard's",
-                corner.root
-            ));
-        };
+        let local = corner
+            .root
+            .checked_sub(first_root)
+            .and_then(|k| roots.get(k as usize))
+            .ok_or_else(|| {
+                format!(
+                    "a cross corner under root {}, not this shard's",
+                    corner.root
+                )
+            })?;
         let leaves = local.nodes[0].leaf_end.get();
         if corner.triangle >= plan.triangles
             || corner.corner > 2
@@ -681,8 +409,8 @@ fn parse_body(body: &[u8], plan: &Plan, header: PartHeader) -> Result<ShardPart,
         return Err("bytes after the body".into());
     }
     Ok(ShardPart {
-        plan_id: header.plan_id,
-        index: header.index,
+        plan_id: plan.id,
+        index,
         roots,
         cross,
     })
@@ -772,7 +500,9 @@ fn check_subtree(
 
 #[cfg(test)]
 mod tests {
+    use super::super::container::encoded;
     use super::*;
+    use vds_import::Scene;
 
     /// A small scene: a bumpy grid of triangles, some sharing corners across cells.
     fn scene() -> Scene {
@@ -816,7 +546,9 @@ mod tests {
             let path = dir.path().join("p.vdtpart");
             write_part(&path, &part).unwrap();
             let file = std::fs::read(&path).unwrap();
-            let body = zstd::decode_all(&file[HEADER_BYTES..]).unwrap();
+            let body =
+                zstd::decode_all(&file[HEADER_BYTES as usize..file.len() - TRAILER_BYTES as usize])
+                    .unwrap();
             let mut seed = 0x9e37_79b9_7f4a_7c15u64;
             let mut random = move || {
                 seed ^= seed << 13;
@@ -839,14 +571,7 @@ mod tests {
                     }
                     _ => damaged.truncate(random() as usize % damaged.len()),
                 }
-                let mut bytes = header_bytes(
-                    PART_MAGIC,
-                    0,
-                    plan.id,
-                    damaged.len() as u64,
-                    xxh3_64(&damaged),
-                );
-                bytes.extend(zstd::encode_all(&damaged[..], 1).unwrap());
+                let bytes = encoded(PART_MAGIC, 0, plan.id, &damaged);
                 let Ok(part) = part_from_bytes(&bytes, &plan) else {
                     continue;
                 };

@@ -1,0 +1,260 @@
+//! The layout both of the sharded build's files share (a shard's input, `.vdtin`, and its
+//! part, `.vdtpart`): a 32-byte header, one zstd frame of the body, and a 24-byte trailer.
+//! Every number is little-endian.
+//!
+//! | bytes | field |
+//! |---|---|
+//! | header 0..8 | magic: [`super::INPUT_MAGIC`] or [`super::PART_MAGIC`] |
+//! | header 8..12 | format version (1) |
+//! | header 12..16 | shard index |
+//! | header 16..24 | the plan's id |
+//! | header 24..32 | XXH3-64 of header bytes 0..24 |
+//! | trailer 0..8 | body length, uncompressed |
+//! | trailer 8..16 | XXH3-64 of the uncompressed body |
+//! | trailer 16..24 | XXH3-64 of trailer bytes 0..16 |
+//!
+//! The trailer comes last so that a body is streamed into the file as it is made, through
+//! [`vds_format::AtomicFile`] (a temporary file, renamed into place when complete). A reader
+//! checks the header and trailer, bounds the stated length by what its caller allows before
+//! it allocates, decodes exactly that many bytes and checks the checksum.
+
+use std::io::{Read, Seek, Write};
+use std::path::{Path, PathBuf};
+
+use xxhash_rust::xxh3::{Xxh3, xxh3_64};
+
+use super::ShardError;
+
+const VERSION: u32 = 1;
+/// Bytes before the body.
+pub(crate) const HEADER_BYTES: u64 = 32;
+/// Bytes after the body.
+pub(crate) const TRAILER_BYTES: u64 = 24;
+/// zstd level of the files: each is read once.
+const ZSTD_LEVEL: i32 = 1;
+
+/// Which shard of which plan a file is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Header {
+    pub(crate) index: u32,
+    pub(crate) plan_id: u64,
+}
+
+/// The body's stated length and checksum.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Trailer {
+    pub(crate) body_bytes: u64,
+    body_checksum: u64,
+}
+
+/// A file being written: the body streamed through zstd into an [`vds_format::AtomicFile`]
+/// and hashed on the way; [`BodyWriter::finish`] adds the trailer and renames it into place.
+pub(crate) struct BodyWriter {
+    path: PathBuf,
+    out: zstd::stream::write::Encoder<'static, vds_format::AtomicFile>,
+    hasher: Xxh3,
+    bytes: u64,
+}
+
+impl BodyWriter {
+    /// Starts the file `path` for shard `index` of plan `plan_id`.
+    pub(crate) fn create(
+        path: &Path,
+        magic: [u8; 8],
+        index: u32,
+        plan_id: u64,
+    ) -> Result<BodyWriter, ShardError> {
+        let io = |source| ShardError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut file = vds_format::AtomicFile::create(path)?;
+        let mut header = Vec::with_capacity(HEADER_BYTES as usize);
+        header.extend_from_slice(&magic);
+        header.extend_from_slice(&VERSION.to_le_bytes());
+        header.extend_from_slice(&index.to_le_bytes());
+        header.extend_from_slice(&plan_id.to_le_bytes());
+        header.extend_from_slice(&xxh3_64(&header).to_le_bytes());
+        file.write_all(&header).map_err(io)?;
+        let out = zstd::stream::write::Encoder::new(file, ZSTD_LEVEL).map_err(io)?;
+        Ok(BodyWriter {
+            path: path.to_path_buf(),
+            out,
+            hasher: Xxh3::new(),
+            bytes: 0,
+        })
+    }
+
+    /// Appends to the body.
+    pub(crate) fn put(&mut self, bytes: &[u8]) -> Result<(), ShardError> {
+        self.out.write_all(bytes).map_err(|source| ShardError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        self.hasher.update(bytes);
+        self.bytes += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// Ends the body, writes the trailer and renames the file into place.
+    pub(crate) fn finish(self) -> Result<(), ShardError> {
+        let io = |source| ShardError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let mut file = self.out.finish().map_err(io)?;
+        let mut trailer = Vec::with_capacity(TRAILER_BYTES as usize);
+        trailer.extend_from_slice(&self.bytes.to_le_bytes());
+        trailer.extend_from_slice(&self.hasher.digest().to_le_bytes());
+        trailer.extend_from_slice(&xxh3_64(&trailer).to_le_bytes());
+        file.write_all(&trailer).map_err(io)?;
+        Ok(file.commit()?)
+    }
+}
+
+fn u32_at(bytes: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"))
+}
+
+fn u64_at(bytes: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(bytes[at..at + 8].try_into().expect("8 bytes"))
+}
+
+/// The header at the start of `data` (at least [`HEADER_BYTES`]), checked; `what` names the
+/// kind of file in errors.
+pub(crate) fn parse_header(data: &[u8], magic: [u8; 8], what: &str) -> Result<Header, String> {
+    let Some(header) = data.get(..HEADER_BYTES as usize) else {
+        return Err(format!("truncated: shorter than a {what} header"));
+    };
+    if header[..8] != magic {
+        return Err(format!("not a {what} (wrong magic)"));
+    }
+    if xxh3_64(&header[..24]) != u64_at(header, 24) {
+        return Err("damaged header (checksum mismatch)".into());
+    }
+    if u32_at(header, 8) != VERSION {
+        return Err(format!(
+            "{what} format {}, this build reads {VERSION}",
+            u32_at(header, 8)
+        ));
+    }
+    Ok(Header {
+        index: u32_at(header, 12),
+        plan_id: u64_at(header, 16),
+    })
+}
+
+/// The trailer at the end of `data` (a whole file), checked.
+pub(crate) fn parse_trailer(data: &[u8]) -> Result<Trailer, String> {
+    if (data.len() as u64) < HEADER_BYTES + TRAILER_BYTES {
+        return Err("truncated: no room for a trailer".into());
+    }
+    let trailer = &data[data.len() - TRAILER_BYTES as usize..];
+    if xxh3_64(&trailer[..16]) != u64_at(trailer, 16) {
+        return Err("truncated or damaged (trailer checksum mismatch)".into());
+    }
+    Ok(Trailer {
+        body_bytes: u64_at(trailer, 0),
+        body_checksum: u64_at(trailer, 8),
+    })
+}
+
+/// Reads and checks the header and trailer of file `path`, leaving the body unread.
+pub(crate) fn read_ends(
+    path: &Path,
+    magic: [u8; 8],
+    what: &str,
+) -> Result<(Header, Trailer), ShardError> {
+    let io = |source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let bad = |reason| ShardError::BadFile {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let mut head = Vec::with_capacity(HEADER_BYTES as usize);
+    (&mut file)
+        .take(HEADER_BYTES)
+        .read_to_end(&mut head)
+        .map_err(io)?;
+    let header = parse_header(&head, magic, what).map_err(bad)?;
+    let size = file.metadata().map_err(io)?.len();
+    if size < HEADER_BYTES + TRAILER_BYTES {
+        return Err(bad("truncated: no room for a trailer".into()));
+    }
+    let mut tail = vec![0u8; (HEADER_BYTES + TRAILER_BYTES) as usize];
+    file.seek(std::io::SeekFrom::Start(size - TRAILER_BYTES))
+        .map_err(io)?;
+    file.read_exact(&mut tail[HEADER_BYTES as usize..])
+        .map_err(io)?;
+    let trailer = parse_trailer(&tail).map_err(bad)?;
+    Ok((header, trailer))
+}
+
+/// Decodes the body of exactly `out.len()` bytes (the trailer's length) from the zstd stream
+/// `compressed`, and checks it against the trailer's checksum.
+pub(crate) fn decode_body(
+    compressed: impl Read,
+    trailer: &Trailer,
+    out: &mut [u8],
+) -> Result<(), String> {
+    let mut decoder =
+        zstd::stream::read::Decoder::new(compressed).map_err(|e| format!("damaged body ({e})"))?;
+    decoder
+        .read_exact(out)
+        .map_err(|e| format!("truncated or damaged body ({e})"))?;
+    let mut rest = [0u8; 1];
+    let more = decoder
+        .read(&mut rest)
+        .map_err(|e| format!("damaged body ({e})"))?;
+    if more != 0 {
+        return Err("a body longer than its trailer states".into());
+    }
+    if xxh3_64(out) != trailer.body_checksum {
+        return Err("truncated or damaged body (checksum mismatch)".into());
+    }
+    Ok(())
+}
+
+/// Decodes the body of file `path` (whose ends [`read_ends`] read) into `out`, streaming
+/// from the file.
+pub(crate) fn read_body_into(
+    path: &Path,
+    trailer: &Trailer,
+    out: &mut [u8],
+) -> Result<(), ShardError> {
+    let io = |source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let size = file.metadata().map_err(io)?.len();
+    file.seek(std::io::SeekFrom::Start(HEADER_BYTES))
+        .map_err(io)?;
+    let body =
+        std::io::BufReader::new(file).take(size.saturating_sub(HEADER_BYTES + TRAILER_BYTES));
+    decode_body(body, trailer, out).map_err(|reason| ShardError::BadFile {
+        path: path.to_path_buf(),
+        reason,
+    })
+}
+
+/// A whole file in memory, for tests that damage bodies behind valid checksums.
+#[cfg(test)]
+pub(crate) fn encoded(magic: [u8; 8], index: u32, plan_id: u64, body: &[u8]) -> Vec<u8> {
+    let mut file = Vec::new();
+    file.extend_from_slice(&magic);
+    file.extend_from_slice(&VERSION.to_le_bytes());
+    file.extend_from_slice(&index.to_le_bytes());
+    file.extend_from_slice(&plan_id.to_le_bytes());
+    file.extend_from_slice(&xxh3_64(&file).to_le_bytes());
+    file.extend(zstd::encode_all(body, ZSTD_LEVEL).expect("in memory"));
+    let mut trailer = Vec::new();
+    trailer.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    trailer.extend_from_slice(&xxh3_64(body).to_le_bytes());
+    trailer.extend_from_slice(&xxh3_64(&trailer).to_le_bytes());
+    file.extend(trailer);
+    file
+}

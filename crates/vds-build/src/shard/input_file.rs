@@ -1,0 +1,116 @@
+//! A shard's input (`.vdtin`): every triangle with a corner in the shard, in scene order, as
+//! [`InputTriangle`] records (60 bytes each), in the sharded build's container
+//! ([`super::container`]). `vds-build plan` writes every shard's input in passes over the
+//! scene; a shard reads only its own.
+
+use std::path::{Path, PathBuf};
+
+use vds_import::Scene;
+use zerocopy::{FromZeros, IntoBytes};
+
+use super::container::{BodyWriter, read_body_into, read_ends};
+use super::part::{InputTriangle, input_triangle};
+use super::{Plan, ShardError};
+
+/// The first eight bytes of a `.vdtin` file.
+pub const INPUT_MAGIC: [u8; 8] = *b"VDTINPUT";
+/// What errors call the file.
+const WHAT: &str = "shard input file";
+const RECORD_BYTES: u64 = size_of::<InputTriangle>() as u64;
+/// Files written at once by one pass over the scene: each holds an open file and a zstd
+/// encoder (about a megabyte), so many shards take several passes.
+const FILES_PER_PASS: usize = 128;
+
+/// How many of `scene`'s triangles each shard of `plan` reads: those with a corner under
+/// one of its roots (`root_of`, from [`super::roots_of_vertices`]).
+pub fn shard_triangle_counts(scene: &Scene, plan: &Plan, root_of: &[u32]) -> Vec<u64> {
+    let shard_of_root = shard_of_root(plan);
+    let mut counts = vec![0u64; plan.shard_count() as usize];
+    for t in &scene.triangles {
+        for_each_shard(t, root_of, &shard_of_root, |k| counts[k] += 1);
+    }
+    counts
+}
+
+fn shard_of_root(plan: &Plan) -> Vec<u32> {
+    (0..plan.shard_count())
+        .flat_map(|k| plan.shard_roots(k).map(move |_| k))
+        .collect()
+}
+
+/// Calls `f` once for each shard a triangle's corners lie in.
+fn for_each_shard(t: &[u32; 3], root_of: &[u32], shard_of_root: &[u32], mut f: impl FnMut(usize)) {
+    let mut shards = t.map(|v| shard_of_root[root_of[v as usize] as usize]);
+    shards.sort_unstable();
+    for (k, &shard) in shards.iter().enumerate() {
+        if k == 0 || shards[k - 1] != shard {
+            f(shard as usize);
+        }
+    }
+}
+
+/// Writes every shard's input file (`paths[k]` for shard `k`) from `scene`, each written
+/// beside its target and renamed into place when complete.
+pub fn write_shard_inputs(
+    scene: &Scene,
+    plan: &Plan,
+    root_of: &[u32],
+    paths: &[PathBuf],
+) -> Result<(), ShardError> {
+    let shard_of_root = shard_of_root(plan);
+    for first in (0..paths.len()).step_by(FILES_PER_PASS) {
+        let batch = first..(first + FILES_PER_PASS).min(paths.len());
+        let mut files = batch
+            .clone()
+            .map(|k| BodyWriter::create(&paths[k], INPUT_MAGIC, k as u32, plan.id))
+            .collect::<Result<Vec<_>, _>>()?;
+        for (t, corners) in scene.triangles.iter().enumerate() {
+            let mut result = Ok(());
+            for_each_shard(corners, root_of, &shard_of_root, |k| {
+                if result.is_ok() && batch.contains(&k) {
+                    let record = input_triangle(scene, t);
+                    result = files[k - first].put(record.as_bytes());
+                }
+            });
+            result?;
+        }
+        for file in files {
+            file.finish()?;
+        }
+    }
+    Ok(())
+}
+
+/// Reads shard `index`'s input file, which must be for `plan`.
+pub fn read_shard_input(
+    path: &Path,
+    plan: &Plan,
+    index: u32,
+) -> Result<Vec<InputTriangle>, ShardError> {
+    plan.check_index(index)?;
+    let bad = |reason: String| ShardError::BadFile {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let (header, trailer) = read_ends(path, INPUT_MAGIC, WHAT)?;
+    if header.plan_id != plan.id || header.index != index {
+        return Err(bad(format!(
+            "the input of shard {} of plan {:016x}, not of shard {index} of this plan ({:016x})",
+            header.index, header.plan_id, plan.id
+        )));
+    }
+    let Some(&count) = plan.shard_triangles.get(index as usize) else {
+        return Err(bad(
+            "the plan does not say how many triangles its shards read".into(),
+        ));
+    };
+    if trailer.body_bytes != count * RECORD_BYTES {
+        return Err(bad(format!(
+            "{} bytes of triangles; the plan gives this shard {count} triangles",
+            trailer.body_bytes
+        )));
+    }
+    let mut triangles = vec![InputTriangle::new_zeroed(); count as usize];
+    read_body_into(path, &trailer, triangles.as_mut_bytes())?;
+    Ok(triangles)
+}
