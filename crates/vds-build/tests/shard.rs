@@ -396,3 +396,83 @@ fn shard_inputs_round_trip_through_files() {
         ));
     }
 }
+
+/// Plans edited and then given a matching id (the id is a checksum, not a signature): each is
+/// refused, or shards and merge run on it to an error or a file, never a panic.
+#[test]
+fn crafted_plans_never_panic_a_shard_or_merge() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned(&scene, grid, 3);
+    let original = serde_json::to_value(&plan).unwrap();
+    // Every integer in the plan, as a path of keys and indices.
+    fn integers(value: &serde_json::Value, path: &mut Vec<String>, out: &mut Vec<Vec<String>>) {
+        match value {
+            serde_json::Value::Number(n) if n.is_u64() => out.push(path.clone()),
+            serde_json::Value::Array(items) => {
+                for (k, item) in items.iter().enumerate() {
+                    path.push(k.to_string());
+                    integers(item, path, out);
+                    path.pop();
+                }
+            }
+            serde_json::Value::Object(fields) => {
+                for (key, item) in fields {
+                    if key != "id" && key != "metadata" {
+                        path.push(key.clone());
+                        integers(item, path, out);
+                        path.pop();
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    let mut paths = Vec::new();
+    integers(&original, &mut Vec::new(), &mut paths);
+    assert!(paths.len() > 100, "{} integers", paths.len());
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut random = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    let mut accepted = 0;
+    for round in 0..600 {
+        let mut value = original.clone();
+        let path = &paths[random() as usize % paths.len()];
+        let mut slot = &mut value;
+        for key in path {
+            slot = match slot {
+                serde_json::Value::Array(items) => &mut items[key.parse::<usize>().unwrap()],
+                serde_json::Value::Object(fields) => fields.get_mut(key).unwrap(),
+                _ => unreachable!(),
+            };
+        }
+        let old = slot.as_u64().unwrap();
+        let new = match round % 4 {
+            0 => old + 1,
+            1 => old.saturating_sub(1),
+            2 => 0,
+            _ => [u64::from(u32::MAX), 1 << 40, old * 2 + 7][round % 3],
+        };
+        *slot = serde_json::Value::from(new);
+        let Ok(mut crafted) = serde_json::from_value::<Plan>(value) else {
+            continue;
+        };
+        crafted.seal();
+        let Ok(crafted) = Plan::from_json(&serde_json::to_vec(&crafted).unwrap()) else {
+            continue;
+        };
+        accepted += 1;
+        let parts: Result<Vec<ShardPart>, _> = (0..crafted.shard_count())
+            .map(|k| build_shard(&scene, &crafted, k))
+            .collect();
+        if let Ok(parts) = parts
+            && let Ok(content) = merge(&crafted, parts)
+        {
+            let _ = encode(&content, &options());
+        }
+    }
+    assert!(accepted > 10, "{accepted} crafted plans passed the checks");
+}

@@ -238,21 +238,26 @@ impl Plan {
             path: path.to_path_buf(),
             source,
         })?;
-        let plan: Plan = serde_json::from_slice(&text).map_err(|e| bad(e.to_string()))?;
+        Plan::from_json(&text).map_err(bad)
+    }
+
+    /// A plan from its JSON, checked as [`Plan::load`] checks a file.
+    pub fn from_json(text: &[u8]) -> Result<Plan, String> {
+        let plan: Plan = serde_json::from_slice(text).map_err(|e| e.to_string())?;
         if plan.format != PLAN_FORMAT {
-            return Err(bad(format!(
+            return Err(format!(
                 "format {}, this build reads {PLAN_FORMAT}",
                 plan.format
-            )));
+            ));
         }
         if plan.digest() != plan.id {
-            return Err(bad("its id does not match its contents (edited?)".into()));
+            return Err("its id does not match its contents (edited?)".into());
         }
-        plan.check().map_err(bad)?;
+        plan.check()?;
         Ok(plan)
     }
 
-    /// The structural checks of [`Plan::load`].
+    /// The structural checks of [`Plan::from_json`].
     fn check(&self) -> Result<(), String> {
         let top = &self.top;
         if top.is_empty() || self.vertices == 0 {
