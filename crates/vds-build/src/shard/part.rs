@@ -225,143 +225,191 @@ fn build_shard_with(
     mut each_root: impl FnMut(RootPart) -> Result<(), ShardError>,
 ) -> Result<Vec<CrossCorner>, ShardError> {
     plan.check_index(index)?;
-    let changed = |what: &str| Err(ShardError::InputChanged(what.to_string()));
-    if input
-        .windows(2)
-        .any(|w| w[0].triangle.get() >= w[1].triangle.get())
-        || input
-            .last()
-            .is_some_and(|t| t.triangle.get() >= plan.triangles)
-    {
-        return changed("triangles out of order or past the plan's count");
-    }
     let mine = plan.shard_roots(index);
-
-    // The vertices the triangles use, in welded order, and each one's root.
-    let mut global_id: Vec<u32> = input
-        .iter()
-        .flat_map(|t| t.vertices.map(|v| v.get()))
-        .collect();
-    global_id.par_sort_unstable();
-    global_id.dedup();
-    let local_of = |v: u32| global_id.binary_search(&v).expect("listed above") as u32;
-    let mut positions = vec![None; global_id.len()];
-    let mut triangles = Vec::with_capacity(input.len());
-    let ids: Vec<(u64, u32)> = input
-        .iter()
-        .map(|t| (t.triangle.get(), t.part.get()))
-        .collect();
-    for t in &input {
-        let corners = t.vertices.map(|v| local_of(v.get()));
-        for k in 0..3 {
-            let p = t.positions[k].map(|c| c.get());
-            match &mut positions[corners[k] as usize] {
-                slot @ None => *slot = Some(p),
-                Some(q) if q.map(f32::to_bits) == p.map(f32::to_bits) => {}
-                Some(_) => return changed("one vertex at two positions"),
-            }
-        }
-        triangles.push(corners);
-    }
-    drop(input);
-    let local = Scene {
-        positions: positions
-            .into_iter()
-            .map(|p| p.expect("every vertex is a corner"))
-            .collect(),
-        triangles,
-        ..Scene::default()
-    };
-    let local_root: Vec<u32> = local
-        .positions
-        .par_iter()
-        .map(|&p| {
-            plan.locate(p)
-                .filter(|r| mine.contains(r))
-                .unwrap_or(ELSEWHERE)
-        })
-        .collect();
-    if local
-        .triangles
-        .iter()
-        .any(|c| c.iter().all(|&v| local_root[v as usize] == ELSEWHERE))
-    {
-        return changed("a triangle with no corner in the shard");
-    }
-    let mut counts = vec![0u32; mine.len()];
-    for &root in local_root.iter().filter(|&&r| r != ELSEWHERE) {
-        counts[(root - mine.start) as usize] += 1;
-    }
-    check_counts(plan, mine.clone(), &counts)?;
-    let adjacency = Adjacency::new(local.positions.len(), &local.triangles);
-
-    // Each root's vertices in input order.
-    let mut members: Vec<Vec<u32>> = vec![Vec::new(); mine.len()];
-    for (v, &root) in local_root.iter().enumerate() {
-        if mine.contains(&root) {
-            members[(root - mine.start) as usize].push(v as u32);
-        }
-    }
-    // Every local vertex's leaf rank under its root (vertices elsewhere: none).
-    let mut rank_of = vec![u32::MAX; local.positions.len()];
-    let mut subtrees = Vec::with_capacity(members.len());
-    for (k, vertices) in members.iter().enumerate() {
-        let subtree = Subtree::build(&local, &adjacency, vertices, isa);
-        for (rank, &v) in subtree.leaf_vertex.iter().enumerate() {
-            rank_of[v as usize] = rank as u32;
-        }
-        subtrees.push((mine.start + k as u32, subtree));
-    }
-
-    // Triangles: within one root, a subtri of its subtree; across roots, corners reported.
-    let mut pure: Vec<Vec<(u32, TriangleRecord)>> = vec![Vec::new(); subtrees.len()];
-    let mut cross = Vec::new();
-    for (&(t, part), corners) in ids.iter().zip(&local.triangles) {
-        let corners = *corners;
-        let roots = corners.map(|v| local_root[v as usize]);
-        let shared = |k: usize| roots.iter().filter(|&&r| r == roots[k]).count();
-        if roots[0] == roots[1] && roots[1] == roots[2] {
-            // Kept, so the root is one of this shard's.
-            let k = (roots[0] - mine.start) as usize;
-            let ranks = corners.map(|v| rank_of[v as usize]);
-            let owner = subtrees[k].1.owner(ranks);
-            pure[k].push((owner, record(leading_smallest(ranks), part)));
-            continue;
-        }
-        for k in 0..3 {
-            if !mine.contains(&roots[k]) {
-                continue;
-            }
-            let owner = if shared(k) == 2 {
-                let subtree = &subtrees[(roots[k] - mine.start) as usize].1;
-                // The corner under another root sorts last and stops no walk.
-                let ranks = [0, 1, 2].map(|j| {
-                    if roots[j] == roots[k] {
-                        rank_of[corners[j] as usize]
-                    } else {
-                        u32::MAX
-                    }
-                });
-                subtree.owner(ranks)
-            } else {
-                u32::MAX
-            };
-            cross.push(CrossCorner {
-                triangle: t,
-                corner: k as u8,
-                root: roots[k],
-                rank: rank_of[corners[k] as usize],
-                part,
-                owner,
-            });
-        }
-    }
-
-    drop((local, adjacency, ids, rank_of, local_root));
+    let local = LocalScene::new(plan, mine.clone(), input)?;
+    let adjacency = Adjacency::new(local.scene.positions.len(), &local.scene.triangles);
+    let (subtrees, rank_of) = local.subtrees(&adjacency, mine.start, isa);
+    drop(adjacency);
+    let (pure, cross) = local.assign_triangles(&subtrees, &rank_of, mine.start);
+    drop((local, rank_of));
     for ((root, subtree), triangles) in subtrees.into_iter().zip(pure) {
         each_root(subtree.into_part(root, triangles))?;
     }
     Ok(cross)
+}
+
+/// A shard's triangles over its own numbering of the vertices they use.
+struct LocalScene {
+    /// Positions of the vertices, in welded order, and triangles over them, in scene order.
+    scene: Scene,
+    /// Each triangle's index in the welded scene and its part.
+    ids: Vec<(u64, u32)>,
+    /// Each vertex's root, or [`ELSEWHERE`] for a corner in another shard.
+    root: Vec<u32>,
+    /// The shard's roots.
+    mine: std::ops::Range<u32>,
+}
+
+impl LocalScene {
+    /// Numbers the vertices of the shard's input and checks it against the plan: triangles in
+    /// scene order, one position per vertex, a corner in the shard for every triangle, and
+    /// each root's vertex count.
+    fn new(
+        plan: &Plan,
+        mine: std::ops::Range<u32>,
+        input: Vec<InputTriangle>,
+    ) -> Result<LocalScene, ShardError> {
+        let changed = |what: &str| Err(ShardError::InputChanged(what.to_string()));
+        if input
+            .windows(2)
+            .any(|w| w[0].triangle.get() >= w[1].triangle.get())
+            || input
+                .last()
+                .is_some_and(|t| t.triangle.get() >= plan.triangles)
+        {
+            return changed("triangles out of order or past the plan's count");
+        }
+        let mut global_id: Vec<u32> = input
+            .iter()
+            .flat_map(|t| t.vertices.map(|v| v.get()))
+            .collect();
+        global_id.par_sort_unstable();
+        global_id.dedup();
+        let local_of = |v: u32| global_id.binary_search(&v).expect("listed above") as u32;
+        let mut positions = vec![None; global_id.len()];
+        let mut triangles = Vec::with_capacity(input.len());
+        let ids: Vec<(u64, u32)> = input
+            .iter()
+            .map(|t| (t.triangle.get(), t.part.get()))
+            .collect();
+        for t in &input {
+            let corners = t.vertices.map(|v| local_of(v.get()));
+            for k in 0..3 {
+                let p = t.positions[k].map(|c| c.get());
+                match &mut positions[corners[k] as usize] {
+                    slot @ None => *slot = Some(p),
+                    Some(q) if q.map(f32::to_bits) == p.map(f32::to_bits) => {}
+                    Some(_) => return changed("one vertex at two positions"),
+                }
+            }
+            triangles.push(corners);
+        }
+        drop(input);
+        let scene = Scene {
+            positions: positions
+                .into_iter()
+                .map(|p| p.expect("every vertex is a corner"))
+                .collect(),
+            triangles,
+            ..Scene::default()
+        };
+        let root: Vec<u32> = scene
+            .positions
+            .par_iter()
+            .map(|&p| {
+                plan.locate(p)
+                    .filter(|r| mine.contains(r))
+                    .unwrap_or(ELSEWHERE)
+            })
+            .collect();
+        if scene
+            .triangles
+            .iter()
+            .any(|c| c.iter().all(|&v| root[v as usize] == ELSEWHERE))
+        {
+            return changed("a triangle with no corner in the shard");
+        }
+        let mut counts = vec![0u32; mine.len()];
+        for &r in root.iter().filter(|&&r| r != ELSEWHERE) {
+            counts[(r - mine.start) as usize] += 1;
+        }
+        check_counts(plan, mine.clone(), &counts)?;
+        Ok(LocalScene {
+            scene,
+            ids,
+            root,
+            mine,
+        })
+    }
+
+    /// Each root's subtree (with the root's index), clustered from its vertices in input
+    /// order, and every vertex's leaf rank under its root (`u32::MAX` for one elsewhere).
+    fn subtrees(
+        &self,
+        adjacency: &Adjacency,
+        first: u32,
+        isa: Isa,
+    ) -> (Vec<(u32, Subtree)>, Vec<u32>) {
+        let mut members: Vec<Vec<u32>> = vec![Vec::new(); self.mine.len()];
+        for (v, &root) in self.root.iter().enumerate() {
+            if root != ELSEWHERE {
+                members[(root - first) as usize].push(v as u32);
+            }
+        }
+        let mut rank_of = vec![u32::MAX; self.scene.positions.len()];
+        let mut subtrees = Vec::with_capacity(members.len());
+        for (k, vertices) in members.iter().enumerate() {
+            let subtree = Subtree::build(&self.scene, adjacency, vertices, isa);
+            for (rank, &v) in subtree.leaf_vertex.iter().enumerate() {
+                rank_of[v as usize] = rank as u32;
+            }
+            subtrees.push((first + k as u32, subtree));
+        }
+        (subtrees, rank_of)
+    }
+
+    /// A triangle within one root is a subtri of its subtree, listed with its owner per root;
+    /// one across roots has this shard's corners reported, with the owner where two of them
+    /// lie under one root.
+    fn assign_triangles(
+        &self,
+        subtrees: &[(u32, Subtree)],
+        rank_of: &[u32],
+        first: u32,
+    ) -> (Vec<Vec<(u32, TriangleRecord)>>, Vec<CrossCorner>) {
+        let mut pure: Vec<Vec<(u32, TriangleRecord)>> = vec![Vec::new(); subtrees.len()];
+        let mut cross = Vec::new();
+        for (&(t, part), &corners) in self.ids.iter().zip(&self.scene.triangles) {
+            let roots = corners.map(|v| self.root[v as usize]);
+            if roots[0] == roots[1] && roots[1] == roots[2] {
+                // Every triangle has a corner here, so the one root is one of this shard's.
+                let k = (roots[0] - first) as usize;
+                let ranks = corners.map(|v| rank_of[v as usize]);
+                let owner = subtrees[k].1.owner(ranks);
+                pure[k].push((owner, record(leading_smallest(ranks), part)));
+                continue;
+            }
+            for k in 0..3 {
+                if roots[k] == ELSEWHERE {
+                    continue;
+                }
+                let shared = roots.iter().filter(|&&r| r == roots[k]).count();
+                let owner = if shared == 2 {
+                    let subtree = &subtrees[(roots[k] - first) as usize].1;
+                    // The corner under another root sorts last and stops no walk.
+                    let ranks = [0, 1, 2].map(|j| {
+                        if roots[j] == roots[k] {
+                            rank_of[corners[j] as usize]
+                        } else {
+                            u32::MAX
+                        }
+                    });
+                    subtree.owner(ranks)
+                } else {
+                    u32::MAX
+                };
+                cross.push(CrossCorner {
+                    triangle: t,
+                    corner: k as u8,
+                    root: roots[k],
+                    rank: rank_of[corners[k] as usize],
+                    part,
+                    owner,
+                });
+            }
+        }
+        (pure, cross)
+    }
 }
 
 fn record(corners: [u32; 3], part: u32) -> TriangleRecord {
