@@ -5,6 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
 use vds_import::Scene;
 use zerocopy::{FromZeros, IntoBytes};
 
@@ -20,6 +21,8 @@ const RECORD_BYTES: u64 = size_of::<InputTriangle>() as u64;
 /// Files written at once by one pass over the scene: each holds an open file and a zstd
 /// encoder (about a megabyte), so many shards take several passes.
 const FILES_PER_PASS: usize = 128;
+/// Triangles gathered before the files compress them.
+const TRIANGLES_PER_RUN: usize = 1 << 16;
 
 /// How many of `scene`'s triangles each shard of `plan` reads: those with a corner under
 /// one of its roots (`root_of`, from [`super::roots_of_vertices`]).
@@ -64,15 +67,27 @@ pub fn write_shard_inputs(
             .clone()
             .map(|k| BodyWriter::create(&paths[k], INPUT_MAGIC, k as u32, plan.id))
             .collect::<Result<Vec<_>, _>>()?;
-        for (t, corners) in scene.triangles.iter().enumerate() {
-            let mut result = Ok(());
-            for_each_shard(corners, root_of, &shard_of_root, |k| {
-                if result.is_ok() && batch.contains(&k) {
-                    let record = input_triangle(scene, t);
-                    result = files[k - first].put(record.as_bytes());
-                }
-            });
-            result?;
+        // A run of triangles at a time: gathered per file on this thread, then each file
+        // compresses its share on its own task (the files are independent streams, each
+        // still written in scene order).
+        let mut gathered: Vec<Vec<u8>> = vec![Vec::new(); batch.len()];
+        for run in (0..scene.triangles.len()).step_by(TRIANGLES_PER_RUN) {
+            let end = (run + TRIANGLES_PER_RUN).min(scene.triangles.len());
+            for t in run..end {
+                for_each_shard(&scene.triangles[t], root_of, &shard_of_root, |k| {
+                    if batch.contains(&k) {
+                        gathered[k - first].extend_from_slice(input_triangle(scene, t).as_bytes());
+                    }
+                });
+            }
+            files
+                .par_iter_mut()
+                .zip(&mut gathered)
+                .try_for_each(|(file, bytes)| {
+                    let written = file.put(bytes);
+                    bytes.clear();
+                    written
+                })?;
         }
         for file in files {
             file.finish()?;
