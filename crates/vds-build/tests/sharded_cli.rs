@@ -58,7 +58,9 @@ fn recipe(name: &str) -> String {
 }
 
 fn run_recipe(name: &str, input: &Path, shards: u32) {
-    let dir = temp_dir(name);
+    // One folder per recipe and input: tests run side by side.
+    let file = input.file_name().unwrap().to_string_lossy();
+    let dir = temp_dir(&format!("{name}-{file}"));
     let expected = dir.join("in-memory.vdt");
     succeeded(&build(&[path(input), "-o", path(&expected), "-q"]));
     let output = dir.join("sharded.vdt");
@@ -99,6 +101,25 @@ fn the_background_process_recipe_writes_the_in_memory_file() {
 #[test]
 fn the_xargs_recipe_writes_the_in_memory_file() {
     run_recipe("xargs", &model("cow.obj"), 5);
+    // Other formats: a binary PLY, and an STL written here from the bundled assembly.
+    run_recipe("xargs", &model("bone.ply"), 3);
+    let dir = temp_dir("stl");
+    let stl = dir.join("as1.stl");
+    let scene = vds_import::load_file(model("as1_assembly.obj"), &Default::default()).unwrap();
+    let mut bytes = vec![0u8; 80];
+    bytes.extend_from_slice(&(scene.triangles.len() as u32).to_le_bytes());
+    for t in &scene.triangles {
+        bytes.extend_from_slice(&[0u8; 12]);
+        for &v in t {
+            for c in scene.positions[v as usize] {
+                bytes.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        bytes.extend_from_slice(&[0u8; 2]);
+    }
+    std::fs::write(&stl, bytes).unwrap();
+    run_recipe("background", &stl, 4);
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
