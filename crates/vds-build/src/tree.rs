@@ -191,18 +191,11 @@ impl VertexTree {
     /// The node a triangle is a subtri of: the deepest node supporting two or more of its
     /// corners (Luebke & Erikson §2.1). Walks up from the middle corner's leaf.
     pub fn subtri_node(&self, triangle: [u32; 3]) -> u32 {
-        let mut ranks = triangle.map(|v| self.vertex_rank[v as usize]);
-        ranks.sort_unstable();
-        // The deepest pairwise common ancestor involves the middle rank: any node covering
-        // ranks[0] and ranks[2] also covers ranks[1], since ranges are contiguous.
-        let mut node = self.leaf_node[ranks[1] as usize];
-        loop {
-            let n = &self.nodes[node as usize];
-            if n.leaf_begin <= ranks[0] || n.leaf_end > ranks[2] {
-                return node;
-            }
-            node = n.parent;
-        }
+        subtri_node_of_ranks(
+            &self.nodes,
+            &self.leaf_node,
+            triangle.map(|v| self.vertex_rank[v as usize]),
+        )
     }
 
     /// The subtris of node `id`.
@@ -218,5 +211,22 @@ impl VertexTree {
             histogram[usize::from(n.child_count).min(8)] += 1;
         }
         histogram
+    }
+}
+
+/// The deepest node of `nodes` supporting two or more of the leaf ranks `ranks`
+/// ([`VertexTree::subtri_node`]); `leaf_node` maps a rank to its leaf. The middle rank must
+/// be a leaf of `nodes`; a rank past every leaf (a corner outside a subtree) stops no walk.
+pub(crate) fn subtri_node_of_ranks(nodes: &[Node], leaf_node: &[u32], mut ranks: [u32; 3]) -> u32 {
+    ranks.sort_unstable();
+    // The deepest pairwise common ancestor involves the middle rank: any node covering
+    // ranks[0] and ranks[2] also covers ranks[1], since ranges are contiguous.
+    let mut node = leaf_node[ranks[1] as usize];
+    loop {
+        let n = &nodes[node as usize];
+        if n.leaf_begin <= ranks[0] || n.leaf_end > ranks[2] {
+            return node;
+        }
+        node = n.parent;
     }
 }

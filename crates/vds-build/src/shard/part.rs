@@ -19,7 +19,7 @@ use super::{Plan, ShardError};
 use crate::build::{Accumulator, Adjacency, Inputs, Sphere, compute_attributes, leaf_tables};
 use crate::isa::Isa;
 use crate::octree::cluster_with;
-use crate::tree::Node;
+use crate::tree::{Node, subtri_node_of_ranks};
 use crate::vdt::{leading_smallest, node_record};
 
 /// One root's subtree, as the shard built it: node ids, leaf ranks and subtri ranges are the
@@ -469,16 +469,8 @@ impl Subtree {
 
     /// The node a triangle with corners of these leaf ranks is a subtri of (two or three
     /// under this subtree; `u32::MAX` for one elsewhere), as [`crate::VertexTree::subtri_node`].
-    fn owner(&self, mut ranks: [u32; 3]) -> u32 {
-        ranks.sort_unstable();
-        let mut node = self.leaf_node[ranks[1] as usize];
-        loop {
-            let n = &self.nodes[node as usize];
-            if n.leaf_begin <= ranks[0] || n.leaf_end > ranks[2] {
-                return node;
-            }
-            node = n.parent;
-        }
+    fn owner(&self, ranks: [u32; 3]) -> u32 {
+        subtri_node_of_ranks(&self.nodes, &self.leaf_node, ranks)
     }
 
     /// The part of the root: records with subtri ranges over its triangles, grouped by node

@@ -97,14 +97,8 @@ struct Args {
     /// Output directory for --batch.
     #[arg(long, value_name = "DIR")]
     out_dir: Option<PathBuf>,
-    /// zstd level of the pages (1-22).
-    #[arg(long, default_value_t = vds_format::DEFAULT_ZSTD_LEVEL, value_parser = clap::value_parser!(i32).range(1..=22))]
-    zstd_level: i32,
-    /// Decoded bytes of tree records per page (4KiB to 1MiB; suffixes as for sizes). Smaller
-    /// pages let a runtime under a memory budget hold less below its cut, at some cost in
-    /// file size.
-    #[arg(long, value_name = "SIZE", default_value = "128KiB", value_parser = page_size)]
-    page_bytes: u32,
+    #[command(flatten)]
+    pages: PageOptions,
     /// Weld vertices closer than this fraction of the bounding-box diagonal, a finite number
     /// from 0 up to (not including) 1 (default: exact).
     #[arg(long, value_name = "EPS", value_parser = weld_fraction)]
@@ -127,6 +121,35 @@ struct Args {
     /// `vds-info --verify` does (slow on large scenes).
     #[arg(long)]
     verify: bool,
+    #[command(flatten)]
+    limits: ImportLimits,
+}
+
+/// How pages are written (also taken by `vds-build plan`).
+#[derive(clap::Args, Debug, Clone, Copy)]
+struct PageOptions {
+    /// zstd level of the pages (1-22).
+    #[arg(long, default_value_t = vds_format::DEFAULT_ZSTD_LEVEL, value_parser = clap::value_parser!(i32).range(1..=22))]
+    zstd_level: i32,
+    /// Decoded bytes of tree records per page (4KiB to 1MiB; suffixes as for sizes). Smaller
+    /// pages let a runtime under a memory budget hold less below its cut, at some cost in
+    /// file size.
+    #[arg(long, value_name = "SIZE", default_value = "128KiB", value_parser = page_size)]
+    page_bytes: u32,
+}
+
+impl PageOptions {
+    fn write_options(self) -> vds_format::WriteOptions {
+        vds_format::WriteOptions {
+            zstd_level: self.zstd_level,
+            page_bytes: self.page_bytes,
+        }
+    }
+}
+
+/// What the importers refuse (also taken by `vds-build plan`).
+#[derive(clap::Args, Debug, Clone, Copy)]
+struct ImportLimits {
     /// Refuse inputs holding more triangles than this, all together; glTF instance trees are
     /// counted before they are expanded (default: 2^28 = 268,435,456).
     #[arg(long, value_name = "N", default_value_t = vds_import::ImportOptions::DEFAULT_MAX_TRIANGLES,
@@ -143,6 +166,17 @@ struct Args {
     /// build read other files; other URI schemes are never fetched.
     #[arg(long)]
     allow_external_uris: bool,
+}
+
+impl ImportLimits {
+    fn options(self, weld: Weld) -> ImportOptions {
+        ImportOptions {
+            weld,
+            max_triangles: self.max_triangles,
+            max_decompressed_bytes: self.max_decompressed_bytes,
+            allow_external_uris: self.allow_external_uris,
+        }
+    }
 }
 
 /// A byte count: digits, optionally followed by K, M, G or T (powers of 1024), with or
@@ -409,12 +443,9 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
         check_output(output, inputs)?;
     }
     let show_progress = !args.quiet && !args.json && std::io::stderr().is_terminal();
-    let options = ImportOptions {
-        weld: args.weld.map_or(Weld::Exact, Weld::Relative),
-        max_triangles: args.max_triangles,
-        max_decompressed_bytes: args.max_decompressed_bytes,
-        allow_external_uris: args.allow_external_uris,
-    };
+    let options = args
+        .limits
+        .options(args.weld.map_or(Weld::Exact, Weld::Relative));
 
     let start = Instant::now();
     let bar = spinner(show_progress, "reading meshes");
@@ -463,8 +494,8 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
                 tool: format!("vds-build {}", env!("CARGO_PKG_VERSION")),
                 build: vds_format::BuildInfo {
                     weld: args.weld,
-                    zstd_level: args.zstd_level,
-                    page_bytes: args.page_bytes,
+                    zstd_level: args.pages.zstd_level,
+                    page_bytes: args.pages.page_bytes,
                 },
                 part_names: scene.part_names.clone(),
                 parts: vds_build::part_records(&scene),
@@ -496,10 +527,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
             // The writer reads the tree's nodes in place; the scene is done with.
             let content = vds_build::tree_content(&tree, &scene, metadata, grid);
             drop(scene);
-            let write_options = vds_format::WriteOptions {
-                zstd_level: args.zstd_level,
-                page_bytes: args.page_bytes,
-            };
+            let write_options = args.pages.write_options();
             let written = vds_format::write_file(path, &content, &write_options)
                 .with_context(|| format!("cannot write {}", path.display()))?;
             if args.verify {

@@ -15,9 +15,9 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use vds_build::shard::{self, Plan, PlanMetadata};
-use vds_import::{ImportOptions, Weld};
+use vds_import::Weld;
 
-use crate::{MAX_THREADS, check_output, hash_file, page_size, parse_size};
+use crate::{ImportLimits, MAX_THREADS, PageOptions, check_output, hash_file};
 
 /// The first arguments that select the sharded build's commands.
 pub const COMMANDS: [&str; 3] = ["plan", "shard", "merge"];
@@ -53,23 +53,10 @@ enum Command {
         /// The plan file to write.
         #[arg(short, long, value_name = "PLAN.json")]
         output: PathBuf,
-        /// zstd level of the pages (1-22).
-        #[arg(long, default_value_t = vds_format::DEFAULT_ZSTD_LEVEL, value_parser = clap::value_parser!(i32).range(1..=22))]
-        zstd_level: i32,
-        /// Decoded bytes of tree records per page (4KiB to 1MiB).
-        #[arg(long, value_name = "SIZE", default_value = "128KiB", value_parser = page_size)]
-        page_bytes: u32,
-        /// Refuse inputs holding more triangles than this, all together.
-        #[arg(long, value_name = "N", default_value_t = ImportOptions::DEFAULT_MAX_TRIANGLES,
-              value_parser = clap::value_parser!(u64).range(1..))]
-        max_triangles: u64,
-        /// Refuse a .gz input that decompresses to more than this (and glTF external
-        /// buffers beyond it).
-        #[arg(long, value_name = "SIZE", default_value = "4GiB", value_parser = parse_size)]
-        max_decompressed_bytes: u64,
-        /// Let glTF buffer URIs name files outside the model's folder.
-        #[arg(long)]
-        allow_external_uris: bool,
+        #[command(flatten)]
+        pages: PageOptions,
+        #[command(flatten)]
+        limits: ImportLimits,
     },
     /// Build one shard of a plan.
     Shard {
@@ -121,19 +108,11 @@ pub fn main() -> Result<()> {
             inputs,
             shards,
             output,
-            zstd_level,
-            page_bytes,
-            max_triangles,
-            max_decompressed_bytes,
-            allow_external_uris,
+            pages,
+            limits,
         } => {
             check_output(&output, &inputs)?;
-            let options = ImportOptions {
-                weld: Weld::Exact,
-                max_triangles,
-                max_decompressed_bytes,
-                allow_external_uris,
-            };
+            let options = limits.options(Weld::Exact);
             let mut scene = vds_import::load_files(&inputs, &options)?;
             if !cli.quiet {
                 for warning in &scene.warnings {
@@ -146,11 +125,7 @@ pub fn main() -> Result<()> {
                 let (content_hash, bytes) = hash_file(input)?;
                 files.push((file_name(input), bytes, content_hash));
             }
-            let write = vds_format::WriteOptions {
-                zstd_level,
-                page_bytes,
-            };
-            let metadata = PlanMetadata::of_scene(&scene, tool(), &write, files);
+            let metadata = PlanMetadata::of_scene(&scene, tool(), &pages.write_options(), files);
             let mut plan = shard::plan(
                 &scene.positions,
                 scene.triangles.len() as u64,
