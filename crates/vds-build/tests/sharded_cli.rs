@@ -254,3 +254,92 @@ fn a_shard_reads_only_its_own_input_file() {
     assert!(!out.exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A glTF assembly (a parent node, two coloured child parts) through the sharded build: the
+/// part tree and colours in the metadata are the in-memory build's too.
+#[test]
+fn a_gltf_assembly_gives_the_in_memory_file() {
+    let dir = temp_dir("gltf");
+    // A bumpy grid, two meshes of it (the same positions), three parts.
+    let n = 40u32;
+    let mut bin: Vec<u8> = Vec::new();
+    for y in 0..n {
+        for x in 0..n {
+            let z = ((x * 7 + y * 3) % 5) as f32 * 0.05;
+            for c in [x as f32 * 0.1, y as f32 * 0.1, z] {
+                bin.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+    }
+    let positions_bytes = bin.len();
+    let mut count = 0;
+    for y in 0..n - 1 {
+        for x in 0..n - 1 {
+            let v = y * n + x;
+            for i in [v, v + 1, v + n, v + 1, v + n + 1, v + n] {
+                bin.extend_from_slice(&i.to_le_bytes());
+                count += 1;
+            }
+        }
+    }
+    std::fs::write(dir.join("grid.bin"), &bin).unwrap();
+    let gltf = format!(
+        r#"{{
+  "asset": {{"version": "2.0"}},
+  "scene": 0,
+  "scenes": [{{"nodes": [0]}}],
+  "nodes": [
+    {{"name": "assembly", "mesh": 1, "translation": [0.0, 5.0, 0.0], "children": [1, 2]}},
+    {{"name": "left", "mesh": 0}},
+    {{"name": "right", "mesh": 1, "translation": [4.5, 0.25, 0.5]}}
+  ],
+  "meshes": [
+    {{"primitives": [{{"attributes": {{"POSITION": 0}}, "indices": 1, "material": 0}}]}},
+    {{"primitives": [{{"attributes": {{"POSITION": 0}}, "indices": 1, "material": 1}}]}}
+  ],
+  "materials": [
+    {{"pbrMetallicRoughness": {{"baseColorFactor": [0.8, 0.2, 0.1, 1.0]}}}},
+    {{"pbrMetallicRoughness": {{"baseColorFactor": [0.1, 0.3, 0.9, 1.0]}}}}
+  ],
+  "buffers": [{{"uri": "grid.bin", "byteLength": {total}}}],
+  "bufferViews": [
+    {{"buffer": 0, "byteOffset": 0, "byteLength": {positions_bytes}}},
+    {{"buffer": 0, "byteOffset": {positions_bytes}, "byteLength": {index_bytes}}}
+  ],
+  "accessors": [
+    {{"bufferView": 0, "componentType": 5126, "count": {vertices}, "type": "VEC3",
+      "min": [0, 0, 0], "max": [{extent}, {extent}, 0.2]}},
+    {{"bufferView": 1, "componentType": 5125, "count": {count}, "type": "SCALAR"}}
+  ]
+}}"#,
+        total = bin.len(),
+        index_bytes = bin.len() - positions_bytes,
+        vertices = n * n,
+        extent = (n - 1) as f32 * 0.1,
+    );
+    let input = dir.join("assembly.gltf");
+    std::fs::write(&input, gltf).unwrap();
+    run_recipe("background", &input, 3);
+    // The file states the part tree: the two parts under the assembly, coloured.
+    let out = dir.join("x.vdt");
+    succeeded(&build(&[path(&input), "-o", path(&out), "-q"]));
+    let info = Command::new(env!("CARGO_BIN_EXE_vds-info"))
+        .args([path(&out), "--parts", "--json"])
+        .output()
+        .unwrap();
+    succeeded(&info);
+    let report: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let parts = report["part_list"].as_array().expect("a part list");
+    let named = |name: &str| {
+        parts
+            .iter()
+            .find(|p| p["name"] == name)
+            .unwrap_or_else(|| panic!("no part {name}: {report}"))
+    };
+    assert!(
+        named("left")["parent"] == named("assembly")["index"],
+        "{report}"
+    );
+    assert!(named("right")["color"].is_array(), "{report}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
