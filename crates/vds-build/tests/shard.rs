@@ -368,14 +368,14 @@ fn shard_inputs_round_trip_through_files() {
         .collect();
     let root_of = roots_of_vertices(&scene, &plan).unwrap();
     // Without the shards' triangle counts in the plan, an input is not read.
-    write_shard_inputs(&scene, &plan, &root_of, &paths).unwrap();
+    write_shard_inputs(&scene, &plan, &root_of, &paths, |_, _| {}).unwrap();
     assert!(matches!(
         read_shard_input(&paths[0], &plan, 0),
         Err(ShardError::BadFile { .. })
     ));
     plan.shard_triangles = shard_triangle_counts(&scene, &plan, &root_of);
     plan.seal();
-    write_shard_inputs(&scene, &plan, &root_of, &paths).unwrap();
+    write_shard_inputs(&scene, &plan, &root_of, &paths, |_, _| {}).unwrap();
     for (k, path) in paths.iter().enumerate() {
         let input = read_shard_input(path, &plan, k as u32).unwrap();
         assert_eq!(

@@ -53,14 +53,19 @@ fn for_each_shard(t: &[u32; 3], root_of: &[u32], shard_of_root: &[u32], mut f: i
 }
 
 /// Writes every shard's input file (`paths[k]` for shard `k`) from `scene`, each written
-/// beside its target and renamed into place when complete.
+/// beside its target and renamed into place when complete. `on_progress(done, total)` is
+/// told how many triangles the passes over the scene have gone through.
 pub fn write_shard_inputs(
     scene: &Scene,
     plan: &Plan,
     root_of: &[u32],
     paths: &[PathBuf],
+    mut on_progress: impl FnMut(u64, u64),
 ) -> Result<(), ShardError> {
     let shard_of_root = shard_of_root(plan);
+    let passes = paths.len().div_ceil(FILES_PER_PASS) as u64;
+    let total = passes * scene.triangles.len() as u64;
+    let mut done = 0u64;
     for first in (0..paths.len()).step_by(FILES_PER_PASS) {
         let batch = first..(first + FILES_PER_PASS).min(paths.len());
         let mut files = batch
@@ -88,6 +93,8 @@ pub fn write_shard_inputs(
                     bytes.clear();
                     written
                 })?;
+            done += (end - run) as u64;
+            on_progress(done, total);
         }
         for file in files {
             file.finish()?;

@@ -9,6 +9,7 @@
 //!
 //! The output is the file `vds-build INPUT... -o OUT.vdt` writes, byte for byte.
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -95,7 +96,9 @@ pub fn main() -> Result<()> {
             .context("cannot set up the thread pool")?;
     }
     let start = Instant::now();
+    let progress = Progress::new(!cli.quiet && std::io::stderr().is_terminal());
     let say = |what: String| {
+        progress.clear();
         if !cli.quiet {
             eprintln!(
                 "vds-build: {what} in {:.2} s",
@@ -113,6 +116,7 @@ pub fn main() -> Result<()> {
         } => {
             check_output(&output, &inputs)?;
             let options = limits.options(Weld::Exact);
+            progress.phase("reading meshes");
             let mut scene = vds_import::load_files(&inputs, &options)?;
             if !cli.quiet {
                 for warning in &scene.warnings {
@@ -140,6 +144,7 @@ pub fn main() -> Result<()> {
             plan.input_files = (0..plan.shard_count())
                 .map(|k| format!("{stem}.shard-{k}.vdtin"))
                 .collect();
+            progress.phase("planning the top of the tree");
             let root_of = shard::roots_of_vertices(&scene, &plan)?;
             plan.shard_triangles = shard::shard_triangle_counts(&scene, &plan, &root_of);
             plan.seal();
@@ -152,7 +157,10 @@ pub fn main() -> Result<()> {
             for path in &paths {
                 check_output(path, &inputs)?;
             }
-            shard::write_shard_inputs(&scene, &plan, &root_of, &paths)?;
+            progress.counted("writing the shards' inputs (triangles)");
+            shard::write_shard_inputs(&scene, &plan, &root_of, &paths, |done, total| {
+                progress.set(done, total)
+            })?;
             drop(scene);
             // Last, so that a plan on disk always has its shards' inputs.
             plan.save(&output)?;
@@ -185,7 +193,9 @@ pub fn main() -> Result<()> {
             };
             let input_file = folder_of(&plan_path).join(name);
             check_output(&output, &[input_file.clone(), plan_path.clone()])?;
+            progress.phase("reading the shard's input");
             let input = shard::read_shard_input(&input_file, &plan, index)?;
+            progress.phase("building the shard's subtrees");
             let cross = shard::write_shard(&output, &plan, index, input)?;
             say(format!(
                 "built shard {index} of {} ({} roots, {cross} corners of triangles across roots)",
@@ -206,8 +216,12 @@ pub fn main() -> Result<()> {
             check_output(&output, &inputs)?;
             let parts = parts_in_order(&plan, &parts)?;
             // One part in memory at a time.
-            let content =
-                shard::merge_in_order(&plan, |k| shard::read_part(parts[k as usize], &plan))?;
+            progress.counted("joining the parts (shards)");
+            let content = shard::merge_in_order(&plan, |k| {
+                progress.set(u64::from(k), u64::from(plan.shard_count()));
+                shard::read_part(parts[k as usize], &plan)
+            })?;
+            progress.phase("compressing and writing pages");
             let options = vds_format::WriteOptions {
                 zstd_level: plan.metadata.zstd_level,
                 page_bytes: plan.metadata.page_bytes,
@@ -235,6 +249,59 @@ pub fn main() -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// What a terminal shows while a job runs: a spinner naming the phase, or a bar with an ETA
+/// where the work is counted. Nothing when stderr is not a terminal or with `--quiet`.
+struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Progress {
+    fn new(enabled: bool) -> Progress {
+        Progress {
+            bar: enabled.then(|| {
+                let bar = indicatif::ProgressBar::new_spinner();
+                bar.enable_steady_tick(std::time::Duration::from_millis(100));
+                bar
+            }),
+        }
+    }
+
+    /// A phase whose work is not counted.
+    fn phase(&self, message: &'static str) {
+        if let Some(bar) = &self.bar {
+            bar.set_style(indicatif::ProgressStyle::default_spinner());
+            bar.set_message(message);
+        }
+    }
+
+    /// A counted phase: [`Progress::set`] moves its bar.
+    fn counted(&self, message: &'static str) {
+        if let Some(bar) = &self.bar {
+            let style = indicatif::ProgressStyle::with_template(
+                "{msg} [{bar:30}] {human_pos}/{human_len}, {eta} left",
+            )
+            .expect("a valid template")
+            .progress_chars("=> ");
+            bar.set_style(style);
+            bar.set_message(message);
+            bar.set_position(0);
+        }
+    }
+
+    fn set(&self, done: u64, total: u64) {
+        if let Some(bar) = &self.bar {
+            bar.set_length(total);
+            bar.set_position(done);
+        }
+    }
+
+    fn clear(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
 }
 
 /// The part files in shard order, after checking from their headers that they are the
