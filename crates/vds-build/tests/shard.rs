@@ -336,6 +336,35 @@ fn truncated_or_damaged_parts_are_refused() {
     }
 }
 
+/// A part whose nodes all claim every triangle (a valid tree otherwise, and tiny once
+/// compressed) is refused before the merge would copy the triangles once per node.
+#[test]
+fn a_part_with_overlapping_subtri_ranges_is_refused() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned(&scene, grid, 2);
+    let mut part = build_shard(&scene, &plan, 0).unwrap();
+    let root = part
+        .roots
+        .iter_mut()
+        .max_by_key(|r| r.triangles.len())
+        .unwrap();
+    let all = root.triangles.len() as u32;
+    assert!(all > 0 && root.nodes.len() > 2);
+    for n in &mut root.nodes {
+        n.subtri_begin = 0.into();
+        n.subtri_count = all.into();
+    }
+    let dir = temp_dir();
+    let path = dir.path().join("overlapping.vdtpart");
+    write_part(&path, &part).unwrap();
+    match read_part(&path, &plan) {
+        Err(ShardError::BadFile { reason, .. }) => {
+            assert!(reason.contains("subtris"), "{reason}")
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
 #[test]
 fn a_shard_refuses_an_input_that_is_not_the_plans() {
     let (scene, grid) = loaded(testdata("as1_assembly.obj"));

@@ -418,26 +418,37 @@ impl AtomicFile {
     /// [`OutputError::Io`] when a step fails; the target is then as it was.
     pub fn commit(mut self) -> Result<(), OutputError> {
         let out = self.out.take().expect("a file is committed once");
-        let result = (|| {
-            let file = out.into_inner().map_err(|e| e.into_error())?;
-            file.sync_all()?;
-            // Renamed while the lock is held, so no cleaner takes it for stale before.
-            std::fs::rename(&self.temporary, &self.target)?;
-            drop(file);
-            // The rename is durable once the directory is synced; failing to sync it (some
-            // filesystems refuse) loses nothing written so far.
-            if let Ok(directory) = File::open(directory_of(&self.target)) {
-                let _ = directory.sync_all();
-            }
-            Ok(())
-        })();
-        result.map_err(|cause| {
+        // On failure the temporary file is removed while still open, so its lock keeps any
+        // other writer of the same target from taking the name in between.
+        let fail = |cause, file: File| {
             let _ = std::fs::remove_file(&self.temporary);
-            OutputError::Io {
+            drop(file);
+            Err(OutputError::Io {
                 path: self.path.clone(),
                 cause,
+            })
+        };
+        let file = match out.into_inner() {
+            Ok(file) => file,
+            Err(error) => {
+                let (cause, out) = error.into_parts();
+                return fail(cause, out.into_parts().0);
             }
-        })
+        };
+        if let Err(cause) = file.sync_all() {
+            return fail(cause, file);
+        }
+        // Renamed while the lock is held, so no cleaner takes it for stale before.
+        if let Err(cause) = std::fs::rename(&self.temporary, &self.target) {
+            return fail(cause, file);
+        }
+        drop(file);
+        // The rename is durable once the directory is synced; failing to sync it (some
+        // filesystems refuse) loses nothing written so far.
+        if let Ok(directory) = File::open(directory_of(&self.target)) {
+            let _ = directory.sync_all();
+        }
+        Ok(())
     }
 }
 
@@ -458,8 +469,11 @@ impl Write for AtomicFile {
 impl Drop for AtomicFile {
     fn drop(&mut self) {
         if let Some(out) = self.out.take() {
-            drop(out.into_parts());
+            // Unwritten bytes are dropped, not flushed; the file is removed while still open
+            // and locked (see `commit`).
+            let (file, _) = out.into_parts();
             let _ = std::fs::remove_file(&self.temporary);
+            drop(file);
         }
     }
 }
@@ -693,5 +707,36 @@ mod tests {
             partial_pid(t, OsStr::new(".a.vdt.99999999999999.partial")),
             None
         );
+    }
+    #[test]
+    fn an_atomic_file_dropped_without_commit_leaves_nothing() {
+        let dir = temp_dir("atomic-drop");
+        let target = dir.join("x.bin");
+        std::fs::write(&target, b"before").unwrap();
+        {
+            let mut file = AtomicFile::create(&target).unwrap();
+            file.write_all(b"half of it").unwrap();
+        }
+        assert_eq!(std::fs::read(&target).unwrap(), b"before");
+        assert_eq!(names(&dir), vec!["x.bin".to_string()]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn atomic_files_of_two_targets_are_written_side_by_side() {
+        let dir = temp_dir("atomic-two");
+        let (a, b) = (dir.join("a.bin"), dir.join("b.bin"));
+        let mut first = AtomicFile::create(&a).unwrap();
+        let mut second = AtomicFile::create(&b).unwrap();
+        first.write_all(b"one").unwrap();
+        second.write_all(b"two").unwrap();
+        // A second writer of the same target is refused while the first is open.
+        assert!(AtomicFile::create(&a).is_err());
+        second.commit().unwrap();
+        first.commit().unwrap();
+        assert_eq!(std::fs::read(&a).unwrap(), b"one");
+        assert_eq!(std::fs::read(&b).unwrap(), b"two");
+        assert_eq!(names(&dir), vec!["a.bin".to_string(), "b.bin".to_string()]);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -149,7 +149,11 @@ pub(crate) fn parse_trailer(data: &[u8]) -> Result<Trailer, String> {
     if (data.len() as u64) < HEADER_BYTES + TRAILER_BYTES {
         return Err("truncated: no room for a trailer".into());
     }
-    let trailer = &data[data.len() - TRAILER_BYTES as usize..];
+    trailer_from(&data[data.len() - TRAILER_BYTES as usize..])
+}
+
+/// The trailer from its [`TRAILER_BYTES`] bytes, checked.
+fn trailer_from(trailer: &[u8]) -> Result<Trailer, String> {
     if xxh3_64(&trailer[..16]) != u64_at(trailer, 16) {
         return Err("truncated or damaged (trailer checksum mismatch)".into());
     }
@@ -184,12 +188,11 @@ pub(crate) fn read_ends(
     if size < HEADER_BYTES + TRAILER_BYTES {
         return Err(bad("truncated: no room for a trailer".into()));
     }
-    let mut tail = vec![0u8; (HEADER_BYTES + TRAILER_BYTES) as usize];
+    let mut tail = [0u8; TRAILER_BYTES as usize];
     file.seek(std::io::SeekFrom::Start(size - TRAILER_BYTES))
         .map_err(io)?;
-    file.read_exact(&mut tail[HEADER_BYTES as usize..])
-        .map_err(io)?;
-    let trailer = parse_trailer(&tail).map_err(bad)?;
+    file.read_exact(&mut tail).map_err(io)?;
+    let trailer = trailer_from(&tail).map_err(bad)?;
     Ok((header, trailer))
 }
 

@@ -132,7 +132,13 @@ pub fn read_shard_input(
             trailer.body_bytes
         )));
     }
-    let mut triangles = vec![InputTriangle::new_zeroed(); count as usize];
+    // The count comes from the plan, a file: a plan stating more than memory holds gets an
+    // error, not an abort.
+    let mut triangles = Vec::new();
+    triangles
+        .try_reserve_exact(count as usize)
+        .map_err(|_| bad(format!("{count} triangles do not fit in memory")))?;
+    triangles.resize(count as usize, InputTriangle::new_zeroed());
     read_body_into(path, &trailer, triangles.as_mut_bytes())?;
     Ok(triangles)
 }

@@ -23,7 +23,9 @@ use crate::tree::Node;
 use crate::vdt::{leading_smallest, node_record};
 
 /// Joins the parts of every shard of `plan` (any order, each once) into the content of the
-/// `.vdt` file the in-memory build of the same input writes.
+/// `.vdt` file the in-memory build of the same input writes. The parts must come from
+/// [`super::build_shard`] or its siblings, or from [`super::read_part`], which checks a file's:
+/// the merge trusts their links and ranges.
 pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<TreeContent, ShardError> {
     let mut by_index: Vec<Option<ShardPart>> = vec![None; plan.shard_count() as usize];
     for part in parts {

@@ -69,7 +69,7 @@ pub enum ShardError {
         reason: String,
     },
     /// A shard index the plan does not have.
-    #[error("shard {index}: the plan has shards 0 to {}", shards - 1)]
+    #[error("shard {index}: the plan has {shards} shards, numbered from 0")]
     NoSuchShard {
         /// The index asked for.
         index: u32,

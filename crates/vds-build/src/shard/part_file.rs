@@ -135,15 +135,18 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
         source,
     };
     let (header, _) = read_ends(path, PART_MAGIC, WHAT)?;
+    if header.index >= plan.shard_count() {
+        return Err(bad(format!(
+            "shard {} of a plan of {} shards",
+            header.index,
+            plan.shard_count()
+        )));
+    }
     // The most a shard's body can compress to, so that a file is read whole only when its
     // size is plausible (what it states is checked in `part_from_bytes`).
     let most = HEADER_BYTES
         + TRAILER_BYTES
-        + if header.index < plan.shard_count() {
-            zstd::zstd_safe::compress_bound(body_limit(plan, header.index) as usize) as u64
-        } else {
-            0
-        };
+        + zstd::zstd_safe::compress_bound(body_limit(plan, header.index) as usize) as u64;
     let size = std::fs::metadata(path).map_err(io)?.len();
     if size > most {
         return Err(bad(format!("{size} bytes, more than its shard can hold")));
@@ -429,6 +432,9 @@ fn check_subtree(
         return Err("its root does not span its vertices".into());
     }
     let mut seen = vec![false; leaves as usize];
+    // Subtri ranges follow each other in node order and cover the triangles once: ranges
+    // that overlapped would let a small file make the merge copy triangles many times.
+    let mut subtris_at = 0u64;
     for (id, n) in nodes.iter().enumerate() {
         let floats = n.proxy.iter().chain(&n.sphere).chain(&n.cone);
         if !floats
@@ -444,8 +450,13 @@ fn check_subtree(
         if id > 0 && u64::from(n.parent.get()) >= count {
             return Err(format!("node {id} has no parent"));
         }
-        let subtris = u64::from(n.subtri_begin.get()) + u64::from(n.subtri_count.get());
-        if subtris > triangles.len() as u64 {
+        if u64::from(n.subtri_begin.get()) != subtris_at {
+            return Err(format!(
+                "node {id}'s subtris do not follow the previous node's"
+            ));
+        }
+        subtris_at += u64::from(n.subtri_count.get());
+        if subtris_at > triangles.len() as u64 {
             return Err(format!("node {id}'s subtris lie past the triangles"));
         }
         if n.child_count == 0 {
@@ -464,6 +475,9 @@ fn check_subtree(
     }
     if seen.iter().any(|&s| !s) {
         return Err("a rank no leaf holds".into());
+    }
+    if subtris_at != triangles.len() as u64 {
+        return Err("triangles no node owns".into());
     }
     // A tree: every node but the root is the child of exactly the node its parent field
     // names, one level below it, and children partition their parent's ranks in order.

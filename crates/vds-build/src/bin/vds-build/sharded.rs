@@ -48,8 +48,8 @@ enum Command {
         /// Input meshes, as for an in-memory build.
         #[arg(required = true)]
         inputs: Vec<PathBuf>,
-        /// Number of shards (independent jobs).
-        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=65536))]
+        /// Number of shards (independent jobs), 1 to 4096.
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
         shards: u32,
         /// The plan file to write.
         #[arg(short, long, value_name = "PLAN.json")]
@@ -120,9 +120,10 @@ pub fn main() -> Result<()> {
             let mut scene = vds_import::load_files(&inputs, &options)?;
             if !cli.quiet {
                 for warning in &scene.warnings {
-                    eprintln!("vds-build: warning: {warning}");
+                    progress.print(&format!("vds-build: warning: {warning}"));
                 }
             }
+            progress.phase("planning the top of the tree");
             let grid = vds_build::snap_to_grid(&mut scene);
             let mut files = Vec::new();
             for input in &inputs {
@@ -144,7 +145,6 @@ pub fn main() -> Result<()> {
             plan.input_files = (0..plan.shard_count())
                 .map(|k| format!("{stem}.shard-{k}.vdtin"))
                 .collect();
-            progress.phase("planning the top of the tree");
             let root_of = shard::roots_of_vertices(&scene, &plan)?;
             plan.shard_triangles = shard::shard_triangle_counts(&scene, &plan, &root_of);
             plan.seal();
@@ -300,6 +300,14 @@ impl Progress {
     fn clear(&self) {
         if let Some(bar) = &self.bar {
             bar.finish_and_clear();
+        }
+    }
+
+    /// Prints a line on stderr above the bar.
+    fn print(&self, line: &str) {
+        match &self.bar {
+            Some(bar) => bar.suspend(|| eprintln!("{line}")),
+            None => eprintln!("{line}"),
         }
     }
 }
