@@ -343,3 +343,58 @@ fn a_gltf_assembly_gives_the_in_memory_file() {
     assert!(named("right")["color"].is_array(), "{report}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Page options given to `plan` reach the merged file as they reach an in-memory build's.
+#[test]
+fn page_options_given_to_plan_shape_the_merged_file() {
+    let dir = temp_dir("options");
+    let input = model("cow.obj");
+    let options = ["--page-bytes", "16KiB", "--zstd-level", "3"];
+    let expected = dir.join("in-memory.vdt");
+    let mut args = vec![path(&input), "-o", path(&expected), "-q"];
+    args.extend(options);
+    succeeded(&build(&args));
+    let plan = dir.join("plan.json");
+    let mut args = vec![
+        "plan",
+        path(&input),
+        "--shards",
+        "3",
+        "-o",
+        path(&plan),
+        "-q",
+    ];
+    args.extend(options);
+    succeeded(&build(&args));
+    let parts: Vec<PathBuf> = (0..3)
+        .map(|k| {
+            let out = dir.join(format!("s{k}.vdtpart"));
+            let index = k.to_string();
+            succeeded(&build(&[
+                "shard",
+                path(&plan),
+                "--index",
+                &index,
+                "-o",
+                path(&out),
+                "-q",
+            ]));
+            out
+        })
+        .collect();
+    let merged = dir.join("merged.vdt");
+    let mut args = vec!["merge", path(&plan)];
+    args.extend(parts.iter().map(|p| path(p)));
+    args.extend(["-o", path(&merged), "-q"]);
+    succeeded(&build(&args));
+    let (a, b) = (
+        std::fs::read(&expected).unwrap(),
+        std::fs::read(&merged).unwrap(),
+    );
+    assert!(a == b, "the merged file differs");
+    // The options took: smaller pages than the default make more of them.
+    let default = dir.join("default.vdt");
+    succeeded(&build(&[path(&input), "-o", path(&default), "-q"]));
+    assert_ne!(std::fs::read(&default).unwrap(), a);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
