@@ -93,9 +93,25 @@ pub(crate) fn node_record(
 /// the file). Empty when the scene names no parts, or a triangle's part has no name (the
 /// file then states nothing beyond the names).
 pub fn part_records(scene: &Scene) -> Vec<vds_format::PartInfo> {
-    let parts = scene.part_names.len();
+    part_records_of(
+        scene.part_names.len(),
+        |i| {
+            let info = scene.parts.get(i).copied().unwrap_or_default();
+            (info.parent, info.color)
+        },
+        scene.triangle_parts.iter().copied(),
+    )
+}
+
+/// [`part_records`] from the part count, each part's parent and colour as imported, and
+/// every triangle's part (the sharded merge has these apart, not as a scene).
+pub(crate) fn part_records_of(
+    parts: usize,
+    info: impl Fn(usize) -> (Option<u32>, Option<[f32; 4]>),
+    triangle_parts: impl Iterator<Item = u32>,
+) -> Vec<vds_format::PartInfo> {
     let mut counts = vec![0u64; parts];
-    for &part in &scene.triangle_parts {
+    for part in triangle_parts {
         match counts.get_mut(part as usize) {
             Some(count) => *count += 1,
             None => return Vec::new(),
@@ -103,13 +119,12 @@ pub fn part_records(scene: &Scene) -> Vec<vds_format::PartInfo> {
     }
     (0..parts)
         .map(|i| {
-            let info = scene.parts.get(i).copied().unwrap_or_default();
+            let (parent, color) = info(i);
             vds_format::PartInfo {
-                parent: info
-                    .parent
+                parent: parent
                     .filter(|&p| (p as usize) < i)
                     .unwrap_or(vds_format::NO_PART),
-                color: info.color,
+                color,
                 triangles: counts[i],
             }
         })

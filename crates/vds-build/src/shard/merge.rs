@@ -9,9 +9,7 @@
 //! leaves, as every node's does.
 
 use rayon::prelude::*;
-use vds_format::{
-    BuildInfo, InputInfo, Metadata, NO_PART, NodeRecord, PartInfo, TreeContent, TriangleRecord,
-};
+use vds_format::{BuildInfo, InputInfo, Metadata, NodeRecord, TreeContent, TriangleRecord};
 use zerocopy::FromZeros;
 use zerocopy::little_endian::{U16, U32};
 
@@ -20,7 +18,7 @@ use super::{Plan, ShardError};
 use crate::build::{Accumulator, Sphere, absorb_on, inner_attributes_on};
 use crate::isa::Isa;
 use crate::tree::Node;
-use crate::vdt::{leading_smallest, node_record};
+use crate::vdt::{leading_smallest, node_record, part_records_of};
 
 /// Joins the parts of every shard of `plan` (any order, each once) into the content of the
 /// `.vdt` file the in-memory build of the same input writes. The parts must come from
@@ -270,30 +268,14 @@ fn metadata(plan: &Plan, records: &[NodeRecord], triangles: &[TriangleRecord]) -
     for n in records {
         degree_histogram[usize::from(n.child_count).min(8)] += 1;
     }
-    let mut counts = vec![0u64; m.part_names.len()];
-    let mut named = true;
-    for t in triangles {
-        match counts.get_mut(t.part.get() as usize) {
-            Some(count) => *count += 1,
-            None => named = false,
-        }
-    }
-    let parts = if named {
-        counts
-            .iter()
-            .enumerate()
-            .map(|(i, &triangles)| {
-                let (parent, color) = m.parts.get(i).copied().unwrap_or_default();
-                PartInfo {
-                    parent: parent.filter(|&p| (p as usize) < i).unwrap_or(NO_PART),
-                    color: color.map(|c| c.map(f32::from_bits)),
-                    triangles,
-                }
-            })
-            .collect()
-    } else {
-        Vec::new()
-    };
+    let parts = part_records_of(
+        m.part_names.len(),
+        |i| {
+            let (parent, color) = m.parts.get(i).copied().unwrap_or_default();
+            (parent, color.map(|c| c.map(f32::from_bits)))
+        },
+        triangles.iter().map(|t| t.part.get()),
+    );
     let root = &records[0];
     let (center, radius) = if root.child_count == 0 {
         (root.proxy.map(|c| c.get()), 0.0)
