@@ -601,15 +601,38 @@ fn inner_attributes(
     sum: &Accumulator,
     leaf_positions: &[[f32; 3]],
 ) -> (NodeBounds, Sphere) {
+    let proxy = inner_proxy(node, sum);
+    let leaves = &leaf_positions[node.leaf_begin as usize..node.leaf_end as usize];
+    inner_bounds(
+        proxy,
+        farthest_squared(widen(proxy), leaves),
+        child_spheres,
+        sum,
+    )
+}
+
+/// An inner node's proxy: the quadric's minimiser near the mean of its vertices.
+#[inline(always)]
+pub(crate) fn inner_proxy(node: &Node, sum: &Accumulator) -> [f32; 3] {
     let count = f64::from(node.leaf_count());
     let mean = sum.position_sum.map(|c| c / count);
     // The proxy stays inside the cluster's vertex box, so inside the node's octree cell.
-    let proxy = sum
-        .vertex_box
+    sum.vertex_box
         .clamp(sum.quadric.minimizer_near(mean))
-        .map(|c| c as f32);
-    let leaves = &leaf_positions[node.leaf_begin as usize..node.leaf_end as usize];
-    let error_radius = round_up_f32(farthest_squared(widen(proxy), leaves).sqrt());
+        .map(|c| c as f32)
+}
+
+/// An inner node's bounds around `proxy`, given the squared distance to its farthest leaf
+/// (the maximum of [`leaf_distance_squared`] over its leaves, in any order), and the sphere it
+/// passes up.
+#[inline(always)]
+pub(crate) fn inner_bounds(
+    proxy: [f32; 3],
+    farthest_squared: f64,
+    child_spheres: impl Iterator<Item = Sphere>,
+    sum: &Accumulator,
+) -> (NodeBounds, Sphere) {
+    let error_radius = round_up_f32(farthest_squared.sqrt());
     let surface_error = surface_error(&sum.quadric, widen(proxy)).min(error_radius);
     let center = sum.triangle_box.center().map(|c| c as f32);
     let sphere_radius = child_spheres
@@ -632,6 +655,11 @@ fn inner_attributes(
         cone_two_sided,
     };
     (bounds, sphere)
+}
+
+/// The squared distance from a proxy to a leaf position, as the error radius measures it.
+pub(crate) fn leaf_distance_squared(proxy: [f32; 3], leaf: [f32; 3]) -> f64 {
+    distance_squared(widen(proxy), widen(leaf))
 }
 
 /// The root-mean-square plane distance of `proxy` under `quadric` ([`NodeBounds::surface_error`]),

@@ -110,25 +110,57 @@ pub(crate) fn part_records_of(
     info: impl Fn(usize) -> (Option<u32>, Option<[f32; 4]>),
     triangle_parts: impl Iterator<Item = u32>,
 ) -> Vec<vds_format::PartInfo> {
-    let mut counts = vec![0u64; parts];
+    let mut counts = PartCounts::new(parts);
     for part in triangle_parts {
-        match counts.get_mut(part as usize) {
-            Some(count) => *count += 1,
-            None => return Vec::new(),
+        counts.add(part, 1);
+    }
+    counts.records(info)
+}
+
+/// Triangles counted by part, for [`part_records_of`]: a part out of range makes the records
+/// empty (the file then states nothing of its parts beyond their names).
+pub(crate) struct PartCounts {
+    counts: Option<Vec<u64>>,
+}
+
+impl PartCounts {
+    pub(crate) fn new(parts: usize) -> PartCounts {
+        PartCounts {
+            counts: Some(vec![0; parts]),
         }
     }
-    (0..parts)
-        .map(|i| {
-            let (parent, color) = info(i);
-            vds_format::PartInfo {
-                parent: parent
-                    .filter(|&p| (p as usize) < i)
-                    .unwrap_or(vds_format::NO_PART),
-                color,
-                triangles: counts[i],
+
+    /// Counts `n` triangles of `part`.
+    pub(crate) fn add(&mut self, part: u32, n: u64) {
+        if let Some(counts) = &mut self.counts {
+            match counts.get_mut(part as usize) {
+                Some(count) => *count += n,
+                None => self.counts = None,
             }
-        })
-        .collect()
+        }
+    }
+
+    /// The part records, from each part's parent and colour as imported.
+    pub(crate) fn records(
+        &self,
+        info: impl Fn(usize) -> (Option<u32>, Option<[f32; 4]>),
+    ) -> Vec<vds_format::PartInfo> {
+        let Some(counts) = &self.counts else {
+            return Vec::new();
+        };
+        (0..counts.len())
+            .map(|i| {
+                let (parent, color) = info(i);
+                vds_format::PartInfo {
+                    parent: parent
+                        .filter(|&p| (p as usize) < i)
+                        .unwrap_or(vds_format::NO_PART),
+                    color,
+                    triangles: counts[i],
+                }
+            })
+            .collect()
+    }
 }
 
 /// Moves every vertex of `scene` to the nearest point of the `.vdt` grid for its bounds and

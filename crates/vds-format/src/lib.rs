@@ -34,6 +34,7 @@ pub use metadata::{BuildInfo, InputInfo, MAX_PARTS, Metadata, NO_PART, PartInfo}
 pub use output::{AtomicFile, OutputError, resolve_output, same_file, write_atomically};
 pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};
 pub use write::{
-    DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, NodeSource, TreeContent, WriteOptions, WriteReport,
-    encode, write_file,
+    DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, EncodedPage, EncodedPageSummary, FileFigures,
+    NodeSource, PageLayout, TreeContent, WriteOptions, WriteReport, encode, encode_pages,
+    file_head, lay_out, region_leaves, region_roots, write_file,
 };

@@ -6,9 +6,16 @@
 //! not fit start later pages, taken depth-first (last in, first out), so a root-to-leaf path
 //! crosses about `depth / treelet depth` pages and neighbouring treelets sit next to each other
 //! in the file. A treelet that ends before its page is full (near the leaves) leaves the rest
-//! of the page to the next pending treelet, which is its nearest neighbour in the tree. The first page, the top of the tree, has a quarter of the budget so opening a
-//! file decodes little. Nodes are renumbered in page order: every page holds a contiguous
-//! node range, siblings stay contiguous, and parents precede children.
+//! of the page to the next pending treelet, which is its nearest neighbour in the tree.
+//!
+//! The tree is laid out in *regions* ([`region_leaves`]): first its top (the nodes with more
+//! leaves than a region holds, and their children), then, in leaf order, the subtree below
+//! each *region root* (a child of the top with at most that many leaves). No page mixes two
+//! regions, so a region's pages depend on its subtree alone: the sharded build encodes them
+//! one region at a time ([`PageLayout`], [`encode_pages`], [`file_head`]). The first page, the
+//! top of the tree, has a quarter of the budget so opening a file decodes little. Nodes are
+//! renumbered in page order: every page holds a contiguous node range, siblings stay
+//! contiguous, and parents precede children.
 
 use std::collections::VecDeque;
 use std::path::Path;
@@ -100,6 +107,19 @@ pub struct WriteReport {
     pub pages: u32,
 }
 
+/// The most leaves a *region* holds for pages of `page_bytes` decoded bytes: about 25
+/// pages' worth of the nodes and triangles above those leaves (a leaf brings about two
+/// nodes and two triangles, some 200 decoded bytes), so that the partly filled page a region
+/// ends with is one in 25.
+///
+/// A *region root* is a node with at most this many leaves whose parent has more. Pages never
+/// mix the subtrees of two region roots, so each subtree's pages depend on that subtree alone
+/// and can be encoded by whoever holds it: the sharded build's merge lays out and encodes one
+/// region after another without ever holding the whole tree.
+pub fn region_leaves(page_bytes: u32) -> u32 {
+    (page_bytes / 8).max(1)
+}
+
 /// A sibling group: `count` nodes from `first`.
 #[derive(Debug, Clone, Copy)]
 struct Group {
@@ -108,14 +128,130 @@ struct Group {
 }
 
 /// One planned page: its sibling groups, in order, and how many subtris they own.
+#[derive(Debug, Clone)]
 struct PagePlan {
     groups: Vec<Group>,
     triangles: usize,
+    nodes: usize,
 }
 
-/// Plans pages: the sibling groups of each page, and its triangle count (read here once,
-/// where each group's size is measured anyway).
-fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
+/// The pages of a tree, or of part of one, as sibling groups in page order: the order the
+/// writer numbers nodes and triangles in.
+///
+/// A file is laid out as its top ([`PageLayout::top`]: the nodes with more than
+/// [`region_leaves`] leaves and their children, or the whole tree if the root has no more
+/// than that) followed by each region root's subtree below it ([`PageLayout::region`]), in
+/// leaf order. Layouts of parts of a tree [`append`](PageLayout::append) into the file's.
+#[derive(Debug, Clone, Default)]
+pub struct PageLayout {
+    pages: Vec<PagePlan>,
+}
+
+impl PageLayout {
+    /// The top of the tree in `nodes` (node 0 is the root): the whole tree when the root has at
+    /// most [`region_leaves`] leaves, else every node with more than that and their children
+    /// (region roots among them), without what lies below the region roots. The first page
+    /// has a quarter of the budget, so opening a file decodes little.
+    pub fn top(nodes: &impl NodeSource, page_bytes: u32) -> PageLayout {
+        let limit = region_leaves(page_bytes);
+        let whole = leaf_count(&nodes.node_record(0)) <= limit;
+        let expand = |n: &NodeRecord| whole || leaf_count(n) > limit;
+        PageLayout {
+            pages: plan_pages(
+                nodes,
+                Group { first: 0, count: 1 },
+                page_bytes,
+                true,
+                expand,
+            ),
+        }
+    }
+
+    /// The subtree of a region root below it: from its children `first_child ..+ count`
+    /// (ids of `nodes`) down to the leaves, every page full-sized.
+    pub fn region(
+        nodes: &impl NodeSource,
+        first_child: u32,
+        count: u8,
+        page_bytes: u32,
+    ) -> PageLayout {
+        let group = Group {
+            first: first_child,
+            count: u32::from(count),
+        };
+        PageLayout {
+            pages: plan_pages(nodes, group, page_bytes, false, |_| true),
+        }
+    }
+
+    /// Appends `later`'s pages after this layout's (the ids of both must be of one node
+    /// source when they are encoded together).
+    pub fn append(&mut self, later: PageLayout) {
+        self.pages.extend(later.pages);
+    }
+
+    /// Number of pages.
+    pub fn page_count(&self) -> usize {
+        self.pages.len()
+    }
+
+    /// Number of nodes in the pages.
+    pub fn node_count(&self) -> usize {
+        self.pages.iter().map(|p| p.nodes).sum()
+    }
+
+    /// Number of subtris the pages' nodes own.
+    pub fn triangle_count(&self) -> usize {
+        self.pages.iter().map(|p| p.triangles).sum()
+    }
+
+    /// The nodes in page order (ids of the source it was laid out from): the `k`-th is
+    /// numbered `first_node + k` when the pages are encoded from `first_node`.
+    pub fn nodes(&self) -> impl Iterator<Item = u32> + '_ {
+        self.pages
+            .iter()
+            .flat_map(|p| p.groups.iter())
+            .flat_map(|g| g.first..g.first + g.count)
+    }
+}
+
+fn leaf_count(n: &NodeRecord) -> u32 {
+    n.leaf_end.get().saturating_sub(n.leaf_begin.get())
+}
+
+/// The region roots that have children, in leaf order: the nodes whose subtrees follow the
+/// top in the file, each laid out by [`PageLayout::region`]. None when the root itself has
+/// at most [`region_leaves`] leaves (the top is then the whole tree).
+pub fn region_roots(nodes: &impl NodeSource, page_bytes: u32) -> Vec<u32> {
+    let limit = region_leaves(page_bytes);
+    let mut roots = Vec::new();
+    let mut stack = vec![0u32];
+    while let Some(id) = stack.pop() {
+        let n = nodes.node_record(id);
+        if leaf_count(&n) <= limit {
+            if id != 0 && n.child_count > 0 {
+                roots.push(id);
+            }
+            continue;
+        }
+        let first = n.first_child.get();
+        stack.extend((first..first + u32::from(n.child_count)).rev());
+    }
+    roots
+}
+
+/// Plans pages from `start`: the sibling groups of each page, its triangle and node counts
+/// (read here once, where each group's size is measured anyway). A node's children are laid
+/// out only where `expand` says so. With `quarter_first`, the first page has a quarter of the
+/// budget and holds the start's treelet alone.
+fn plan_pages<N: NodeSource>(
+    nodes: &N,
+    start: Group,
+    page_bytes: u32,
+    quarter_first: bool,
+    expand: impl Fn(&NodeRecord) -> bool,
+) -> Vec<PagePlan> {
+    let page_bytes = page_bytes.max(NODE_BYTES as u32);
     // A group's subtris, with its nodes' child groups put in `children`: one record of each
     // node (records are made on demand, and planning runs on one thread).
     let measure = |g: &Group, children: &mut Vec<Group>| -> u64 {
@@ -124,7 +260,7 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
         for id in g.first..g.first + g.count {
             let n = nodes.node_record(id);
             triangles += u64::from(n.subtri_count.get());
-            if n.child_count > 0 {
+            if n.child_count > 0 && expand(&n) {
                 children.push(Group {
                     first: n.first_child.get(),
                     count: u32::from(n.child_count),
@@ -134,16 +270,14 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
         triangles
     };
     let mut children = Vec::new();
-    let mut pages = Vec::new();
-    let mut stack = vec![Group { first: 0, count: 1 }];
+    let mut pages: Vec<PagePlan> = Vec::new();
+    let mut stack = vec![start];
     while let Some(start) = stack.pop() {
-        let budget = if pages.is_empty() {
-            page_bytes / 4
-        } else {
-            page_bytes
-        };
+        let first = quarter_first && pages.is_empty();
+        let budget = if first { page_bytes / 4 } else { page_bytes };
         let mut page = Vec::new();
         let mut page_triangles = 0u64;
+        let mut page_nodes = 0usize;
         let mut bytes = 0u64;
         let mut queue = VecDeque::from([start]);
         loop {
@@ -151,7 +285,7 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
             // treelet: the stack's top is the nearest unfinished part of the tree.
             if queue.is_empty() {
                 match stack.pop() {
-                    Some(next) if !pages.is_empty() => queue.push_back(next),
+                    Some(next) if !first => queue.push_back(next),
                     Some(next) => {
                         stack.push(next);
                         break;
@@ -169,6 +303,7 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
             queue.pop_front();
             page.push(group);
             page_triangles += triangles;
+            page_nodes += group.count as usize;
             bytes += size;
             queue.extend(children.iter().copied());
         }
@@ -176,140 +311,179 @@ fn plan_pages(nodes: &impl NodeSource, page_bytes: u32) -> Vec<PagePlan> {
         pages.push(PagePlan {
             groups: page,
             triangles: page_triangles as usize,
+            nodes: page_nodes,
         });
     }
     pages
 }
 
-/// Lays the tree out in pages and encodes the whole file in memory.
-pub fn encode<N: NodeSource>(
-    content: &TreeContent<N>,
-    options: &WriteOptions,
+/// One page encoded and compressed, and what the directory says of it.
+#[derive(Debug, Clone)]
+pub struct EncodedPage {
+    /// The page's zstd frame.
+    pub frame: Vec<u8>,
+    /// Length of the decoded page.
+    pub raw_length: u32,
+    /// Nodes in the page.
+    pub node_count: u32,
+    /// Triangles in the page.
+    pub triangle_count: u32,
+}
+
+/// Encodes and compresses the pages of `layout` (in parallel), numbering nodes from
+/// `first_node` in page order. `new_id` maps an id of `nodes` (a parent or first child that
+/// a page's records name) to its id in the file; it must agree with that numbering for the
+/// layout's own nodes. Each node's subtris are `triangles[subtri_begin ..+ subtri_count]`
+/// and its depth and leaf ranges are the file's.
+pub fn encode_pages<N: NodeSource>(
+    nodes: &N,
+    triangles: &[TriangleRecord],
+    layout: &PageLayout,
+    new_id: &(impl Fn(u32) -> u32 + Sync),
+    first_node: u32,
+    grid: &Grid,
+    zstd_level: i32,
+) -> Result<Vec<EncodedPage>, VdtError> {
+    let mut starts = Vec::with_capacity(layout.pages.len());
+    let mut at = u64::from(first_node);
+    for page in &layout.pages {
+        starts.push(at);
+        at += page.nodes as u64;
+    }
+    if at > u64::from(u32::MAX) {
+        return Err(VdtError::invalid("tree", "more nodes than a file holds"));
+    }
+    let map = |id: U32| -> U32 {
+        if id.get() == NO_NODE {
+            id
+        } else {
+            U32::new(new_id(id.get()))
+        }
+    };
+    // Each page gathers its own records in page order (renumbered) from the caller's tree:
+    // no copy of the whole tree is made, which at 10 M triangles was 0.7 GB beside the tree.
+    layout
+        .pages
+        .par_iter()
+        .zip(starts)
+        .map_init(PageWork::new(zstd_level), |work, (page, n0)| {
+            let PageWork {
+                compressor,
+                scratch,
+                records,
+                triangles: page_triangles,
+                raw,
+            } = work;
+            records.clear();
+            page_triangles.clear();
+            for group in &page.groups {
+                for old in group.first..group.first + group.count {
+                    let mut n = nodes.node_record(old);
+                    n.parent = map(n.parent);
+                    n.first_child = map(n.first_child);
+                    let begin = n.subtri_begin.get() as usize;
+                    let count = n.subtri_count.get() as usize;
+                    page_triangles.extend_from_slice(&triangles[begin..begin + count]);
+                    records.push(n);
+                }
+            }
+            crate::codec::encode_page_into(scratch, grid, n0 as u32, records, page_triangles, raw)?;
+            let frame = compressor
+                .compress(raw)
+                .expect("zstd compression of an in-memory buffer cannot fail");
+            if raw.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
+                return Err(VdtError::invalid(
+                    format!("the page of node {n0}"),
+                    "compresses beyond the ratio readers accept as a decompression bomb",
+                ));
+            }
+            Ok(EncodedPage {
+                frame,
+                raw_length: raw.len() as u32,
+                node_count: page.nodes as u32,
+                triangle_count: page.triangles as u32,
+            })
+        })
+        .collect()
+}
+
+/// What a file says of its tree beside its pages: the figures of the header, and the
+/// metadata.
+#[derive(Debug, Clone)]
+pub struct FileFigures<'a> {
+    /// Number of leaves (original vertices).
+    pub vertex_count: u64,
+    /// Depth of the deepest node.
+    pub max_depth: u32,
+    /// The grid positions are stored on.
+    pub grid: Grid,
+    /// The metadata section.
+    pub metadata: &'a Metadata,
+}
+
+/// The bytes of a file that precede its pages (header, metadata and directory) for pages of
+/// these sizes, in this order, and the report of the whole file. Each page is described by
+/// its frame's length and checksum and its [`EncodedPage`] counts.
+pub fn file_head(
+    pages: &[(EncodedPageSummary, u64)],
+    figures: &FileFigures<'_>,
 ) -> Result<(Vec<u8>, WriteReport), VdtError> {
-    let nodes = &content.nodes;
-    let node_count = nodes.node_count();
+    let node_count: u64 = pages.iter().map(|(p, _)| u64::from(p.node_count)).sum();
+    let triangle_count: u64 = pages.iter().map(|(p, _)| u64::from(p.triangle_count)).sum();
     if node_count == 0 {
         return Err(VdtError::invalid(
             "tree",
             "a .vdt file needs at least one node",
         ));
     }
-    let plan = plan_pages(nodes, options.page_bytes.max(NODE_BYTES as u32));
-
-    // Renumber nodes and triangles in page order.
-    let mut new_id = vec![NO_NODE; node_count];
-    let mut order = Vec::with_capacity(node_count);
-    for page in &plan {
-        for group in &page.groups {
-            for old in group.first..group.first + group.count {
-                new_id[old as usize] = order.len() as u32;
-                order.push(old);
-            }
-        }
-    }
-    if order.len() != node_count {
+    if node_count > u64::from(u32::MAX) || triangle_count > u64::from(u32::MAX) {
         return Err(VdtError::invalid(
             "tree",
-            "some nodes are not reachable from the root",
+            "more nodes or triangles than a file holds",
         ));
     }
-    let map = |id: U32| -> U32 {
-        if id.get() == NO_NODE {
-            id
-        } else {
-            U32::new(new_id[id.get() as usize])
-        }
-    };
-
-    // Each page's span: first node and triangle in page order, and their counts.
-    let mut spans = Vec::with_capacity(plan.len());
-    let (mut node_at, mut triangle_at) = (0usize, 0usize);
-    for page in &plan {
-        let node_count: usize = page.groups.iter().map(|g| g.count as usize).sum();
-        let triangle_count = page.triangles;
-        spans.push((node_at, node_count, triangle_at, triangle_count));
-        node_at += node_count;
-        triangle_at += triangle_count;
-    }
-    // Page bodies, encoded and compressed in parallel. Each page gathers its own records in
-    // page order (renumbered) from the caller's tree: no copy of the whole tree is made, which
-    // at 10 M triangles was 0.7 GB beside the tree itself.
-    let grid = &content.grid;
-    let frames: Vec<(Vec<u8>, usize)> = spans
-        .par_iter()
-        .map_init(
-            PageWork::new(options.zstd_level),
-            |work, &(n0, nc, t0, _)| {
-                let PageWork {
-                    compressor,
-                    scratch,
-                    records,
-                    triangles,
-                    raw,
-                } = work;
-                records.clear();
-                triangles.clear();
-                for &old in &order[n0..n0 + nc] {
-                    let mut n = nodes.node_record(old);
-                    n.parent = map(n.parent);
-                    n.first_child = map(n.first_child);
-                    let begin = n.subtri_begin.get() as usize;
-                    let count = n.subtri_count.get() as usize;
-                    n.subtri_begin = U32::new((t0 + triangles.len()) as u32);
-                    triangles.extend_from_slice(&content.triangles[begin..begin + count]);
-                    records.push(n);
-                }
-                crate::codec::encode_page_into(scratch, grid, n0 as u32, records, triangles, raw)?;
-                let frame = compressor
-                    .compress(raw)
-                    .expect("zstd compression of an in-memory buffer cannot fail");
-                Ok((frame, raw.len()))
-            },
-        )
-        .collect::<Result<_, VdtError>>()?;
-    drop(new_id);
-    drop(order);
-
-    for (i, (frame, raw_length)) in frames.iter().enumerate() {
-        if *raw_length as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
-            return Err(VdtError::invalid(
-                format!("page {i}"),
-                "compresses beyond the ratio readers accept as a decompression bomb",
-            ));
-        }
-    }
     // A writer never produces a file its readers refuse.
-    content.metadata.check(triangle_at as u64)?;
-    let metadata = rkyv::to_bytes::<rkyv::rancor::Error>(&content.metadata)
+    figures.metadata.check(triangle_count)?;
+    let metadata = rkyv::to_bytes::<rkyv::rancor::Error>(figures.metadata)
         .map_err(|e| VdtError::invalid("metadata", e.to_string()))?;
     let metadata_offset = HEADER_BYTES as u64;
     let directory_offset = metadata_offset + metadata.len() as u64;
-    let directory_length = (plan.len() * PAGE_ENTRY_BYTES) as u64;
+    let directory_length = (pages.len() * PAGE_ENTRY_BYTES) as u64;
     let mut offset = directory_offset + directory_length;
-    let mut directory = Vec::with_capacity(plan.len());
-    for (&(n0, nc, t0, tc), (frame, raw_length)) in spans.iter().zip(&frames) {
+    let mut directory = Vec::with_capacity(pages.len());
+    let (mut n0, mut t0) = (0u32, 0u32);
+    let mut report = WriteReport {
+        pages: pages.len() as u32,
+        ..WriteReport::default()
+    };
+    for (page, checksum) in pages {
         directory.push(PageEntry {
             offset: U64::new(offset),
-            compressed_length: U32::new(frame.len() as u32),
-            raw_length: U32::new(*raw_length as u32),
-            first_node: U32::new(n0 as u32),
-            node_count: U32::new(nc as u32),
-            first_triangle: U32::new(t0 as u32),
-            triangle_count: U32::new(tc as u32),
-            checksum: U64::new(xxh3_64(frame)),
+            compressed_length: U32::new(page.compressed_length),
+            raw_length: U32::new(page.raw_length),
+            first_node: U32::new(n0),
+            node_count: U32::new(page.node_count),
+            first_triangle: U32::new(t0),
+            triangle_count: U32::new(page.triangle_count),
+            checksum: U64::new(*checksum),
         });
-        offset += frame.len() as u64;
+        n0 += page.node_count;
+        t0 += page.triangle_count;
+        offset += u64::from(page.compressed_length);
+        report.raw_page_bytes += u64::from(page.raw_length);
+        report.compressed_page_bytes += u64::from(page.compressed_length);
     }
+    let grid = &figures.grid;
     let mut header = Header {
         magic: VDT_MAGIC,
         version: U32::new(VDT_VERSION),
         header_size: U32::new(HEADER_BYTES as u32),
         file_size: U64::new(offset),
-        node_count: U64::new(node_count as u64),
-        triangle_count: U64::new(triangle_at as u64),
-        vertex_count: U64::new(content.vertex_count),
-        page_count: U32::new(plan.len() as u32),
-        max_depth: U32::new(content.max_depth),
+        node_count: U64::new(node_count),
+        triangle_count: U64::new(triangle_count),
+        vertex_count: U64::new(figures.vertex_count),
+        page_count: U32::new(pages.len() as u32),
+        max_depth: U32::new(figures.max_depth),
         metadata: SectionRef {
             offset: U64::new(metadata_offset),
             length: U64::new(metadata.len() as u64),
@@ -325,22 +499,107 @@ pub fn encode<N: NodeSource>(
         header_checksum: U64::new(0),
     };
     header.header_checksum = U64::new(xxh3_64(&header.as_bytes()[..HEADER_BYTES - 8]));
+    let mut head = Vec::with_capacity(directory_offset as usize + directory_length as usize);
+    head.extend_from_slice(header.as_bytes());
+    head.extend_from_slice(&metadata);
+    head.extend_from_slice(directory.as_bytes());
+    report.file_bytes = offset;
+    Ok((head, report))
+}
 
-    let mut out = Vec::with_capacity(offset as usize);
-    out.extend_from_slice(header.as_bytes());
-    out.extend_from_slice(&metadata);
-    out.extend_from_slice(directory.as_bytes());
-    let raw_page_bytes = frames.iter().map(|(_, r)| *r as u64).sum();
-    let compressed_page_bytes = frames.iter().map(|(f, _)| f.len() as u64).sum();
-    for (frame, _) in frames {
-        out.extend_from_slice(&frame);
+/// What the directory needs of an [`EncodedPage`] once its frame has been written elsewhere.
+#[derive(Debug, Clone, Copy)]
+pub struct EncodedPageSummary {
+    /// Length of the zstd frame.
+    pub compressed_length: u32,
+    /// Length of the decoded page.
+    pub raw_length: u32,
+    /// Nodes in the page.
+    pub node_count: u32,
+    /// Triangles in the page.
+    pub triangle_count: u32,
+}
+
+impl EncodedPage {
+    /// The page's summary and its frame's checksum, for [`file_head`].
+    pub fn summary(&self) -> (EncodedPageSummary, u64) {
+        (
+            EncodedPageSummary {
+                compressed_length: self.frame.len() as u32,
+                raw_length: self.raw_length,
+                node_count: self.node_count,
+                triangle_count: self.triangle_count,
+            },
+            xxh3_64(&self.frame),
+        )
     }
-    let report = WriteReport {
-        file_bytes: out.len() as u64,
-        raw_page_bytes,
-        compressed_page_bytes,
-        pages: plan.len() as u32,
+}
+
+/// The whole tree's layout: its top, then each region root's subtree in leaf order.
+pub fn lay_out(nodes: &impl NodeSource, page_bytes: u32) -> PageLayout {
+    let mut layout = PageLayout::top(nodes, page_bytes);
+    for root in region_roots(nodes, page_bytes) {
+        let n = nodes.node_record(root);
+        layout.append(PageLayout::region(
+            nodes,
+            n.first_child.get(),
+            n.child_count,
+            page_bytes,
+        ));
+    }
+    layout
+}
+
+/// Lays the tree out in pages ([`lay_out`]) and encodes the whole file in memory.
+pub fn encode<N: NodeSource>(
+    content: &TreeContent<N>,
+    options: &WriteOptions,
+) -> Result<(Vec<u8>, WriteReport), VdtError> {
+    let nodes = &content.nodes;
+    let node_count = nodes.node_count();
+    if node_count == 0 {
+        return Err(VdtError::invalid(
+            "tree",
+            "a .vdt file needs at least one node",
+        ));
+    }
+    let layout = lay_out(nodes, options.page_bytes);
+
+    // Renumber nodes in page order.
+    let mut new_id = vec![NO_NODE; node_count];
+    let mut placed = 0usize;
+    for old in layout.nodes() {
+        new_id[old as usize] = placed as u32;
+        placed += 1;
+    }
+    if placed != node_count || new_id.contains(&NO_NODE) {
+        return Err(VdtError::invalid(
+            "tree",
+            "some nodes are not reachable from the root",
+        ));
+    }
+    let pages = encode_pages(
+        nodes,
+        &content.triangles,
+        &layout,
+        &|id| new_id[id as usize],
+        0,
+        &content.grid,
+        options.zstd_level,
+    )?;
+    drop(new_id);
+    let summaries: Vec<_> = pages.iter().map(EncodedPage::summary).collect();
+    let figures = FileFigures {
+        vertex_count: content.vertex_count,
+        max_depth: content.max_depth,
+        grid: content.grid,
+        metadata: &content.metadata,
     };
+    let (mut out, report) = file_head(&summaries, &figures)?;
+    out.reserve_exact(report.compressed_page_bytes as usize);
+    for page in pages {
+        out.extend_from_slice(&page.frame);
+    }
     Ok((out, report))
 }
 

@@ -1,30 +1,51 @@
-//! The merge: the shards' subtrees joined under the top tree into the file's content.
+//! The merge: the shards' subtrees joined under the top tree and written as the file, one part
+//! in memory at a time.
 //!
-//! Node ids: the top tree keeps its own (its leaves are the shard roots), and each root's
-//! other nodes follow in root order, each subtree in its own breadth-first order. Any order
-//! with contiguous children and the root first will do: the writer lays pages out from the
-//! tree's shape and renumbers every node in page order. Leaf ranks move by the root's first
-//! rank. The top nodes' attributes come from the roots' sums exactly as the in-memory build's
-//! levels above its parallel frontier come from theirs, and their error radii scan the
-//! leaves, as every node's does.
+//! The file is laid out in regions (`vds_format::region_leaves`): its top, then each region
+//! root's subtree in leaf order, and no page mixes two regions. Every region lies under one
+//! shard root (the plan splits no node that a region could hold), so its pages depend on one
+//! part alone. The merge therefore reads the parts twice, in shard order:
+//!
+//! 1. *The top.* From each part, the root's record and sums, the nodes of the file's top that
+//!    lie under the root (those with more leaves than a region, and their children) with
+//!    their subtris, and the corners of triangles across roots. Then the top nodes of the
+//!    plan get their proxies from the roots' sums, as the in-memory build's levels above its
+//!    parallel frontier get theirs; the cross corners are joined into triangles and placed
+//!    with their owners; and the top is laid out, which numbers its nodes.
+//! 2. *The regions.* Each part's regions are laid out, numbered after everything before
+//!    them, encoded and compressed, and their pages spilled to a temporary file; the part's
+//!    leaves widen the error radii of the plan's top nodes above them (an exact
+//!    farthest-leaf scan, as every node's radius is).
+//!
+//! Last, the plan's top nodes get their bounds, the top pages are encoded, and the file is
+//! written: header, metadata and directory, the top's pages, the spilled pages. What is held
+//! is the top, the triangles across roots, a page's directory entry each, and one part.
+
+use std::collections::VecDeque;
+use std::io::{BufWriter, Seek, Write};
 
 use rayon::prelude::*;
-use vds_format::{BuildInfo, InputInfo, Metadata, NodeRecord, TreeContent, TriangleRecord};
-use zerocopy::FromZeros;
+use vds_format::{
+    BuildInfo, EncodedPage, FileFigures, InputInfo, Metadata, NO_NODE, NodeRecord, PageLayout,
+    TriangleRecord, WriteReport, encode_pages, file_head, region_leaves,
+};
 use zerocopy::little_endian::{U16, U32};
 
-use super::part::{CrossCorner, ShardPart};
+use super::part::{CrossCorner, RootPart, ShardPart};
+use super::plan::TopNode;
 use super::{Plan, ShardError};
-use crate::build::{Accumulator, Sphere, absorb_on, inner_attributes_on};
+use crate::build::{
+    Accumulator, Sphere, absorb_on, inner_bounds, inner_proxy, leaf_distance_squared,
+};
 use crate::isa::Isa;
 use crate::tree::Node;
-use crate::vdt::{leading_smallest, node_record, part_records_of};
+use crate::vdt::{PartCounts, leading_smallest, node_record};
 
-/// Joins the parts of every shard of `plan` (any order, each once) into the content of the
+/// Joins the parts of every shard of `plan` (any order, each once) into the bytes of the
 /// `.vdt` file the in-memory build of the same input writes. The parts must come from
 /// [`super::build_shard`] or its siblings, or from [`super::read_part`], which checks a file's:
 /// the merge trusts their links and ranges.
-pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<TreeContent, ShardError> {
+pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<Vec<u8>, ShardError> {
     let mut by_index: Vec<Option<ShardPart>> = vec![None; plan.shard_count() as usize];
     for part in parts {
         if part.plan_id != plan.id {
@@ -45,196 +66,664 @@ pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<TreeContent, ShardErr
             plan.shard_count()
         )));
     }
-    merge_in_order(plan, |k| {
-        Ok(by_index[k as usize]
-            .take()
-            .expect("every shard is present, once"))
-    })
+    let mut out = Vec::new();
+    merge_to(
+        plan,
+        |k| {
+            Ok(by_index[k as usize]
+                .clone()
+                .expect("every shard is present, once"))
+        },
+        &mut out,
+    )?;
+    Ok(out)
 }
 
 fn set(reason: String) -> ShardError {
     ShardError::PartSet(reason)
 }
 
-/// [`merge`], asking `part` for each shard in index order: one part's records are held at a
-/// time, and freed once moved into the file's.
-pub fn merge_in_order(
+/// [`merge`], writing the file to `out` and asking `part` for each shard's part: twice, in
+/// index order both times (the two passes of the module doc), so that one part is held at a
+/// time. Both answers for a shard must be the same part.
+pub fn merge_to(
     plan: &Plan,
     mut part: impl FnMut(u32) -> Result<ShardPart, ShardError>,
-) -> Result<TreeContent, ShardError> {
-    let isa = Isa::detect();
-    let top = &plan.top;
-    // The top tree's nodes keep their ids (its leaves are the roots); each root's other nodes
-    // follow, from `base[root]`.
-    // Room for the most nodes a tree of this many leaves has (2V - 1): pages of it that are
-    // never written are never touched, and the array is never copied as it grows.
-    let mut records: Vec<NodeRecord> = Vec::new();
-    // `try_`: the figures come from the plan, a file; one that states more than memory holds
-    // gets the array grown part by part instead (and fails when the parts really are that
-    // large).
-    let _ = records.try_reserve_exact(2 * plan.vertices as usize);
-    records.resize(top.len(), NodeRecord::new_zeroed());
-    let mut base = vec![0u32; plan.roots.len()];
-    let id_in = |base: &[u32], r: usize, local: u32| {
-        if local == 0 {
-            plan.roots[r]
-        } else {
-            base[r] + local - 1
-        }
-    };
-    let mut up: Vec<(Accumulator, Sphere)> =
-        vec![(Accumulator::EMPTY, Sphere::default()); top.len()];
-    // Leaf positions by global rank, for the top nodes' error radii.
-    let mut leaf_positions: Vec<[f32; 3]> = Vec::new();
-    let mut owned: Vec<(u32, TriangleRecord)> = Vec::new();
-    let _ = leaf_positions.try_reserve_exact(plan.vertices as usize);
-    let _ = owned.try_reserve_exact(plan.triangles as usize);
-    let mut cross: Vec<CrossCorner> = Vec::new();
+    out: &mut impl Write,
+) -> Result<WriteReport, ShardError> {
+    let mut top = Top::new(plan);
     for k in 0..plan.shard_count() {
         let shard = part(k)?;
-        let expected = plan.shard_roots(k);
-        if shard.plan_id != plan.id
-            || shard.index != k
-            || shard.roots.len() != expected.len()
-            || shard.roots.iter().zip(expected).any(|(p, r)| p.root != r)
-        {
-            return Err(set(format!("shard {k} does not hold the plan's roots")));
+        check_part(plan, &shard, k)?;
+        top.gather(&shard)?;
+    }
+    let top = top.finish()?;
+    let mut regions = RegionWriter::new(plan, &top)?;
+    for k in 0..plan.shard_count() {
+        let shard = part(k)?;
+        check_part(plan, &shard, k)?;
+        regions.write_part(&top, shard)?;
+    }
+    regions.finish(top, out)
+}
+
+/// The checks that a part is the plan's shard `k`, holding the plan's roots.
+fn check_part(plan: &Plan, shard: &ShardPart, k: u32) -> Result<(), ShardError> {
+    let expected = plan.shard_roots(k);
+    if shard.plan_id != plan.id
+        || shard.index != k
+        || shard.roots.len() != expected.len()
+        || shard.roots.iter().zip(expected).any(|(p, r)| p.root != r)
+    {
+        return Err(set(format!("shard {k} does not hold the plan's roots")));
+    }
+    Ok(())
+}
+
+fn leaf_count(n: &NodeRecord) -> u32 {
+    n.leaf_end.get() - n.leaf_begin.get()
+}
+
+fn subtris(n: &NodeRecord) -> std::ops::Range<usize> {
+    let begin = n.subtri_begin.get() as usize;
+    begin..begin + n.subtri_count.get() as usize
+}
+
+/// Where a root's subtree sits in the file's tree: its leaf ranks and depths move by the
+/// root's first rank and depth.
+struct Placement {
+    offset: u32,
+    depth: u16,
+}
+
+impl Placement {
+    fn of(top: &TopNode) -> Placement {
+        Placement {
+            offset: top.leaf_begin,
+            depth: top.depth,
         }
-        cross.extend_from_slice(&shard.cross);
-        for root in shard.roots {
-            let r = root.root as usize;
-            let root_top = &top[plan.roots[r] as usize];
-            let offset = root_top.leaf_begin;
-            base[r] = records.len() as u32;
-            if records.len() as u64 + root.nodes.len() as u64 > u64::from(u32::MAX) {
-                return Err(set("more nodes than a file holds".into()));
+    }
+
+    /// `n` with the file's depth and leaf ranks (its links and subtri range as they were).
+    fn node(&self, n: &NodeRecord) -> Result<NodeRecord, ShardError> {
+        let mut moved = *n;
+        let depth = n.depth.get().checked_add(self.depth);
+        moved.depth = U16::new(depth.ok_or_else(|| set("a tree deeper than a file holds".into()))?);
+        moved.leaf_begin = U32::new(n.leaf_begin.get() + self.offset);
+        moved.leaf_end = U32::new(n.leaf_end.get() + self.offset);
+        Ok(moved)
+    }
+
+    fn triangle(&self, t: &TriangleRecord) -> TriangleRecord {
+        TriangleRecord {
+            corners: t.corners.map(|c| U32::new(c.get() + self.offset)),
+            part: t.part,
+        }
+    }
+}
+
+/// A region root: a top node with at most a region's leaves, and children.
+#[derive(Debug, Clone, Copy)]
+struct Region {
+    /// Its id in the top.
+    top: u32,
+    /// Its shard root (plan index) and its id in that root's subtree.
+    root: u32,
+    local: u32,
+    /// Its first leaf rank: regions follow each other in the file in leaf order.
+    leaf_begin: u32,
+}
+
+/// Pass 1: the file's top gathered from the plan and the parts.
+struct Top<'p> {
+    plan: &'p Plan,
+    /// Leaves a region holds at most.
+    limit: u32,
+    /// The top's nodes: the plan's top nodes under their plan ids, then the top nodes under
+    /// the shard roots, each sibling group contiguous. Links are top ids; a region root's
+    /// first child is `nodes.len() + ` its index in `regions` once the top is finished.
+    nodes: Vec<NodeRecord>,
+    /// The sums and sphere each of the plan's top nodes passes up.
+    up: Vec<(Accumulator, Sphere)>,
+    /// Each shard root's top nodes: (id in its subtree, top id), sorted by the former.
+    under_root: Vec<Vec<(u32, u32)>>,
+    regions: Vec<Region>,
+    /// Subtris of top nodes, by top id.
+    triangles: Vec<(u32, TriangleRecord)>,
+    /// Subtris of the parts' nodes that lie in regions.
+    region_triangles: u64,
+    cross: Vec<CrossCorner>,
+}
+
+/// The finished top (after pass 1).
+struct FinishedTop {
+    /// As in [`Top`], with subtri ranges into `triangles` and each region root's first child
+    /// a placeholder id: `nodes.len() +` its region's index.
+    nodes: Vec<NodeRecord>,
+    triangles: Vec<TriangleRecord>,
+    layout: PageLayout,
+    /// Top id → file id.
+    file_id: Vec<u32>,
+    /// The plan's top nodes' sums (their spheres are made once the radii are known), and
+    /// proxies.
+    up: Vec<(Accumulator, Sphere)>,
+    proxies: Vec<[f32; 3]>,
+    under_root: Vec<Vec<(u32, u32)>>,
+    regions: Vec<Region>,
+    /// Triangles across roots owned by region nodes: (shard root, id under it, triangle),
+    /// sorted as the file stores each node's.
+    region_cross: Vec<(u32, u32, TriangleRecord)>,
+}
+
+impl<'p> Top<'p> {
+    fn new(plan: &'p Plan) -> Top<'p> {
+        let nodes = plan
+            .top
+            .iter()
+            .map(|t| {
+                let node = Node {
+                    first_child: t.first_child,
+                    child_count: t.child_count,
+                    ..Node::topology(t.leaf_begin, t.leaf_end, t.parent, t.depth)
+                };
+                node_record(&node, None, [0.0; 3])
+            })
+            .collect();
+        Top {
+            plan,
+            limit: region_leaves(plan.metadata.page_bytes),
+            nodes,
+            up: vec![(Accumulator::EMPTY, Sphere::default()); plan.top.len()],
+            under_root: vec![Vec::new(); plan.roots.len()],
+            regions: Vec::new(),
+            triangles: Vec::new(),
+            region_triangles: 0,
+            cross: Vec::new(),
+        }
+    }
+
+    /// True when a node's children belong to the top: it holds more than a region, or the
+    /// whole tree fits in one (then the top is the whole tree, laid out as a small file is).
+    fn expands(&self, n: &NodeRecord) -> bool {
+        self.plan.vertices <= self.limit || leaf_count(n) > self.limit
+    }
+
+    /// Takes what the top needs from one part.
+    fn gather(&mut self, shard: &ShardPart) -> Result<(), ShardError> {
+        self.cross.extend_from_slice(&shard.cross);
+        for root in &shard.roots {
+            self.gather_root(root)?;
+        }
+        Ok(())
+    }
+
+    fn gather_root(&mut self, root: &RootPart) -> Result<(), ShardError> {
+        let r = root.root;
+        let id = self.plan.roots[r as usize];
+        let plan_node = &self.plan.top[id as usize];
+        let place = Placement::of(plan_node);
+        self.up[id as usize] = (root.sums, root.sphere);
+        let mut record = place.node(&root.nodes[0])?;
+        record.parent = U32::new(plan_node.parent);
+        self.nodes[id as usize] = record;
+        let mut mine = vec![(0u32, id)];
+        let mut owned = 0usize;
+        let mut queue = VecDeque::from([(0u32, id)]);
+        while let Some((local, at)) = queue.pop_front() {
+            let n = &root.nodes[local as usize];
+            for t in &root.triangles[subtris(n)] {
+                self.triangles.push((at, place.triangle(t)));
             }
-            up[plan.roots[r] as usize] = (root.sums, root.sphere);
-            // Roots come in leaf order: this one's leaves extend the positions.
-            leaf_positions.resize(root_top.leaf_end as usize, [0.0; 3]);
-            for (local, n) in root.nodes.iter().enumerate() {
-                if n.child_count == 0 {
-                    leaf_positions[(offset + n.leaf_begin.get()) as usize] =
-                        n.proxy.map(|c| c.get());
-                }
-                let mut moved = *n;
-                moved.parent = U32::new(if local == 0 {
-                    root_top.parent
-                } else {
-                    id_in(&base, r, n.parent.get())
+            owned += n.subtri_count.get() as usize;
+            if n.child_count == 0 {
+                continue;
+            }
+            if !self.expands(n) {
+                self.regions.push(Region {
+                    top: at,
+                    root: r,
+                    local,
+                    leaf_begin: n.leaf_begin.get() + place.offset,
                 });
-                if n.child_count > 0 {
-                    moved.first_child = U32::new(id_in(&base, r, n.first_child.get()));
-                }
-                let depth = n.depth.get().checked_add(root_top.depth);
-                moved.depth =
-                    U16::new(depth.ok_or_else(|| set("a tree deeper than a file holds".into()))?);
-                moved.leaf_begin = U32::new(n.leaf_begin.get() + offset);
-                moved.leaf_end = U32::new(n.leaf_end.get() + offset);
-                if local == 0 {
-                    records[plan.roots[r] as usize] = moved;
-                } else {
-                    records.push(moved);
-                }
-                let begin = n.subtri_begin.get() as usize;
-                for t in &root.triangles[begin..begin + n.subtri_count.get() as usize] {
-                    let mut t = *t;
-                    t.corners = t.corners.map(|c| U32::new(c.get() + offset));
-                    owned.push((id_in(&base, r, local as u32), t));
-                }
+                continue;
+            }
+            let first = self.nodes.len() as u32;
+            self.nodes[at as usize].first_child = U32::new(first);
+            let children = n.first_child.get()..n.first_child.get() + u32::from(n.child_count);
+            for c in children {
+                let mut child = place.node(&root.nodes[c as usize])?;
+                child.parent = U32::new(at);
+                let child_at = self.nodes.len() as u32;
+                self.nodes.push(child);
+                mine.push((c, child_at));
+                queue.push_back((c, child_at));
             }
         }
+        mine.sort_unstable();
+        self.under_root[r as usize] = mine;
+        self.region_triangles += (root.triangles.len() - owned) as u64;
+        Ok(())
     }
 
-    // The top nodes' attributes, children (later ids) first.
-    for id in (0..top.len()).rev() {
-        let t = &top[id];
-        if t.root.is_some() {
-            continue;
+    /// After every part: the cross triangles joined and placed, the top's subtris grouped, the
+    /// plan's top nodes' proxies, and the top's layout.
+    fn finish(mut self) -> Result<FinishedTop, ShardError> {
+        let plan = self.plan;
+        let regions_start = self.nodes.len() as u32;
+        self.regions.sort_unstable_by_key(|g| g.leaf_begin);
+        for (i, g) in self.regions.iter().enumerate() {
+            self.nodes[g.top as usize].first_child = U32::new(regions_start + i as u32);
         }
-        let family =
-            &up[t.first_child as usize..t.first_child as usize + usize::from(t.child_count)];
-        let mut sum = family[0].0;
-        for (child, _) in &family[1..] {
-            absorb_on(isa, &mut sum, child);
-        }
-        let node = Node {
-            first_child: t.first_child,
-            child_count: t.child_count,
-            ..Node::topology(t.leaf_begin, t.leaf_end, t.parent, t.depth)
-        };
-        let spheres: Vec<Sphere> = family.iter().map(|&(_, s)| s).collect();
-        let (bounds, sphere) =
-            inner_attributes_on(isa, &node, spheres.into_iter(), &sum, &leaf_positions);
-        up[id] = (sum, sphere);
-        records[id] = node_record(&node, Some(&bounds), [0.0; 3]);
-    }
-    drop(leaf_positions);
-    let offset = |r: usize| plan.root_node(r as u32).leaf_begin;
-    let global = |r: usize, local: u32| id_in(&base, r, local);
 
-    cross.par_sort_unstable();
-    for corners in cross.chunk_by(|a, b| a.triangle == b.triangle) {
-        let t = corners[0].triangle;
-        let complete = corners.len() == 3
-            && corners
-                .iter()
-                .enumerate()
-                .all(|(k, c)| usize::from(c.corner) == k);
-        if !complete || corners.iter().any(|c| c.part != corners[0].part) {
-            return Err(set(format!(
-                "triangle {t}: its corners' shards disagree (a part from another build?)"
-            )));
-        }
-        let ranks: [u32; 3] =
-            std::array::from_fn(|k| offset(corners[k].root as usize) + corners[k].rank);
-        let owner = match corners.iter().find(|c| c.owner != u32::MAX) {
-            Some(c) => global(c.root as usize, c.owner),
-            None => top_owner(plan, ranks),
-        };
-        owned.push((
-            owner,
-            TriangleRecord {
+        let mut cross = std::mem::take(&mut self.cross);
+        cross.par_sort_unstable();
+        let mut region_cross = Vec::new();
+        for corners in cross.chunk_by(|a, b| a.triangle == b.triangle) {
+            let t = corners[0].triangle;
+            let complete = corners.len() == 3
+                && corners
+                    .iter()
+                    .enumerate()
+                    .all(|(k, c)| usize::from(c.corner) == k);
+            if !complete || corners.iter().any(|c| c.part != corners[0].part) {
+                return Err(set(format!(
+                    "triangle {t}: its corners' shards disagree (a part from another build?)"
+                )));
+            }
+            let ranks: [u32; 3] = std::array::from_fn(|k| {
+                plan.root_node(corners[k].root).leaf_begin + corners[k].rank
+            });
+            let triangle = TriangleRecord {
                 corners: leading_smallest(ranks).map(U32::new),
                 part: U32::new(corners[0].part),
-            },
-        ));
-    }
-    drop(cross);
-    if owned.len() as u64 != plan.triangles {
-        return Err(set(format!(
-            "{} triangles, the plan has {}",
-            owned.len(),
-            plan.triangles
-        )));
-    }
-    // Grouped by node, and within a node in the order the file stores them.
-    owned.par_sort_unstable_by_key(|(node, t)| (*node, t.corners.map(|c| c.get()), t.part.get()));
-    let mut at = 0usize;
-    for (id, n) in records.iter_mut().enumerate() {
-        let begin = at;
-        while at < owned.len() && owned[at].0 == id as u32 {
-            at += 1;
+            };
+            match corners.iter().find(|c| c.owner != u32::MAX) {
+                Some(c) => match top_id_under(&self.under_root, c.root, c.owner) {
+                    Some(at) => self.triangles.push((at, triangle)),
+                    None => region_cross.push((c.root, c.owner, triangle)),
+                },
+                None => self.triangles.push((top_owner(plan, ranks), triangle)),
+            }
         }
-        n.subtri_begin = U32::new(begin as u32);
-        n.subtri_count = U32::new((at - begin) as u32);
-    }
-    let triangles: Vec<TriangleRecord> = owned.into_iter().map(|(_, t)| t).collect();
+        drop(cross);
+        let placed =
+            self.triangles.len() as u64 + region_cross.len() as u64 + self.region_triangles;
+        if placed != plan.triangles {
+            return Err(set(format!(
+                "{placed} triangles, the plan has {}",
+                plan.triangles
+            )));
+        }
+        region_cross.par_sort_unstable_by_key(|(root, local, t)| {
+            (*root, *local, t.corners.map(|c| c.get()), t.part.get())
+        });
 
-    let metadata = metadata(plan, &records, &triangles);
-    let max_depth = records
-        .iter()
-        .map(|n| u32::from(n.depth.get()))
-        .max()
-        .unwrap_or(0);
-    Ok(TreeContent {
-        nodes: records,
-        triangles,
-        vertex_count: u64::from(plan.vertices),
-        max_depth,
-        grid: plan.grid(),
-        metadata,
-    })
+        // Grouped by node, and within a node in the order the file stores them.
+        self.triangles.par_sort_unstable_by_key(|(node, t)| {
+            (*node, t.corners.map(|c| c.get()), t.part.get())
+        });
+        let mut at = 0usize;
+        for (id, n) in self.nodes.iter_mut().enumerate() {
+            let begin = at;
+            while at < self.triangles.len() && self.triangles[at].0 == id as u32 {
+                at += 1;
+            }
+            n.subtri_begin = U32::new(begin as u32);
+            n.subtri_count = U32::new((at - begin) as u32);
+        }
+        let triangles: Vec<TriangleRecord> = self.triangles.into_iter().map(|(_, t)| t).collect();
+
+        // The plan's top nodes' sums and proxies, children (later ids) first.
+        let isa = Isa::detect();
+        let mut proxies = vec![[0.0f32; 3]; plan.top.len()];
+        for id in (0..plan.top.len()).rev() {
+            let t = &plan.top[id];
+            if t.root.is_some() {
+                continue;
+            }
+            let family =
+                t.first_child as usize..t.first_child as usize + usize::from(t.child_count);
+            let mut sum = self.up[family.start].0;
+            for child in family.start + 1..family.end {
+                let (child_sum, _) = self.up[child];
+                absorb_on(isa, &mut sum, &child_sum);
+            }
+            proxies[id] = inner_proxy(&plan_node(t), &sum);
+            self.up[id].0 = sum;
+        }
+
+        let layout = PageLayout::top(&self.nodes, plan.metadata.page_bytes);
+        let mut file_id = vec![NO_NODE; self.nodes.len()];
+        for (k, id) in layout.nodes().enumerate() {
+            file_id[id as usize] = k as u32;
+        }
+        if layout.node_count() != self.nodes.len() || file_id.contains(&NO_NODE) {
+            return Err(set(
+                "the parts' top nodes do not form the top of a tree".into()
+            ));
+        }
+        Ok(FinishedTop {
+            nodes: self.nodes,
+            triangles,
+            layout,
+            file_id,
+            up: self.up,
+            proxies,
+            under_root: self.under_root,
+            regions: self.regions,
+            region_cross,
+        })
+    }
+}
+
+/// The top id of the node `local` under shard root `root`, if it is a top node.
+fn top_id_under(under_root: &[Vec<(u32, u32)>], root: u32, local: u32) -> Option<u32> {
+    let mine = under_root.get(root as usize)?;
+    let k = mine.binary_search_by_key(&local, |&(l, _)| l).ok()?;
+    Some(mine[k].1)
+}
+
+/// The builder's node for one of the plan's top nodes (links are plan ids, which are top ids).
+fn plan_node(t: &TopNode) -> Node {
+    Node {
+        first_child: t.first_child,
+        child_count: t.child_count,
+        ..Node::topology(t.leaf_begin, t.leaf_end, t.parent, t.depth)
+    }
+}
+
+/// Pass 2: each part's regions, encoded and spilled.
+struct RegionWriter<'p> {
+    plan: &'p Plan,
+    spill: BufWriter<std::fs::File>,
+    /// Directory entries of the spilled pages, in order.
+    pages: Vec<(vds_format::EncodedPageSummary, u64)>,
+    /// File id of the next region node.
+    next_node: u64,
+    /// File id of each region's first node (its root's first child).
+    region_first: Vec<u32>,
+    /// Regions written so far (they come in leaf order, so in part order).
+    regions_done: usize,
+    /// Cross triangles placed so far.
+    cross_done: usize,
+    /// Squared distance to the farthest leaf, for each of the plan's top nodes.
+    farthest: Vec<f64>,
+    /// Over the nodes and triangles of the regions: for the metadata and header.
+    degree_histogram: [u64; 9],
+    max_depth: u32,
+    part_counts: PartCounts,
+}
+
+impl<'p> RegionWriter<'p> {
+    fn new(plan: &'p Plan, top: &FinishedTop) -> Result<RegionWriter<'p>, ShardError> {
+        let spill = tempfile::tempfile().map_err(|source| ShardError::Io {
+            path: std::env::temp_dir(),
+            source,
+        })?;
+        Ok(RegionWriter {
+            plan,
+            spill: BufWriter::new(spill),
+            pages: Vec::new(),
+            next_node: top.nodes.len() as u64,
+            region_first: vec![0; top.regions.len()],
+            regions_done: 0,
+            cross_done: 0,
+            farthest: vec![0.0; plan.top.len()],
+            degree_histogram: [0; 9],
+            max_depth: 0,
+            part_counts: PartCounts::new(plan.metadata.part_names.len()),
+        })
+    }
+
+    /// Lays out, numbers, encodes and spills the regions of one part.
+    fn write_part(&mut self, top: &FinishedTop, shard: ShardPart) -> Result<(), ShardError> {
+        let plan = self.plan;
+        let total: usize = shard.roots.iter().map(|r| r.nodes.len()).sum();
+        // The part's nodes with the file's depths and ranks, linked by index into `nodes`;
+        // each region node's subtris (its own and the cross triangles it owns) in `triangles`.
+        let mut nodes: Vec<NodeRecord> = Vec::with_capacity(total);
+        let mut triangles: Vec<TriangleRecord> = Vec::new();
+        let mut file_id = vec![NO_NODE; total];
+        let mut bases = Vec::with_capacity(shard.roots.len());
+        for root in shard.roots {
+            let r = root.root;
+            let plan_node = plan.root_node(r);
+            let place = Placement::of(plan_node);
+            let base = nodes.len() as u32;
+            bases.push((r, base));
+            self.widen_radii(&top.proxies, plan_node, &root);
+            let mine = &top.under_root[r as usize];
+            let mut next_top = mine.iter().peekable();
+            for (local, n) in root.nodes.iter().enumerate() {
+                let local = local as u32;
+                let mut moved = place.node(n)?;
+                moved.parent = match n.parent.get() {
+                    NO_NODE => U32::new(NO_NODE),
+                    p => U32::new(base + p),
+                };
+                if n.child_count > 0 {
+                    moved.first_child = U32::new(base + n.first_child.get());
+                }
+                let begin = triangles.len();
+                if next_top.peek().is_some_and(|&&(l, _)| l == local) {
+                    // A top node: its record and subtris are the top's.
+                    let (_, at) = next_top.next().expect("peeked");
+                    file_id[(base + local) as usize] = top.file_id[*at as usize];
+                } else {
+                    triangles.extend(root.triangles[subtris(n)].iter().map(|t| place.triangle(t)));
+                    let cross = &top.region_cross[self.cross_done..];
+                    let owned = cross
+                        .iter()
+                        .take_while(|(cr, cl, _)| (*cr, *cl) == (r, local))
+                        .count();
+                    triangles.extend(cross[..owned].iter().map(|(_, _, t)| *t));
+                    self.cross_done += owned;
+                    triangles[begin..]
+                        .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
+                    self.degree_histogram[usize::from(n.child_count).min(8)] += 1;
+                    self.max_depth = self.max_depth.max(u32::from(moved.depth.get()));
+                }
+                moved.subtri_begin = U32::new(begin as u32);
+                moved.subtri_count = U32::new((triangles.len() - begin) as u32);
+                nodes.push(moved);
+            }
+            if next_top.next().is_some() {
+                return Err(set(format!(
+                    "shard root {r}: its part changed between passes"
+                )));
+            }
+        }
+        if let Some(&(r, l, _)) = top.region_cross.get(self.cross_done)
+            && bases.iter().any(|&(root, _)| root == r)
+        {
+            return Err(set(format!(
+                "a triangle across roots names node {l} of root {r}, which has no such node"
+            )));
+        }
+        for t in &triangles {
+            self.part_counts.add(t.part.get(), 1);
+        }
+
+        // This part's regions, in leaf order, numbered after everything before them.
+        let mut layout = PageLayout::default();
+        let base_of = |r: u32| bases.iter().find(|&&(root, _)| root == r).map(|&(_, b)| b);
+        while let Some(g) = top.regions.get(self.regions_done) {
+            let Some(base) = base_of(g.root) else { break };
+            let root = &nodes[(base + g.local) as usize];
+            self.region_first[self.regions_done] =
+                u32::try_from(self.next_node + layout.node_count() as u64)
+                    .map_err(|_| set("more nodes than a file holds".into()))?;
+            layout.append(PageLayout::region(
+                &nodes,
+                root.first_child.get(),
+                root.child_count,
+                plan.metadata.page_bytes,
+            ));
+            self.regions_done += 1;
+        }
+        let first_node = self.next_node;
+        for (k, id) in layout.nodes().enumerate() {
+            file_id[id as usize] = (first_node + k as u64) as u32;
+        }
+        if file_id.contains(&NO_NODE) {
+            return Err(set(format!(
+                "shard {}: nodes that are in neither the top nor a region",
+                shard.index
+            )));
+        }
+        self.next_node += layout.node_count() as u64;
+        if self.next_node > u64::from(u32::MAX) {
+            return Err(set("more nodes than a file holds".into()));
+        }
+        let pages = encode_pages(
+            &nodes,
+            &triangles,
+            &layout,
+            &|id| file_id[id as usize],
+            first_node as u32,
+            &plan.grid(),
+            plan.metadata.zstd_level,
+        )?;
+        for page in &pages {
+            self.spill
+                .write_all(&page.frame)
+                .map_err(|source| ShardError::Io {
+                    path: std::env::temp_dir(),
+                    source,
+                })?;
+            self.pages.push(page.summary());
+        }
+        Ok(())
+    }
+
+    /// Widens the error radii of the plan's top nodes above `plan_node` by its leaves.
+    fn widen_radii(&mut self, proxies: &[[f32; 3]], plan_node: &TopNode, root: &RootPart) {
+        let mut above = Vec::new();
+        let mut at = plan_node.parent;
+        while at != u32::MAX {
+            above.push(at as usize);
+            at = self.plan.top[at as usize].parent;
+        }
+        let proxies: Vec<[f32; 3]> = above.iter().map(|&a| proxies[a]).collect();
+        let farthest = root
+            .nodes
+            .par_iter()
+            .filter(|n| n.child_count == 0)
+            .fold(
+                || vec![0.0f64; above.len()],
+                |mut far, n| {
+                    let leaf = n.proxy.map(|c| c.get());
+                    for (f, &p) in far.iter_mut().zip(&proxies) {
+                        *f = f.max(leaf_distance_squared(p, leaf));
+                    }
+                    far
+                },
+            )
+            .reduce(
+                || vec![0.0f64; above.len()],
+                |a, b| a.iter().zip(&b).map(|(x, y)| x.max(*y)).collect(),
+            );
+        for (&a, f) in above.iter().zip(farthest) {
+            self.farthest[a] = self.farthest[a].max(f);
+        }
+    }
+
+    /// After every part: the plan's top nodes' bounds, the top's pages, and the file.
+    fn finish(mut self, top: FinishedTop, out: &mut impl Write) -> Result<WriteReport, ShardError> {
+        let plan = self.plan;
+        if self.regions_done != top.regions.len() || self.cross_done != top.region_cross.len() {
+            return Err(set("the parts changed between the merge's passes".into()));
+        }
+        let FinishedTop {
+            mut nodes,
+            triangles,
+            layout,
+            file_id,
+            mut up,
+            proxies,
+            ..
+        } = top;
+        // The plan's top nodes' bounds, children (later ids) first.
+        for id in (0..plan.top.len()).rev() {
+            let t = &plan.top[id];
+            if t.root.is_some() {
+                continue;
+            }
+            let family =
+                t.first_child as usize..t.first_child as usize + usize::from(t.child_count);
+            let spheres: Vec<Sphere> = up[family].iter().map(|&(_, s)| s).collect();
+            let (bounds, sphere) = inner_bounds(
+                proxies[id],
+                self.farthest[id],
+                spheres.into_iter(),
+                &up[id].0,
+            );
+            up[id].1 = sphere;
+            let (begin, count) = (nodes[id].subtri_begin, nodes[id].subtri_count);
+            nodes[id] = node_record(&plan_node(t), Some(&bounds), [0.0; 3]);
+            nodes[id].subtri_begin = begin;
+            nodes[id].subtri_count = count;
+        }
+        for n in &nodes {
+            self.degree_histogram[usize::from(n.child_count).min(8)] += 1;
+            self.max_depth = self.max_depth.max(u32::from(n.depth.get()));
+        }
+        for t in &triangles {
+            self.part_counts.add(t.part.get(), 1);
+        }
+        let regions_start = nodes.len() as u32;
+        let region_first = &self.region_first;
+        let top_pages = encode_pages(
+            &nodes,
+            &triangles,
+            &layout,
+            &|id| {
+                if id < regions_start {
+                    file_id[id as usize]
+                } else {
+                    region_first[(id - regions_start) as usize]
+                }
+            },
+            0,
+            &plan.grid(),
+            plan.metadata.zstd_level,
+        )?;
+        let metadata = metadata(plan, &nodes[0], &self.part_counts, self.degree_histogram);
+        let mut summaries: Vec<_> = top_pages.iter().map(EncodedPage::summary).collect();
+        summaries.append(&mut self.pages);
+        let figures = FileFigures {
+            vertex_count: u64::from(plan.vertices),
+            max_depth: self.max_depth,
+            grid: plan.grid(),
+            metadata: &metadata,
+        };
+        let (head, report) = file_head(&summaries, &figures)?;
+        let write_error = |source| ShardError::Write(source);
+        out.write_all(&head).map_err(write_error)?;
+        for page in &top_pages {
+            out.write_all(&page.frame).map_err(write_error)?;
+        }
+        let spill_error = |source| ShardError::Io {
+            path: std::env::temp_dir(),
+            source,
+        };
+        let mut spill = self
+            .spill
+            .into_inner()
+            .map_err(|e| spill_error(e.into_error()))?;
+        spill.rewind().map_err(spill_error)?;
+        let copied = std::io::copy(&mut spill, out).map_err(write_error)?;
+        let spilled: u64 = summaries[top_pages.len()..]
+            .iter()
+            .map(|(p, _)| u64::from(p.compressed_length))
+            .sum();
+        if copied != spilled {
+            return Err(spill_error(std::io::Error::other(
+                "the temporary file of pages is shorter than what was written to it",
+            )));
+        }
+        Ok(report)
+    }
 }
 
 /// The top node a triangle with corners under three roots is a subtri of: the deepest one
@@ -261,22 +750,19 @@ fn top_owner(plan: &Plan, mut ranks: [u32; 3]) -> u32 {
     }
 }
 
-/// The metadata `vds-build` writes for an in-memory build of the plan's input.
-fn metadata(plan: &Plan, records: &[NodeRecord], triangles: &[TriangleRecord]) -> Metadata {
+/// The metadata `vds-build` writes for an in-memory build of the plan's input, with the
+/// root's record and the counts taken over the whole tree.
+fn metadata(
+    plan: &Plan,
+    root: &NodeRecord,
+    part_counts: &PartCounts,
+    degree_histogram: [u64; 9],
+) -> Metadata {
     let m = &plan.metadata;
-    let mut degree_histogram = [0u64; 9];
-    for n in records {
-        degree_histogram[usize::from(n.child_count).min(8)] += 1;
-    }
-    let parts = part_records_of(
-        m.part_names.len(),
-        |i| {
-            let (parent, color) = m.parts.get(i).copied().unwrap_or_default();
-            (parent, color.map(|c| c.map(f32::from_bits)))
-        },
-        triangles.iter().map(|t| t.part.get()),
-    );
-    let root = &records[0];
+    let parts = part_counts.records(|i| {
+        let (parent, color) = m.parts.get(i).copied().unwrap_or_default();
+        (parent, color.map(|c| c.map(f32::from_bits)))
+    });
     let (center, radius) = if root.child_count == 0 {
         (root.proxy.map(|c| c.get()), 0.0)
     } else {

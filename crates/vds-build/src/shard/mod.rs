@@ -33,7 +33,7 @@ mod part_file;
 pub mod plan;
 
 pub use input_file::{INPUT_MAGIC, read_shard_input, shard_triangle_counts, write_shard_inputs};
-pub use merge::{merge, merge_in_order};
+pub use merge::{merge, merge_to};
 pub use part::{
     CrossCorner, InputTriangle, RootPart, ShardPart, build_shard, build_shard_from,
     build_shard_into, input_triangle, roots_of_vertices, shard_input_of,
@@ -79,6 +79,12 @@ pub enum ShardError {
     /// The set of parts given to a merge is not the plan's shards, once each.
     #[error("{0}")]
     PartSet(String),
+    /// The merged tree cannot be encoded as a file.
+    #[error("cannot encode the merged file: {0}")]
+    Encode(#[from] vds_format::VdtError),
+    /// Writing the merged file failed.
+    #[error("cannot write the merged file: {0}")]
+    Write(std::io::Error),
     /// Writing an output failed (it is left as it was).
     #[error(transparent)]
     Output(#[from] vds_format::OutputError),

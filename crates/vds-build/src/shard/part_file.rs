@@ -590,11 +590,8 @@ mod tests {
                     continue;
                 };
                 read += 1;
-                if shards == 1
-                    && let Ok(content) = super::super::merge(&plan, vec![part])
-                {
+                if shards == 1 && super::super::merge(&plan, vec![part]).is_ok() {
                     merged += 1;
-                    let _ = vds_format::encode(&content, &Default::default());
                 }
             }
             // Flips in float fields leave a readable part: the test reaches the merge.

@@ -291,6 +291,15 @@ impl Plan {
                     roots_seen += 1;
                 }
                 None => {
+                    // The merge lays out each region of the file from one part: a region
+                    // must not span roots.
+                    if node.leaf_end - node.leaf_begin
+                        <= vds_format::region_leaves(self.metadata.page_bytes)
+                    {
+                        return Err(format!(
+                            "top node {id} is split but holds no more than a region of pages"
+                        ));
+                    }
                     let count = u32::from(node.child_count);
                     let first = node.first_child as usize;
                     if node.split.is_none()
@@ -371,8 +380,12 @@ pub fn plan(
     }
     let vertices = positions.len() as u32;
     let shards = shards.max(1);
-    // Roots of at most an eighth of a shard's share: runs of them balance shards well.
-    let root_target = vertices.div_ceil(shards.saturating_mul(8)).max(1);
+    // Roots of at most an eighth of a shard's share: runs of them balance shards well. And
+    // no smaller than a region of the file's pages, so that every region lies under one root
+    // and the merge lays out each shard's regions from that shard's part alone.
+    let root_target = vertices
+        .div_ceil(shards.saturating_mul(8))
+        .max(vds_format::region_leaves(metadata.page_bytes));
 
     let mut whole = Aabb::EMPTY;
     for &p in positions {

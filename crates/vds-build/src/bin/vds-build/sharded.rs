@@ -215,20 +215,21 @@ pub fn main() -> Result<()> {
             inputs.push(plan_path);
             check_output(&output, &inputs)?;
             let parts = parts_in_order(&plan, &parts)?;
-            // One part in memory at a time.
-            progress.counted("joining the parts (shards)");
-            let content = shard::merge_in_order(&plan, |k| {
-                progress.set(u64::from(k), u64::from(plan.shard_count()));
-                shard::read_part(parts[k as usize], &plan)
-            })?;
-            progress.phase("compressing and writing pages");
-            let options = vds_format::WriteOptions {
-                zstd_level: plan.metadata.zstd_level,
-                page_bytes: plan.metadata.page_bytes,
-            };
-            let report = vds_format::write_file(&output, &content, &options)
-                .with_context(|| format!("cannot write {}", output.display()))?;
-            drop(content);
+            // One part in memory at a time, each read twice (the merge's two passes).
+            let shards = u64::from(plan.shard_count());
+            progress.counted("joining the parts (shards), then writing their pages");
+            let mut file = vds_format::AtomicFile::create(&output)?;
+            let mut asked = 0u64;
+            let report = shard::merge_to(
+                &plan,
+                |k| {
+                    asked += 1;
+                    progress.set(asked - 1, 2 * shards);
+                    shard::read_part(parts[k as usize], &plan)
+                },
+                &mut file,
+            )?;
+            file.commit()?;
             if verify {
                 let verified = vds_format::VdtFile::open(&output)
                     .map_err(vds_build::VerifyError::from)
