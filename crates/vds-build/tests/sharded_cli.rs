@@ -398,3 +398,76 @@ fn page_options_given_to_plan_shape_the_merged_file() {
     assert_ne!(std::fs::read(&default).unwrap(), a);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `vds-build --memory-limit` on a generated million-triangle scene: the in-memory build's
+/// file, byte for byte, with a peak (the process's `VmHWM`, as the build reports it) within a
+/// limit that the in-memory build of the same scene goes over.
+#[test]
+fn a_build_within_a_memory_limit_writes_the_same_file_within_the_limit() {
+    let dir = temp_dir("memory-limit");
+    let input = dir.join("scene.ply");
+    vds_gen::write_ply_streamed(
+        1_000_000,
+        &mut std::io::BufWriter::new(std::fs::File::create(&input).unwrap()),
+    )
+    .unwrap();
+    let peak = |run: &std::process::Output| -> u64 {
+        succeeded(run);
+        let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        report["peak_rss_bytes"].as_u64().expect("a peak on Linux")
+    };
+    const LIMIT: u64 = 80 << 20;
+    let expected = dir.join("in-memory.vdt");
+    let in_memory = peak(&build(&[path(&input), "-o", path(&expected), "--json"]));
+    assert!(
+        in_memory > LIMIT,
+        "the in-memory build peaks at {in_memory} B: the scene is too small to test the limit"
+    );
+    let output = dir.join("limited.vdt");
+    let run = build(&[
+        path(&input),
+        "-o",
+        path(&output),
+        "--memory-limit",
+        "80MiB",
+        "--json",
+    ]);
+    let limited = peak(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert!(report["shards"].as_u64().unwrap() > 1, "{report}");
+    assert!(
+        limited <= LIMIT,
+        "peak {limited} B over the limit of {LIMIT} B: {report}"
+    );
+    assert!(std::fs::read(&expected).unwrap() == std::fs::read(&output).unwrap());
+    // The temporary folder of shard inputs and parts is gone.
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left.len(), 3, "{left:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A limit that cannot hold even the process itself is refused before anything is read, and
+/// `--memory-limit` refuses what a sharded build cannot do.
+#[test]
+fn a_memory_limit_refuses_what_it_cannot_keep() {
+    let dir = temp_dir("memory-limit-refusals");
+    let output = dir.join("x.vdt");
+    let input = model("bunny.obj");
+    for (extra, says) in [
+        (&["--memory-limit", "1MiB"][..], "too small"),
+        (&["--memory-limit", "1GiB", "--weld", "0.001"][..], "--weld"),
+        (&["--memory-limit", "1GiB", "--builder", "qem"][..], "octree"),
+    ] {
+        let mut args = vec![path(&input), "-o", path(&output)];
+        args.extend_from_slice(extra);
+        let run = build(&args);
+        assert!(!run.status.success());
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(stderr.contains(says), "{extra:?}: {stderr}");
+        assert!(!output.exists());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -123,6 +123,12 @@ struct Args {
     verify: bool,
     #[command(flatten)]
     limits: ImportLimits,
+    /// Build within this much memory (512MiB, 4GiB): the sharded build (plan, shards, merge)
+    /// run by this process, with as many shards as keep them within it; the same file as
+    /// without. Takes exact welding and the octree builder. The import still reads the whole
+    /// scene (about 45 bytes per triangle); a warning says when that alone goes over.
+    #[arg(long, value_name = "SIZE", value_parser = parse_size, conflicts_with = "batch", requires = "output")]
+    memory_limit: Option<u64>,
 }
 
 /// How pages are written (also taken by `vds-build plan`).
@@ -302,6 +308,7 @@ fn peak_rss_bytes() -> Option<u64> {
     Some(kib * 1024)
 }
 
+mod limited;
 mod sharded;
 
 fn main() {
@@ -344,6 +351,10 @@ fn run(args: Args) -> Result<()> {
     } else {
         args.inputs.clone()
     };
+    if let (Some(limit), Some(output)) = (args.memory_limit, args.output.as_deref()) {
+        return_freed_memory_at_once();
+        return limited::build_within(&args, &inputs, output, limit);
+    }
     let report = build_one(&args, &inputs, args.output.as_deref())?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -124,46 +124,9 @@ pub fn main() -> Result<()> {
                 }
             }
             progress.phase("planning the top of the tree");
-            let grid = vds_build::snap_to_grid(&mut scene);
-            let mut files = Vec::new();
-            for input in &inputs {
-                let (content_hash, bytes) = hash_file(input)?;
-                files.push((file_name(input), bytes, content_hash));
-            }
-            let metadata = PlanMetadata::of_scene(&scene, tool(), &pages.write_options(), files);
-            let mut plan = shard::plan(
-                &scene.positions,
-                scene.triangles.len() as u64,
-                grid,
-                shards,
-                metadata,
-            )?;
-            // Each shard's input beside the plan: `PLAN.shard-K.vdtin`.
-            let stem = output
-                .file_stem()
-                .map_or_else(|| "plan".into(), |s| s.to_string_lossy().into_owned());
-            plan.input_files = (0..plan.shard_count())
-                .map(|k| format!("{stem}.shard-{k}.vdtin"))
-                .collect();
-            let root_of = shard::roots_of_vertices(&scene, &plan)?;
-            plan.shard_triangles = shard::shard_triangle_counts(&scene, &plan, &root_of);
-            plan.seal();
-            let folder = folder_of(&output);
-            let paths: Vec<PathBuf> = plan
-                .input_files
-                .iter()
-                .map(|name| folder.join(name))
-                .collect();
-            for path in &paths {
-                check_output(path, &inputs)?;
-            }
-            progress.counted("writing the shards' inputs (triangles)");
-            shard::write_shard_inputs(&scene, &plan, &root_of, &paths, |done, total| {
-                progress.set(done, total)
-            })?;
-            drop(scene);
-            // Last, so that a plan on disk always has its shards' inputs.
-            plan.save(&output)?;
+            let basis = plan_basis(&mut scene, &inputs, pages)?;
+            let planned = plan_scene(&scene, &basis, &inputs, shards, &output)?;
+            let plan = write_plan(scene, planned, &output, &progress)?;
             say(format!(
                 "planned {} shards of {} roots ({} vertices, {} triangles)",
                 plan.shard_count(),
@@ -193,10 +156,8 @@ pub fn main() -> Result<()> {
             };
             let input_file = folder_of(&plan_path).join(name);
             check_output(&output, &[input_file.clone(), plan_path.clone()])?;
-            progress.phase("reading the shard's input");
-            let input = shard::read_shard_input(&input_file, &plan, index)?;
             progress.phase("building the shard's subtrees");
-            let cross = shard::write_shard(&output, &plan, index, input)?;
+            let cross = build_shard_file(&plan, &input_file, index, &output)?;
             say(format!(
                 "built shard {index} of {} ({} roots, {cross} corners of triangles across roots)",
                 plan.shard_count(),
@@ -215,21 +176,7 @@ pub fn main() -> Result<()> {
             inputs.push(plan_path);
             check_output(&output, &inputs)?;
             let parts = parts_in_order(&plan, &parts)?;
-            // One part in memory at a time, each read twice (the merge's two passes).
-            let shards = u64::from(plan.shard_count());
-            progress.counted("joining the parts (shards), then writing their pages");
-            let mut file = vds_format::AtomicFile::create(&output)?;
-            let mut asked = 0u64;
-            let report = shard::merge_to(
-                &plan,
-                |k| {
-                    asked += 1;
-                    progress.set(asked - 1, 2 * shards);
-                    shard::read_part(parts[k as usize], &plan)
-                },
-                &mut file,
-            )?;
-            file.commit()?;
+            let report = merge_parts(&plan, &parts, &output, &progress)?;
             if verify {
                 let verified = vds_format::VdtFile::open(&output)
                     .map_err(vds_build::VerifyError::from)
@@ -252,14 +199,147 @@ pub fn main() -> Result<()> {
     Ok(())
 }
 
+/// A planned build of an imported scene, not yet written: the plan and where each shard's
+/// input goes (`PLAN.shard-K.vdtin` beside the plan).
+pub(crate) struct Planned {
+    pub plan: Plan,
+    pub input_paths: Vec<PathBuf>,
+    /// Each vertex's root, for writing the inputs.
+    root_of: Vec<u32>,
+}
+
+/// What every plan of an imported scene starts from: its grid (the scene snapped to it) and
+/// the metadata, the input files' hashes included.
+pub(crate) struct PlanBasis {
+    grid: vds_format::Grid,
+    metadata: PlanMetadata,
+}
+
+/// Snaps `scene` to its grid and reads what its plans record.
+pub(crate) fn plan_basis(
+    scene: &mut vds_import::Scene,
+    inputs: &[PathBuf],
+    pages: PageOptions,
+) -> Result<PlanBasis> {
+    let grid = vds_build::snap_to_grid(scene);
+    let mut files = Vec::new();
+    for input in inputs {
+        let (content_hash, bytes) = hash_file(input)?;
+        files.push((file_name(input), bytes, content_hash));
+    }
+    let metadata = PlanMetadata::of_scene(scene, tool(), &pages.write_options(), files);
+    Ok(PlanBasis { grid, metadata })
+}
+
+/// Plans the build of `scene` (snapped by [`plan_basis`]) in `shards` shards, the plan to be
+/// written to `plan_path`.
+pub(crate) fn plan_scene(
+    scene: &vds_import::Scene,
+    basis: &PlanBasis,
+    inputs: &[PathBuf],
+    shards: u32,
+    plan_path: &Path,
+) -> Result<Planned> {
+    let mut plan = shard::plan(
+        &scene.positions,
+        scene.triangles.len() as u64,
+        basis.grid,
+        shards,
+        basis.metadata.clone(),
+    )?;
+    let stem = plan_path
+        .file_stem()
+        .map_or_else(|| "plan".into(), |s| s.to_string_lossy().into_owned());
+    plan.input_files = (0..plan.shard_count())
+        .map(|k| format!("{stem}.shard-{k}.vdtin"))
+        .collect();
+    let root_of = shard::roots_of_vertices(scene, &plan)?;
+    plan.shard_triangles = shard::shard_triangle_counts(scene, &plan, &root_of);
+    plan.seal();
+    let folder = folder_of(plan_path);
+    let input_paths: Vec<PathBuf> = plan
+        .input_files
+        .iter()
+        .map(|name| folder.join(name))
+        .collect();
+    for path in &input_paths {
+        check_output(path, inputs)?;
+    }
+    Ok(Planned {
+        plan,
+        input_paths,
+        root_of,
+    })
+}
+
+/// Writes the shards' inputs, frees the scene, and writes the plan, last, so that a plan on
+/// disk always has its shards' inputs.
+pub(crate) fn write_plan(
+    scene: vds_import::Scene,
+    planned: Planned,
+    plan_path: &Path,
+    progress: &Progress,
+) -> Result<Plan> {
+    let Planned {
+        plan,
+        input_paths,
+        root_of,
+    } = planned;
+    progress.counted("writing the shards' inputs (triangles)");
+    shard::write_shard_inputs(&scene, &plan, &root_of, &input_paths, |done, total| {
+        progress.set(done, total)
+    })?;
+    drop(scene);
+    drop(root_of);
+    plan.save(plan_path)?;
+    Ok(plan)
+}
+
+/// Builds shard `index` from its input file and writes its part to `output`; returns its
+/// count of corners of triangles across roots.
+pub(crate) fn build_shard_file(
+    plan: &Plan,
+    input_file: &Path,
+    index: u32,
+    output: &Path,
+) -> Result<usize> {
+    let input = shard::read_shard_input(input_file, plan, index)?;
+    Ok(shard::write_shard(output, plan, index, input)?)
+}
+
+/// Merges the parts (in shard order) into `output`, one part in memory at a time, each read
+/// twice (the merge's two passes).
+pub(crate) fn merge_parts(
+    plan: &Plan,
+    parts: &[&Path],
+    output: &Path,
+    progress: &Progress,
+) -> Result<vds_format::WriteReport> {
+    let shards = u64::from(plan.shard_count());
+    progress.counted("joining the parts (shards), then writing their pages");
+    let mut file = vds_format::AtomicFile::create(output)?;
+    let mut asked = 0u64;
+    let report = shard::merge_to(
+        plan,
+        |k| {
+            asked += 1;
+            progress.set(asked - 1, 2 * shards);
+            shard::read_part(parts[k as usize], plan)
+        },
+        &mut file,
+    )?;
+    file.commit()?;
+    Ok(report)
+}
+
 /// What a terminal shows while a job runs: a spinner naming the phase, or a bar with an ETA
 /// where the work is counted. Nothing when stderr is not a terminal or with `--quiet`.
-struct Progress {
+pub(crate) struct Progress {
     bar: Option<indicatif::ProgressBar>,
 }
 
 impl Progress {
-    fn new(enabled: bool) -> Progress {
+    pub(crate) fn new(enabled: bool) -> Progress {
         Progress {
             bar: enabled.then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();
@@ -270,7 +350,7 @@ impl Progress {
     }
 
     /// A phase whose work is not counted.
-    fn phase(&self, message: &'static str) {
+    pub(crate) fn phase(&self, message: &'static str) {
         if let Some(bar) = &self.bar {
             bar.set_style(indicatif::ProgressStyle::default_spinner());
             bar.set_message(message);
@@ -278,7 +358,7 @@ impl Progress {
     }
 
     /// A counted phase: [`Progress::set`] moves its bar.
-    fn counted(&self, message: &'static str) {
+    pub(crate) fn counted(&self, message: &'static str) {
         if let Some(bar) = &self.bar {
             let style = indicatif::ProgressStyle::with_template(
                 "{msg} [{bar:30}] {human_pos}/{human_len}, {eta} left",
@@ -291,21 +371,21 @@ impl Progress {
         }
     }
 
-    fn set(&self, done: u64, total: u64) {
+    pub(crate) fn set(&self, done: u64, total: u64) {
         if let Some(bar) = &self.bar {
             bar.set_length(total);
             bar.set_position(done);
         }
     }
 
-    fn clear(&self) {
+    pub(crate) fn clear(&self) {
         if let Some(bar) = &self.bar {
             bar.finish_and_clear();
         }
     }
 
     /// Prints a line on stderr above the bar.
-    fn print(&self, line: &str) {
+    pub(crate) fn print(&self, line: &str) {
         match &self.bar {
             Some(bar) => bar.suspend(|| eprintln!("{line}")),
             None => eprintln!("{line}"),
@@ -358,7 +438,7 @@ fn parts_in_order<'a>(plan: &Plan, paths: &'a [PathBuf]) -> Result<Vec<&'a Path>
 
 /// Reads a plan made by this very version: the jobs of one build must all run the same
 /// `vds-build`, or the file would be one that no single version writes.
-fn load_plan(path: &Path) -> Result<Plan> {
+pub(crate) fn load_plan(path: &Path) -> Result<Plan> {
     let plan = Plan::load(path)?;
     if plan.metadata.tool != tool() {
         bail!(
@@ -372,7 +452,7 @@ fn load_plan(path: &Path) -> Result<Plan> {
 }
 
 /// The folder a file is in (`.` for a bare name).
-fn folder_of(path: &Path) -> PathBuf {
+pub(crate) fn folder_of(path: &Path) -> PathBuf {
     path.parent()
         .filter(|d| !d.as_os_str().is_empty())
         .map_or_else(|| PathBuf::from("."), Path::to_path_buf)
@@ -385,6 +465,6 @@ fn file_name(input: &Path) -> String {
     )
 }
 
-fn tool() -> String {
+pub(crate) fn tool() -> String {
     format!("vds-build {}", env!("CARGO_PKG_VERSION"))
 }

@@ -1,0 +1,261 @@
+//! `vds-build INPUT... -o OUT.vdt --memory-limit SIZE`: the sharded build (plan, shards,
+//! merge) run by this one process, with as many shards as keep the shards and the merge within
+//! the limit. The file is the in-memory build's, byte for byte.
+//!
+//! The shard count comes from what the jobs were measured to hold (`docs/benchmarks.md`,
+//! "Sharded build"): a shard about 105 bytes per triangle it reads, the merge about 175 bytes
+//! per triangle of the part it holds. Shards run side by side, as many as the cores and the
+//! limit allow. Their inputs and parts go to a temporary folder beside the output (not
+//! `TMPDIR`, which may be memory), removed at the end. The import still reads the whole scene
+//! into memory, as an in-memory build's does (about 45 bytes per triangle): where that alone
+//! is over the limit, the build says so and goes on.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use vds_build::shard::Plan;
+use vds_import::Weld;
+
+use crate::sharded::{
+    Progress, build_shard_file, folder_of, merge_parts, plan_basis, plan_scene, write_plan,
+};
+use crate::{Args, check_output, peak_rss_bytes};
+
+/// Bytes a shard holds per triangle it reads, with a margin over the 105 measured.
+const SHARD_BYTES_PER_TRIANGLE: u64 = 120;
+/// Bytes the merge holds per triangle of the part it reads, with a margin over the 175
+/// measured.
+const MERGE_BYTES_PER_TRIANGLE: u64 = 200;
+/// The most shards a plan has.
+const MAX_SHARDS: u32 = 4096;
+
+/// What `--json` prints for a build within a memory limit.
+#[derive(Serialize)]
+struct LimitedReport {
+    inputs: Vec<String>,
+    vertices: u32,
+    triangles: u64,
+    memory_limit_bytes: u64,
+    shards: u32,
+    /// Shards built side by side.
+    concurrent_shards: usize,
+    seconds: LimitedPhases,
+    triangles_per_second: f64,
+    /// Peak resident memory of the whole process, and of the import and planning alone.
+    peak_rss_bytes: Option<u64>,
+    import_peak_rss_bytes: Option<u64>,
+    output: LimitedOutput,
+}
+
+#[derive(Serialize)]
+struct LimitedPhases {
+    import_and_plan: f64,
+    shards: f64,
+    merge: f64,
+    total: f64,
+}
+
+#[derive(Serialize)]
+struct LimitedOutput {
+    path: String,
+    bytes: u64,
+    pages: u32,
+}
+
+/// Resident memory of this process now (Linux `VmRSS`), if known.
+fn rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// Runs the build of `inputs` into `output` within `limit` bytes.
+pub(crate) fn build_within(args: &Args, inputs: &[PathBuf], output: &Path, limit: u64) -> Result<()> {
+    if args.weld.is_some() {
+        bail!("--memory-limit welds exactly (a tolerance weld can join vertices across shards): drop --weld");
+    }
+    if args.builder != vds_build::Builder::Octree {
+        bail!("--memory-limit builds with the octree builder only (pair contraction is one global heap)");
+    }
+    if args.verify {
+        bail!("--verify is not taken with --memory-limit: check the file with `vds-info --verify`");
+    }
+    check_output(output, inputs)?;
+    let start = Instant::now();
+    // What the process holds before any work (code, thread stacks), and room for the merge's
+    // top of the tree and triangles across shards.
+    let reserve = rss_bytes().unwrap_or(0) + (16 << 20);
+    let Some(budget) = limit.checked_sub(reserve).filter(|&b| b >= 8 << 20) else {
+        bail!(
+            "--memory-limit {limit}: too small; this process alone holds {} bytes",
+            reserve
+        );
+    };
+    let show = !args.quiet && !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let progress = Progress::new(show);
+    progress.phase("reading meshes");
+    let options = args.limits.options(Weld::Exact);
+    let mut scene = vds_import::load_files(inputs, &options)?;
+    if !args.quiet {
+        for warning in &scene.warnings {
+            progress.print(&format!("vds-build: warning: {warning}"));
+        }
+    }
+    progress.phase("planning the shards");
+    let work = tempfile::Builder::new()
+        .prefix(".vds-build-")
+        .tempdir_in(folder_of(output))
+        .with_context(|| format!("cannot make a temporary folder beside {}", output.display()))?;
+    let plan_path = work.path().join("plan.json");
+    let threads = rayon::current_num_threads();
+    let basis = plan_basis(&mut scene, inputs, args.pages)?;
+    // The fewest shards that run one per core side by side and whose parts the merge can
+    // hold (the plan's shares are only about equal: check, and cut finer if they do not fit).
+    let triangles = scene.triangles.len() as u64;
+    let per_triangle = MERGE_BYTES_PER_TRIANGLE.max(threads as u64 * SHARD_BYTES_PER_TRIANGLE);
+    let mut shards = u32::try_from(
+        (triangles * per_triangle)
+            .div_ceil(budget)
+            .clamp(1, u64::from(MAX_SHARDS)),
+    )
+    .expect("at most MAX_SHARDS");
+    let (planned, concurrent) = loop {
+        let planned = plan_scene(&scene, &basis, inputs, shards, &plan_path)?;
+        let largest = planned.plan.shard_triangles.iter().copied().max().unwrap_or(0);
+        let merge_fits = largest * MERGE_BYTES_PER_TRIANGLE <= budget;
+        let side_by_side = (budget / (largest * SHARD_BYTES_PER_TRIANGLE).max(1)) as usize;
+        let wanted = threads.min(shards as usize);
+        if merge_fits && side_by_side >= wanted {
+            break (planned, wanted);
+        }
+        if shards == MAX_SHARDS {
+            bail!(
+                "--memory-limit {limit}: too small for this model; {MAX_SHARDS} shards would \
+                 still hold {} bytes each",
+                largest * SHARD_BYTES_PER_TRIANGLE.max(MERGE_BYTES_PER_TRIANGLE)
+            );
+        }
+        shards = shards.saturating_mul(2).min(MAX_SHARDS);
+    };
+    let vertices = planned.plan.vertices;
+    let plan = write_plan(scene, planned, &plan_path, &progress)?;
+    let import_peak = peak_rss_bytes();
+    let planned_at = start.elapsed().as_secs_f64();
+    if let Some(peak) = import_peak.filter(|&p| p > limit)
+        && !args.quiet
+    {
+        progress.print(&format!(
+            "vds-build: warning: reading the model took {} MB, over the limit of {} MB: the \
+             import holds the whole scene (a streaming import is not built); the shards and \
+             the merge keep within the limit",
+            peak >> 20,
+            limit >> 20
+        ));
+    }
+
+    let parts = build_shards(&plan, work.path(), concurrent, &progress)?;
+    let shards_at = start.elapsed().as_secs_f64();
+    let part_refs: Vec<&Path> = parts.iter().map(PathBuf::as_path).collect();
+    let report = merge_parts(&plan, &part_refs, output, &progress)?;
+    progress.clear();
+    drop(work);
+    let total = start.elapsed().as_secs_f64();
+    let report = LimitedReport {
+        inputs: inputs.iter().map(|p| p.display().to_string()).collect(),
+        vertices,
+        triangles: plan.triangles,
+        memory_limit_bytes: limit,
+        shards: plan.shard_count(),
+        concurrent_shards: concurrent,
+        seconds: LimitedPhases {
+            import_and_plan: planned_at,
+            shards: shards_at - planned_at,
+            merge: total - shards_at,
+            total,
+        },
+        triangles_per_second: plan.metadata.input_triangles as f64 / total,
+        peak_rss_bytes: peak_rss_bytes(),
+        import_peak_rss_bytes: import_peak,
+        output: LimitedOutput {
+            path: output.display().to_string(),
+            bytes: report.file_bytes,
+            pages: report.pages,
+        },
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else if !args.quiet {
+        println!(
+            "{}: {} vertices, {} triangles; {} shards ({} at a time) within {} MB",
+            report.inputs.join(", "),
+            report.vertices,
+            report.triangles,
+            report.shards,
+            report.concurrent_shards,
+            limit >> 20
+        );
+        println!(
+            "wrote {}: {} bytes in {} pages; peak memory {} MB",
+            report.output.path,
+            report.output.bytes,
+            report.output.pages,
+            report.peak_rss_bytes.unwrap_or(0) >> 20
+        );
+        println!(
+            "time: import and plan {:.3} s, shards {:.3} s, merge {:.3} s, total {:.3} s ({:.2} M triangles/s)",
+            report.seconds.import_and_plan,
+            report.seconds.shards,
+            report.seconds.merge,
+            report.seconds.total,
+            report.triangles_per_second / 1e6
+        );
+    }
+    Ok(())
+}
+
+/// Builds every shard of `plan`, `concurrent` at a time, into part files in `folder`.
+fn build_shards(
+    plan: &Plan,
+    folder: &Path,
+    concurrent: usize,
+    progress: &Progress,
+) -> Result<Vec<PathBuf>> {
+    let count = plan.shard_count();
+    let parts: Vec<PathBuf> = (0..count)
+        .map(|k| folder.join(format!("shard-{k}.vdtpart")))
+        .collect();
+    progress.counted("building the shards");
+    let next = AtomicU32::new(0);
+    let done = AtomicU32::new(0);
+    let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    std::thread::scope(|scope| {
+        for _ in 0..concurrent {
+            scope.spawn(|| {
+                loop {
+                    let k = next.fetch_add(1, Ordering::Relaxed);
+                    if k >= count || failure.lock().expect("not poisoned").is_some() {
+                        break;
+                    }
+                    let input = folder.join(&plan.input_files[k as usize]);
+                    if let Err(error) = build_shard_file(plan, &input, k, &parts[k as usize]) {
+                        failure.lock().expect("not poisoned").get_or_insert(error);
+                        break;
+                    }
+                    // The input is no longer needed: the disk holds one copy of the model less.
+                    let _ = std::fs::remove_file(&input);
+                    let finished = done.fetch_add(1, Ordering::Relaxed) + 1;
+                    progress.set(u64::from(finished), u64::from(count));
+                }
+            });
+        }
+    });
+    match failure.into_inner().expect("not poisoned") {
+        Some(error) => Err(error),
+        None => Ok(parts),
+    }
+}
