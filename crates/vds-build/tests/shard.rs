@@ -31,10 +31,6 @@ const PAGE_BYTES: u32 = 8192;
 /// regions (`vds_format::region_leaves`), and so the plan's roots, hold 32 and 1 leaves.
 const PAGE_SIZES: [u32; 3] = [PAGE_BYTES, 256, 8];
 
-fn options() -> WriteOptions {
-    options_with(PAGE_BYTES)
-}
-
 fn options_with(page_bytes: u32) -> WriteOptions {
     WriteOptions {
         zstd_level: 3,

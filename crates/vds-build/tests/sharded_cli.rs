@@ -459,7 +459,10 @@ fn a_memory_limit_refuses_what_it_cannot_keep() {
     for (extra, says) in [
         (&["--memory-limit", "1MiB"][..], "too small"),
         (&["--memory-limit", "1GiB", "--weld", "0.001"][..], "--weld"),
-        (&["--memory-limit", "1GiB", "--builder", "qem"][..], "octree"),
+        (
+            &["--memory-limit", "1GiB", "--builder", "qem"][..],
+            "octree",
+        ),
     ] {
         let mut args = vec![path(&input), "-o", path(&output)];
         args.extend_from_slice(extra);

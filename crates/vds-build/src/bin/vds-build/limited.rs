@@ -45,9 +45,11 @@ struct LimitedReport {
     concurrent_shards: usize,
     seconds: LimitedPhases,
     triangles_per_second: f64,
-    /// Peak resident memory of the whole process, and of the import and planning alone.
+    /// Peak resident memory of the whole process, of the import and planning, and of the
+    /// shards and the merge (from when the scene was freed).
     peak_rss_bytes: Option<u64>,
     import_peak_rss_bytes: Option<u64>,
+    shards_and_merge_peak_rss_bytes: Option<u64>,
     output: LimitedOutput,
 }
 
@@ -74,13 +76,28 @@ fn rss_bytes() -> Option<u64> {
     Some(kib * 1024)
 }
 
+/// Restarts the count of the process's peak resident memory (`VmHWM`) from what it holds
+/// now (Linux ≥ 4.0: writing 5 to `/proc/self/clear_refs`); false where it cannot.
+fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
 /// Runs the build of `inputs` into `output` within `limit` bytes.
-pub(crate) fn build_within(args: &Args, inputs: &[PathBuf], output: &Path, limit: u64) -> Result<()> {
+pub(crate) fn build_within(
+    args: &Args,
+    inputs: &[PathBuf],
+    output: &Path,
+    limit: u64,
+) -> Result<()> {
     if args.weld.is_some() {
-        bail!("--memory-limit welds exactly (a tolerance weld can join vertices across shards): drop --weld");
+        bail!(
+            "--memory-limit welds exactly (a tolerance weld can join vertices across shards): drop --weld"
+        );
     }
     if args.builder != vds_build::Builder::Octree {
-        bail!("--memory-limit builds with the octree builder only (pair contraction is one global heap)");
+        bail!(
+            "--memory-limit builds with the octree builder only (pair contraction is one global heap)"
+        );
     }
     if args.verify {
         bail!("--verify is not taken with --memory-limit: check the file with `vds-info --verify`");
@@ -126,7 +143,13 @@ pub(crate) fn build_within(args: &Args, inputs: &[PathBuf], output: &Path, limit
     .expect("at most MAX_SHARDS");
     let (planned, concurrent) = loop {
         let planned = plan_scene(&scene, &basis, inputs, shards, &plan_path)?;
-        let largest = planned.plan.shard_triangles.iter().copied().max().unwrap_or(0);
+        let largest = planned
+            .plan
+            .shard_triangles
+            .iter()
+            .copied()
+            .max()
+            .unwrap_or(0);
         let merge_fits = largest * MERGE_BYTES_PER_TRIANGLE <= budget;
         let side_by_side = (budget / (largest * SHARD_BYTES_PER_TRIANGLE).max(1)) as usize;
         let wanted = threads.min(shards as usize);
@@ -145,6 +168,7 @@ pub(crate) fn build_within(args: &Args, inputs: &[PathBuf], output: &Path, limit
     let vertices = planned.plan.vertices;
     let plan = write_plan(scene, planned, &plan_path, &progress)?;
     let import_peak = peak_rss_bytes();
+    let peak_reset = reset_peak_rss();
     let planned_at = start.elapsed().as_secs_f64();
     if let Some(peak) = import_peak.filter(|&p| p > limit)
         && !args.quiet
@@ -179,8 +203,9 @@ pub(crate) fn build_within(args: &Args, inputs: &[PathBuf], output: &Path, limit
             total,
         },
         triangles_per_second: plan.metadata.input_triangles as f64 / total,
-        peak_rss_bytes: peak_rss_bytes(),
+        peak_rss_bytes: peak_rss_bytes().map(|p| p.max(import_peak.unwrap_or(0))),
         import_peak_rss_bytes: import_peak,
+        shards_and_merge_peak_rss_bytes: peak_reset.then(peak_rss_bytes).flatten(),
         output: LimitedOutput {
             path: output.display().to_string(),
             bytes: report.file_bytes,
@@ -200,11 +225,13 @@ pub(crate) fn build_within(args: &Args, inputs: &[PathBuf], output: &Path, limit
             limit >> 20
         );
         println!(
-            "wrote {}: {} bytes in {} pages; peak memory {} MB",
+            "wrote {}: {} bytes in {} pages; peak memory {} MB (import {} MB, shards and merge {} MB)",
             report.output.path,
             report.output.bytes,
             report.output.pages,
-            report.peak_rss_bytes.unwrap_or(0) >> 20
+            report.peak_rss_bytes.unwrap_or(0) >> 20,
+            report.import_peak_rss_bytes.unwrap_or(0) >> 20,
+            report.shards_and_merge_peak_rss_bytes.unwrap_or(0) >> 20,
         );
         println!(
             "time: import and plan {:.3} s, shards {:.3} s, merge {:.3} s, total {:.3} s ({:.2} M triangles/s)",
