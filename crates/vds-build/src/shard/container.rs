@@ -22,6 +22,7 @@ use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 use xxhash_rust::xxh3::{Xxh3, xxh3_64};
+use zerocopy::{FromBytes, IntoBytes};
 
 use super::ShardError;
 
@@ -219,6 +220,103 @@ pub(crate) fn decode_body(
         return Err("truncated or damaged body (checksum mismatch)".into());
     }
     Ok(())
+}
+
+/// A body read as it is decoded, never past the length its trailer states and hashed on the
+/// way, so that records are decoded straight into their own arrays (no copy of the whole
+/// body is made); [`BodyReader::finish`] checks that it was read to its end and that its
+/// checksum holds. Until then the bytes are unchecked: readers check every value they take.
+pub(crate) struct BodyReader<'r> {
+    decoder: zstd::stream::read::Decoder<'static, std::io::BufReader<Box<dyn Read + 'r>>>,
+    hasher: Xxh3,
+    left: u64,
+    checksum: u64,
+}
+
+impl<'r> BodyReader<'r> {
+    /// Reads the zstd stream `compressed` of the body `trailer` describes.
+    pub(crate) fn new(compressed: impl Read + 'r, trailer: &Trailer) -> Result<Self, String> {
+        let boxed: Box<dyn Read + 'r> = Box::new(compressed);
+        let decoder =
+            zstd::stream::read::Decoder::new(boxed).map_err(|e| format!("damaged body ({e})"))?;
+        Ok(BodyReader {
+            decoder,
+            hasher: Xxh3::new(),
+            left: trailer.body_bytes,
+            checksum: trailer.body_checksum,
+        })
+    }
+
+    /// Bytes of the stated body not read yet.
+    pub(crate) fn left(&self) -> u64 {
+        self.left
+    }
+
+    /// Fills `out` from the body.
+    pub(crate) fn read_exact(&mut self, out: &mut [u8]) -> Result<(), String> {
+        if out.len() as u64 > self.left {
+            return Err("truncated body".into());
+        }
+        self.decoder
+            .read_exact(out)
+            .map_err(|e| format!("truncated or damaged body ({e})"))?;
+        self.hasher.update(out);
+        self.left -= out.len() as u64;
+        Ok(())
+    }
+
+    /// The next `N` bytes.
+    pub(crate) fn array<const N: usize>(&mut self) -> Result<[u8; N], String> {
+        let mut out = [0u8; N];
+        self.read_exact(&mut out)?;
+        Ok(out)
+    }
+
+    /// The next `count` records, allocated only once the body is known to hold them.
+    pub(crate) fn records<T: FromBytes + IntoBytes + Clone>(
+        &mut self,
+        count: usize,
+    ) -> Result<Vec<T>, String> {
+        let bytes = (count as u64).checked_mul(size_of::<T>() as u64);
+        if bytes.is_none_or(|b| b > self.left) {
+            return Err("truncated body".into());
+        }
+        let mut records = vec![T::new_zeroed(); count];
+        self.read_exact(records.as_mut_bytes())?;
+        Ok(records)
+    }
+
+    /// Checks that the whole body was read, that no more follows, and its checksum.
+    pub(crate) fn finish(mut self) -> Result<(), String> {
+        if self.left != 0 {
+            return Err("bytes after the body".into());
+        }
+        let mut rest = [0u8; 1];
+        let more = self
+            .decoder
+            .read(&mut rest)
+            .map_err(|e| format!("damaged body ({e})"))?;
+        if more != 0 {
+            return Err("a body longer than its trailer states".into());
+        }
+        if self.hasher.digest() != self.checksum {
+            return Err("truncated or damaged body (checksum mismatch)".into());
+        }
+        Ok(())
+    }
+}
+
+/// The zstd stream of file `path`'s body (whose ends [`read_ends`] read).
+pub(crate) fn body_stream(path: &Path) -> Result<impl Read + use<>, ShardError> {
+    let io = |source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let size = file.metadata().map_err(io)?.len();
+    file.seek(std::io::SeekFrom::Start(HEADER_BYTES))
+        .map_err(io)?;
+    Ok(file.take(size.saturating_sub(HEADER_BYTES + TRAILER_BYTES)))
 }
 
 /// Decodes the body of file `path` (whose ends [`read_ends`] read) into `out`, streaming

@@ -18,10 +18,11 @@
 use std::path::Path;
 
 use vds_format::{NO_NODE, NodeRecord, TriangleRecord};
-use zerocopy::{FromBytes, IntoBytes};
+use zerocopy::IntoBytes;
 
 use super::container::{
-    BodyWriter, HEADER_BYTES, TRAILER_BYTES, decode_body, parse_header, parse_trailer, read_ends,
+    BodyReader, BodyWriter, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, parse_header,
+    parse_trailer, read_ends,
 };
 use super::part::{CrossCorner, InputTriangle, RootPart, ShardPart};
 use super::{Plan, ShardError};
@@ -125,66 +126,56 @@ pub fn part_header(path: &Path) -> Result<(u32, u64), ShardError> {
 }
 
 /// Reads part file `path`, which must be a shard of `plan`, and checks every index it holds.
+/// The body is decoded straight into the part's arrays, never held whole.
 pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     let bad = |reason: String| ShardError::BadFile {
         path: path.to_path_buf(),
         reason,
     };
-    let io = |source| ShardError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let (header, _) = read_ends(path, PART_MAGIC, WHAT)?;
-    if header.index >= plan.shard_count() {
-        return Err(bad(format!(
-            "shard {} of a plan of {} shards",
-            header.index,
-            plan.shard_count()
-        )));
-    }
-    // The most a shard's body can compress to, so that a file is read whole only when its
-    // size is plausible (what it states is checked in `part_from_bytes`).
-    let most = HEADER_BYTES
-        + TRAILER_BYTES
-        + zstd::zstd_safe::compress_bound(body_limit(plan, header.index) as usize) as u64;
-    let size = std::fs::metadata(path).map_err(io)?.len();
-    if size > most {
-        return Err(bad(format!("{size} bytes, more than its shard can hold")));
-    }
-    let data = std::fs::read(path).map_err(io)?;
-    part_from_bytes(&data, plan).map_err(bad)
+    let (header, trailer) = read_ends(path, PART_MAGIC, WHAT)?;
+    check_stated(plan, header.plan_id, header.index, &trailer).map_err(bad)?;
+    let mut body = BodyReader::new(body_stream(path)?, &trailer).map_err(bad)?;
+    let part = parse_body(&mut body, plan, header.index).map_err(bad)?;
+    body.finish().map_err(bad)?;
+    Ok(part)
 }
 
-/// A part from the bytes of a `.vdtpart` file, which must be a shard of `plan`; every index
-/// it holds is checked. (What [`read_part`] does once it has read the file.)
-pub fn part_from_bytes(data: &[u8], plan: &Plan) -> Result<ShardPart, String> {
-    let header = parse_header(data, PART_MAGIC, WHAT)?;
-    if header.plan_id != plan.id {
+/// The checks of a part's header and stated body length against the plan, before anything
+/// is allocated for it.
+fn check_stated(plan: &Plan, plan_id: u64, index: u32, trailer: &Trailer) -> Result<(), String> {
+    if plan_id != plan.id {
         return Err(format!(
-            "built for another plan (id {:016x}, this plan is {:016x})",
-            header.plan_id, plan.id
+            "built for another plan (id {plan_id:016x}, this plan is {:016x})",
+            plan.id
         ));
     }
-    if header.index >= plan.shard_count() {
+    if index >= plan.shard_count() {
         return Err(format!(
-            "shard {} of a plan of {} shards",
-            header.index,
+            "shard {index} of a plan of {} shards",
             plan.shard_count()
         ));
     }
-    let trailer = parse_trailer(data)?;
-    let limit = body_limit(plan, header.index);
+    let limit = body_limit(plan, index);
     if trailer.body_bytes > limit {
         return Err(format!(
             "states a body of {} bytes, more than its shard can hold ({limit})",
             trailer.body_bytes
         ));
     }
-    // Bounded by the plan above: decoded into a buffer of exactly the stated size.
-    let mut body = vec![0u8; trailer.body_bytes as usize];
+    Ok(())
+}
+
+/// A part from the bytes of a `.vdtpart` file, which must be a shard of `plan`; every index
+/// it holds is checked. (What [`read_part`] does with a file.)
+pub fn part_from_bytes(data: &[u8], plan: &Plan) -> Result<ShardPart, String> {
+    let header = parse_header(data, PART_MAGIC, WHAT)?;
+    let trailer = parse_trailer(data)?;
+    check_stated(plan, header.plan_id, header.index, &trailer)?;
     let compressed = &data[HEADER_BYTES as usize..data.len() - TRAILER_BYTES as usize];
-    decode_body(compressed, &trailer, &mut body)?;
-    parse_body(&body, plan, header.index)
+    let mut body = BodyReader::new(compressed, &trailer)?;
+    let part = parse_body(&mut body, plan, header.index)?;
+    body.finish()?;
+    Ok(part)
 }
 
 /// A cursor over the body that fails on reads past its end.
@@ -233,15 +224,6 @@ impl<'a> Cursor<'a> {
             *x = self.f64()?;
         }
         Ok(out)
-    }
-    fn records<T: FromBytes + zerocopy::Immutable + zerocopy::KnownLayout + Clone>(
-        &mut self,
-        count: usize,
-        size: usize,
-    ) -> Result<Vec<T>, String> {
-        let bytes = self.take(count.checked_mul(size).ok_or("record count overflows")?)?;
-        let records = <[T]>::ref_from_bytes(bytes).map_err(|_| "misaligned records")?;
-        Ok(records.to_vec())
     }
 }
 
@@ -335,11 +317,10 @@ fn get_sums(c: &mut Cursor) -> Result<(Accumulator, Sphere), String> {
     Ok((sums, sphere))
 }
 
-fn parse_body(body: &[u8], plan: &Plan, index: u32) -> Result<ShardPart, String> {
-    let mut c = Cursor { bytes: body };
+fn parse_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardPart, String> {
     let expected = plan.shard_roots(index);
     let first_root = expected.start;
-    let root_count = c.u32()?;
+    let root_count = u32::from_le_bytes(body.array()?);
     if root_count != expected.len() as u32 {
         return Err(format!(
             "{root_count} roots, the plan gives this shard {}",
@@ -348,6 +329,8 @@ fn parse_body(body: &[u8], plan: &Plan, index: u32) -> Result<ShardPart, String>
     }
     let mut roots = Vec::with_capacity(expected.len());
     for root in expected {
+        let head: [u8; 12] = body.array()?;
+        let mut c = Cursor { bytes: &head };
         let (index, node_count, triangle_count) = (c.u32()?, c.u32()?, c.u32()?);
         if index != root {
             return Err(format!("root {index} where the plan has root {root}"));
@@ -359,9 +342,10 @@ fn parse_body(body: &[u8], plan: &Plan, index: u32) -> Result<ShardPart, String>
                 "root {root}: {node_count} nodes for {leaves} vertices"
             ));
         }
-        let (sums, sphere) = get_sums(&mut c)?;
-        let nodes: Vec<NodeRecord> = c.records(node_count as usize, NODE_BYTES)?;
-        let triangles: Vec<TriangleRecord> = c.records(triangle_count as usize, TRIANGLE_BYTES)?;
+        let sums: [u8; SUMS_BYTES] = body.array()?;
+        let (sums, sphere) = get_sums(&mut Cursor { bytes: &sums })?;
+        let nodes: Vec<NodeRecord> = body.records(node_count as usize)?;
+        let triangles: Vec<TriangleRecord> = body.records(triangle_count as usize)?;
         check_subtree(&nodes, &triangles, leaves).map_err(|e| format!("root {root}: {e}"))?;
         roots.push(RootPart {
             root,
@@ -371,45 +355,53 @@ fn parse_body(body: &[u8], plan: &Plan, index: u32) -> Result<ShardPart, String>
             sphere,
         });
     }
-    let cross_count = c.u64()?;
-    if cross_count > c.bytes.len() as u64 / CROSS_BYTES as u64 {
+    let cross_count = u64::from_le_bytes(body.array()?);
+    if cross_count > body.left() / CROSS_BYTES as u64 {
         return Err("truncated body".into());
     }
     let mut cross = Vec::with_capacity(cross_count as usize);
-    for _ in 0..cross_count {
-        let corner = CrossCorner {
-            triangle: c.u64()?,
-            corner: c.u8()?,
-            root: c.u32()?,
-            rank: c.u32()?,
-            part: c.u32()?,
-            owner: c.u32()?,
-        };
-        let local = corner
-            .root
-            .checked_sub(first_root)
-            .and_then(|k| roots.get(k as usize))
-            .ok_or_else(|| {
-                format!(
-                    "a cross corner under root {}, not this shard's",
-                    corner.root
-                )
-            })?;
-        let leaves = local.nodes[0].leaf_end.get();
-        if corner.triangle >= plan.triangles
-            || corner.corner > 2
-            || corner.rank >= leaves
-            || (corner.owner != u32::MAX && corner.owner as usize >= local.nodes.len())
-        {
-            return Err(format!(
-                "cross corner of triangle {} out of range",
-                corner.triangle
-            ));
+    // Read in pieces of a few megabytes, then parsed.
+    const PIECE: u64 = 1 << 16;
+    let mut piece = Vec::new();
+    let mut to_read = cross_count;
+    while to_read > 0 {
+        let n = to_read.min(PIECE);
+        piece.resize(n as usize * CROSS_BYTES, 0);
+        body.read_exact(&mut piece)?;
+        to_read -= n;
+        let mut c = Cursor { bytes: &piece };
+        for _ in 0..n {
+            let corner = CrossCorner {
+                triangle: c.u64()?,
+                corner: c.u8()?,
+                root: c.u32()?,
+                rank: c.u32()?,
+                part: c.u32()?,
+                owner: c.u32()?,
+            };
+            let local = corner
+                .root
+                .checked_sub(first_root)
+                .and_then(|k| roots.get(k as usize))
+                .ok_or_else(|| {
+                    format!(
+                        "a cross corner under root {}, not this shard's",
+                        corner.root
+                    )
+                })?;
+            let leaves = local.nodes[0].leaf_end.get();
+            if corner.triangle >= plan.triangles
+                || corner.corner > 2
+                || corner.rank >= leaves
+                || (corner.owner != u32::MAX && corner.owner as usize >= local.nodes.len())
+            {
+                return Err(format!(
+                    "cross corner of triangle {} out of range",
+                    corner.triangle
+                ));
+            }
+            cross.push(corner);
         }
-        cross.push(corner);
-    }
-    if !c.bytes.is_empty() {
-        return Err("bytes after the body".into());
     }
     Ok(ShardPart {
         plan_id: plan.id,
