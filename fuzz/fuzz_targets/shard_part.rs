@@ -1,18 +1,20 @@
 //! Fuzzes the sharded build's `.vdtpart` reader and the merge behind it: a part for a
-//! one-shard plan of a small grid is read from the input; one that reads is merged and
-//! encoded. Any input must give an error or a file, never a panic, hang or huge allocation.
+//! one-shard plan of a small grid (with pages small enough that the merge lays out regions)
+//! is read from the input; one that reads is merged into a file. Any input must give an
+//! error or a file, never a panic, hang or huge allocation.
 //!
-//! Checksums stop most raw mutations before the body; the unit test
-//! `shard::file::tests::damaged_bodies_with_valid_checksums_never_panic` damages bodies
-//! behind valid checksums, which a fuzzer rarely reaches.
+//! The body's checksum is checked once it has been read, so mutations reach the parser; the
+//! unit test `shard::part_file::tests::damaged_bodies_with_valid_checksums_never_panic`
+//! damages bodies behind valid checksums, which a fuzzer rarely makes.
 #![no_main]
 
 use std::sync::OnceLock;
 
 use libfuzzer_sys::fuzz_target;
-use vds_build::shard::{Plan, merge, part_from_bytes, plan};
+use vds_build::shard::{Plan, PlanMetadata, merge, part_from_bytes, plan};
 
-/// The plan every input is read against: one shard of a 16 × 16 grid of triangles.
+/// The plan every input is read against: one shard of a 16 × 16 grid of triangles, pages of
+/// 256 bytes (regions of 32 leaves).
 fn the_plan() -> &'static Plan {
     static PLAN: OnceLock<Plan> = OnceLock::new();
     PLAN.get_or_init(|| {
@@ -39,7 +41,10 @@ fn the_plan() -> &'static Plan {
             scene.triangles.len() as u64,
             grid,
             1,
-            Default::default(),
+            PlanMetadata {
+                page_bytes: 256,
+                ..Default::default()
+            },
         )
         .expect("a plan of a grid")
     })

@@ -36,5 +36,5 @@ pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};
 pub use write::{
     DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, EncodedPage, EncodedPageSummary, FileFigures,
     NodeSource, PageLayout, TreeContent, WriteOptions, WriteReport, encode, encode_pages,
-    file_head, lay_out, region_leaves, region_roots, write_file,
+    file_head, in_top_with_children, region_leaves, write_file,
 };

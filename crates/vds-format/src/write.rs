@@ -110,7 +110,8 @@ pub struct WriteReport {
 /// The most leaves a *region* holds for pages of `page_bytes` decoded bytes: about 25
 /// pages' worth of the nodes and triangles above those leaves (a leaf brings about two
 /// nodes and two triangles, some 200 decoded bytes), so that the partly filled page a region
-/// ends with is one in 25.
+/// ends with is one in 25 in the largest regions (most are smaller: a region root is any
+/// child of a larger node that holds at most this many leaves).
 ///
 /// A *region root* is a node with at most this many leaves whose parent has more. Pages never
 /// mix the subtrees of two region roots, so each subtree's pages depend on that subtree alone
@@ -118,6 +119,15 @@ pub struct WriteReport {
 /// region after another without ever holding the whole tree.
 pub fn region_leaves(page_bytes: u32) -> u32 {
     (page_bytes / 8).max(1)
+}
+
+/// Whether a node with `leaves` leaves has its children in the top of a tree with
+/// `tree_leaves` leaves (the rule [`PageLayout::top`] lays out by): it holds more than a
+/// region, or the whole tree fits in one (then the top is the whole tree, laid out as a small
+/// file's).
+pub fn in_top_with_children(leaves: u32, tree_leaves: u32, page_bytes: u32) -> bool {
+    let limit = region_leaves(page_bytes);
+    tree_leaves <= limit || leaves > limit
 }
 
 /// A sibling group: `count` nodes from `first`.
@@ -153,9 +163,8 @@ impl PageLayout {
     /// (region roots among them), without what lies below the region roots. The first page
     /// has a quarter of the budget, so opening a file decodes little.
     pub fn top(nodes: &impl NodeSource, page_bytes: u32) -> PageLayout {
-        let limit = region_leaves(page_bytes);
-        let whole = leaf_count(&nodes.node_record(0)) <= limit;
-        let expand = |n: &NodeRecord| whole || leaf_count(n) > limit;
+        let tree_leaves = leaf_count(&nodes.node_record(0));
+        let expand = |n: &NodeRecord| in_top_with_children(leaf_count(n), tree_leaves, page_bytes);
         PageLayout {
             pages: plan_pages(
                 nodes,
@@ -190,19 +199,9 @@ impl PageLayout {
         self.pages.extend(later.pages);
     }
 
-    /// Number of pages.
-    pub fn page_count(&self) -> usize {
-        self.pages.len()
-    }
-
     /// Number of nodes in the pages.
     pub fn node_count(&self) -> usize {
         self.pages.iter().map(|p| p.nodes).sum()
-    }
-
-    /// Number of subtris the pages' nodes own.
-    pub fn triangle_count(&self) -> usize {
-        self.pages.iter().map(|p| p.triangles).sum()
     }
 
     /// The nodes in page order (ids of the source it was laid out from): the `k`-th is
@@ -222,14 +221,14 @@ fn leaf_count(n: &NodeRecord) -> u32 {
 /// The region roots that have children, in leaf order: the nodes whose subtrees follow the
 /// top in the file, each laid out by [`PageLayout::region`]. None when the root itself has
 /// at most [`region_leaves`] leaves (the top is then the whole tree).
-pub fn region_roots(nodes: &impl NodeSource, page_bytes: u32) -> Vec<u32> {
-    let limit = region_leaves(page_bytes);
+fn region_roots(nodes: &impl NodeSource, page_bytes: u32) -> Vec<u32> {
+    let tree_leaves = leaf_count(&nodes.node_record(0));
     let mut roots = Vec::new();
     let mut stack = vec![0u32];
     while let Some(id) = stack.pop() {
         let n = nodes.node_record(id);
-        if leaf_count(&n) <= limit {
-            if id != 0 && n.child_count > 0 {
+        if !in_top_with_children(leaf_count(&n), tree_leaves, page_bytes) {
+            if n.child_count > 0 {
                 roots.push(id);
             }
             continue;
@@ -422,14 +421,13 @@ pub struct FileFigures<'a> {
 }
 
 /// The bytes of a file that precede its pages (header, metadata and directory) for pages of
-/// these sizes, in this order, and the report of the whole file. Each page is described by
-/// its frame's length and checksum and its [`EncodedPage`] counts.
+/// these sizes, in this order, and the report of the whole file.
 pub fn file_head(
-    pages: &[(EncodedPageSummary, u64)],
+    pages: &[EncodedPageSummary],
     figures: &FileFigures<'_>,
 ) -> Result<(Vec<u8>, WriteReport), VdtError> {
-    let node_count: u64 = pages.iter().map(|(p, _)| u64::from(p.node_count)).sum();
-    let triangle_count: u64 = pages.iter().map(|(p, _)| u64::from(p.triangle_count)).sum();
+    let node_count: u64 = pages.iter().map(|p| u64::from(p.node_count)).sum();
+    let triangle_count: u64 = pages.iter().map(|p| u64::from(p.triangle_count)).sum();
     if node_count == 0 {
         return Err(VdtError::invalid(
             "tree",
@@ -456,7 +454,7 @@ pub fn file_head(
         pages: pages.len() as u32,
         ..WriteReport::default()
     };
-    for (page, checksum) in pages {
+    for page in pages {
         directory.push(PageEntry {
             offset: U64::new(offset),
             compressed_length: U32::new(page.compressed_length),
@@ -465,7 +463,7 @@ pub fn file_head(
             node_count: U32::new(page.node_count),
             first_triangle: U32::new(t0),
             triangle_count: U32::new(page.triangle_count),
-            checksum: U64::new(*checksum),
+            checksum: U64::new(page.checksum),
         });
         n0 += page.node_count;
         t0 += page.triangle_count;
@@ -512,6 +510,8 @@ pub fn file_head(
 pub struct EncodedPageSummary {
     /// Length of the zstd frame.
     pub compressed_length: u32,
+    /// XXH3-64 of the zstd frame.
+    pub checksum: u64,
     /// Length of the decoded page.
     pub raw_length: u32,
     /// Nodes in the page.
@@ -521,22 +521,20 @@ pub struct EncodedPageSummary {
 }
 
 impl EncodedPage {
-    /// The page's summary and its frame's checksum, for [`file_head`].
-    pub fn summary(&self) -> (EncodedPageSummary, u64) {
-        (
-            EncodedPageSummary {
-                compressed_length: self.frame.len() as u32,
-                raw_length: self.raw_length,
-                node_count: self.node_count,
-                triangle_count: self.triangle_count,
-            },
-            xxh3_64(&self.frame),
-        )
+    /// What [`file_head`] needs of the page.
+    pub fn summary(&self) -> EncodedPageSummary {
+        EncodedPageSummary {
+            compressed_length: self.frame.len() as u32,
+            checksum: xxh3_64(&self.frame),
+            raw_length: self.raw_length,
+            node_count: self.node_count,
+            triangle_count: self.triangle_count,
+        }
     }
 }
 
 /// The whole tree's layout: its top, then each region root's subtree in leaf order.
-pub fn lay_out(nodes: &impl NodeSource, page_bytes: u32) -> PageLayout {
+fn lay_out(nodes: &impl NodeSource, page_bytes: u32) -> PageLayout {
     let mut layout = PageLayout::top(nodes, page_bytes);
     for root in region_roots(nodes, page_bytes) {
         let n = nodes.node_record(root);
@@ -550,7 +548,8 @@ pub fn lay_out(nodes: &impl NodeSource, page_bytes: u32) -> PageLayout {
     layout
 }
 
-/// Lays the tree out in pages ([`lay_out`]) and encodes the whole file in memory.
+/// Lays the tree out in pages (its top, then each region in leaf order) and encodes the
+/// whole file in memory.
 pub fn encode<N: NodeSource>(
     content: &TreeContent<N>,
     options: &WriteOptions,

@@ -197,31 +197,6 @@ pub(crate) fn read_ends(
     Ok((header, trailer))
 }
 
-/// Decodes the body of exactly `out.len()` bytes (the trailer's length) from the zstd stream
-/// `compressed`, and checks it against the trailer's checksum.
-pub(crate) fn decode_body(
-    compressed: impl Read,
-    trailer: &Trailer,
-    out: &mut [u8],
-) -> Result<(), String> {
-    let mut decoder =
-        zstd::stream::read::Decoder::new(compressed).map_err(|e| format!("damaged body ({e})"))?;
-    decoder
-        .read_exact(out)
-        .map_err(|e| format!("truncated or damaged body ({e})"))?;
-    let mut rest = [0u8; 1];
-    let more = decoder
-        .read(&mut rest)
-        .map_err(|e| format!("damaged body ({e})"))?;
-    if more != 0 {
-        return Err("a body longer than its trailer states".into());
-    }
-    if xxh3_64(out) != trailer.body_checksum {
-        return Err("truncated or damaged body (checksum mismatch)".into());
-    }
-    Ok(())
-}
-
 /// A body read as it is decoded, never past the length its trailer states and hashed on the
 /// way, so that records are decoded straight into their own arrays (no copy of the whole
 /// body is made); [`BodyReader::finish`] checks that it was read to its end and that its
@@ -319,27 +294,25 @@ pub(crate) fn body_stream(path: &Path) -> Result<impl Read + use<>, ShardError> 
     Ok(file.take(size.saturating_sub(HEADER_BYTES + TRAILER_BYTES)))
 }
 
-/// Decodes the body of file `path` (whose ends [`read_ends`] read) into `out`, streaming
-/// from the file.
+/// Decodes the body of file `path` (whose ends [`read_ends`] read) into `out`, which must be
+/// exactly the trailer's length, streaming from the file.
 pub(crate) fn read_body_into(
     path: &Path,
     trailer: &Trailer,
     out: &mut [u8],
 ) -> Result<(), ShardError> {
-    let io = |source| ShardError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut file = std::fs::File::open(path).map_err(io)?;
-    let size = file.metadata().map_err(io)?.len();
-    file.seek(std::io::SeekFrom::Start(HEADER_BYTES))
-        .map_err(io)?;
-    let body =
-        std::io::BufReader::new(file).take(size.saturating_sub(HEADER_BYTES + TRAILER_BYTES));
-    decode_body(body, trailer, out).map_err(|reason| ShardError::BadFile {
+    let bad = |reason| ShardError::BadFile {
         path: path.to_path_buf(),
         reason,
-    })
+    };
+    if out.len() as u64 != trailer.body_bytes {
+        return Err(bad(
+            "a body of another length than its trailer states".into()
+        ));
+    }
+    let mut body = BodyReader::new(body_stream(path)?, trailer).map_err(bad)?;
+    body.read_exact(out).map_err(bad)?;
+    body.finish().map_err(bad)
 }
 
 /// A whole file in memory, for tests that damage bodies behind valid checksums.

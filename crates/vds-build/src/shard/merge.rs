@@ -23,12 +23,15 @@
 
 use std::collections::VecDeque;
 use std::io::{BufWriter, Seek, Write};
+use std::path::Path;
 
 use rayon::prelude::*;
 use vds_format::{
-    BuildInfo, EncodedPage, FileFigures, InputInfo, Metadata, NO_NODE, NodeRecord, PageLayout,
-    TriangleRecord, WriteReport, encode_pages, file_head, region_leaves,
+    BuildInfo, EncodedPage, EncodedPageSummary, FileFigures, InputInfo, Metadata, NO_NODE,
+    NodeRecord, PageLayout, TriangleRecord, WriteReport, encode_pages, file_head,
+    in_top_with_children,
 };
+use zerocopy::IntoBytes;
 use zerocopy::little_endian::{U16, U32};
 
 use super::part::{CrossCorner, RootPart, ShardPart};
@@ -67,14 +70,22 @@ pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<Vec<u8>, ShardError> 
         )));
     }
     let mut out = Vec::new();
+    // The first pass gets copies, the second the parts themselves.
+    let mut asked = 0u32;
     merge_to(
         plan,
         |k| {
-            Ok(by_index[k as usize]
-                .clone()
-                .expect("every shard is present, once"))
+            asked += 1;
+            let slot = &mut by_index[k as usize];
+            let part = if asked > plan.shard_count() {
+                slot.take()
+            } else {
+                slot.clone()
+            };
+            Ok(part.expect("every shard is present, once"))
         },
         &mut out,
+        &std::env::temp_dir(),
     )?;
     Ok(out)
 }
@@ -85,26 +96,84 @@ fn set(reason: String) -> ShardError {
 
 /// [`merge`], writing the file to `out` and asking `part` for each shard's part: twice, in
 /// index order both times (the two passes of the module doc), so that one part is held at a
-/// time. Both answers for a shard must be the same part.
+/// time; a part that differs between the passes is refused. The regions' pages wait in an
+/// unnamed temporary file in `spill_folder` (about the size of the output) until the top's
+/// are encoded.
 pub fn merge_to(
     plan: &Plan,
     mut part: impl FnMut(u32) -> Result<ShardPart, ShardError>,
     out: &mut impl Write,
+    spill_folder: &Path,
 ) -> Result<WriteReport, ShardError> {
     let mut top = Top::new(plan);
+    let mut digests = Vec::with_capacity(plan.shard_count() as usize);
     for k in 0..plan.shard_count() {
         let shard = part(k)?;
         check_part(plan, &shard, k)?;
+        digests.push(digest(&shard));
         top.gather(&shard)?;
     }
     let top = top.finish()?;
-    let mut regions = RegionWriter::new(plan, &top)?;
+    let mut regions = RegionWriter::new(plan, &top, spill_folder)?;
     for k in 0..plan.shard_count() {
         let shard = part(k)?;
         check_part(plan, &shard, k)?;
+        if digest(&shard) != digests[k as usize] {
+            return Err(set(format!(
+                "shard {k}: its part changed between the merge's two passes"
+            )));
+        }
         regions.write_part(&top, shard)?;
     }
     regions.finish(top, out)
+}
+
+/// A digest of everything in a part, to tell that both passes read the same one.
+fn digest(shard: &ShardPart) -> u64 {
+    let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+    for root in &shard.roots {
+        hasher.update(&root.root.to_le_bytes());
+        hasher.update(root.nodes.as_bytes());
+        hasher.update(root.triangles.as_bytes());
+        let (sums, sphere) = (&root.sums, &root.sphere);
+        let floats = sums
+            .quadric
+            .a
+            .iter()
+            .chain(&sums.quadric.b)
+            .chain([&sums.quadric.c])
+            .chain(&sums.position_sum)
+            .chain(&sums.cone.axis)
+            .chain([&sums.cone.half_angle]);
+        for x in floats {
+            hasher.update(&x.to_le_bytes());
+        }
+        for x in sums
+            .vertex_box
+            .min
+            .iter()
+            .chain(&sums.vertex_box.max)
+            .chain(&sums.triangle_box.min)
+            .chain(&sums.triangle_box.max)
+            .chain(&sphere.center)
+            .chain([&sphere.radius])
+        {
+            hasher.update(&x.to_le_bytes());
+        }
+        if let Some(cone) = &sums.two_sided {
+            for x in cone.axis.iter().chain([&cone.half_angle]) {
+                hasher.update(&x.to_le_bytes());
+            }
+        }
+    }
+    for c in &shard.cross {
+        hasher.update(&c.triangle.to_le_bytes());
+        hasher.update(&[c.corner]);
+        for n in [c.root, c.rank, c.part, c.owner] {
+            hasher.update(&n.to_le_bytes());
+        }
+    }
+    hasher.digest()
 }
 
 /// The checks that a part is the plan's shard `k`, holding the plan's roots.
@@ -121,7 +190,7 @@ fn check_part(plan: &Plan, shard: &ShardPart, k: u32) -> Result<(), ShardError> 
 }
 
 fn leaf_count(n: &NodeRecord) -> u32 {
-    n.leaf_end.get() - n.leaf_begin.get()
+    n.leaf_end.get().saturating_sub(n.leaf_begin.get())
 }
 
 fn subtris(n: &NodeRecord) -> std::ops::Range<usize> {
@@ -177,8 +246,6 @@ struct Region {
 /// Pass 1: the file's top gathered from the plan and the parts.
 struct Top<'p> {
     plan: &'p Plan,
-    /// Leaves a region holds at most.
-    limit: u32,
     /// The top's nodes: the plan's top nodes under their plan ids, then the top nodes under
     /// the shard roots, each sibling group contiguous. Links are top ids; a region root's
     /// first child is `nodes.len() + ` its index in `regions` once the top is finished.
@@ -231,7 +298,6 @@ impl<'p> Top<'p> {
             .collect();
         Top {
             plan,
-            limit: region_leaves(plan.metadata.page_bytes),
             nodes,
             up: vec![(Accumulator::EMPTY, Sphere::default()); plan.top.len()],
             under_root: vec![Vec::new(); plan.roots.len()],
@@ -242,10 +308,13 @@ impl<'p> Top<'p> {
         }
     }
 
-    /// True when a node's children belong to the top: it holds more than a region, or the
-    /// whole tree fits in one (then the top is the whole tree, laid out as a small file is).
+    /// True when a node's children belong to the top (`PageLayout::top`'s rule).
     fn expands(&self, n: &NodeRecord) -> bool {
-        self.plan.vertices <= self.limit || leaf_count(n) > self.limit
+        in_top_with_children(
+            leaf_count(n),
+            self.plan.vertices,
+            self.plan.metadata.page_bytes,
+        )
     }
 
     /// Takes what the top needs from one part.
@@ -436,8 +505,10 @@ fn plan_node(t: &TopNode) -> Node {
 struct RegionWriter<'p> {
     plan: &'p Plan,
     spill: BufWriter<std::fs::File>,
+    /// Where the spill lives, for errors.
+    spill_folder: std::path::PathBuf,
     /// Directory entries of the spilled pages, in order.
-    pages: Vec<(vds_format::EncodedPageSummary, u64)>,
+    pages: Vec<EncodedPageSummary>,
     /// File id of the next region node.
     next_node: u64,
     /// File id of each region's first node (its root's first child).
@@ -455,14 +526,19 @@ struct RegionWriter<'p> {
 }
 
 impl<'p> RegionWriter<'p> {
-    fn new(plan: &'p Plan, top: &FinishedTop) -> Result<RegionWriter<'p>, ShardError> {
-        let spill = tempfile::tempfile().map_err(|source| ShardError::Io {
-            path: std::env::temp_dir(),
+    fn new(
+        plan: &'p Plan,
+        top: &FinishedTop,
+        spill_folder: &Path,
+    ) -> Result<RegionWriter<'p>, ShardError> {
+        let spill = tempfile::tempfile_in(spill_folder).map_err(|source| ShardError::Io {
+            path: spill_folder.to_path_buf(),
             source,
         })?;
         Ok(RegionWriter {
             plan,
             spill: BufWriter::new(spill),
+            spill_folder: spill_folder.to_path_buf(),
             pages: Vec::new(),
             next_node: top.nodes.len() as u64,
             region_first: vec![0; top.regions.len()],
@@ -546,19 +622,21 @@ impl<'p> RegionWriter<'p> {
 
         // This part's regions, in leaf order, numbered after everything before them.
         let mut layout = PageLayout::default();
+        let mut laid_out = 0u64;
         let base_of = |r: u32| bases.iter().find(|&&(root, _)| root == r).map(|&(_, b)| b);
         while let Some(g) = top.regions.get(self.regions_done) {
             let Some(base) = base_of(g.root) else { break };
             let root = &nodes[(base + g.local) as usize];
-            self.region_first[self.regions_done] =
-                u32::try_from(self.next_node + layout.node_count() as u64)
-                    .map_err(|_| set("more nodes than a file holds".into()))?;
-            layout.append(PageLayout::region(
+            self.region_first[self.regions_done] = u32::try_from(self.next_node + laid_out)
+                .map_err(|_| set("more nodes than a file holds".into()))?;
+            let region = PageLayout::region(
                 &nodes,
                 root.first_child.get(),
                 root.child_count,
                 plan.metadata.page_bytes,
-            ));
+            );
+            laid_out += region.node_count() as u64;
+            layout.append(region);
             self.regions_done += 1;
         }
         let first_node = self.next_node;
@@ -588,7 +666,7 @@ impl<'p> RegionWriter<'p> {
             self.spill
                 .write_all(&page.frame)
                 .map_err(|source| ShardError::Io {
-                    path: std::env::temp_dir(),
+                    path: self.spill_folder.clone(),
                     source,
                 })?;
             self.pages.push(page.summary());
@@ -704,7 +782,7 @@ impl<'p> RegionWriter<'p> {
             out.write_all(&page.frame).map_err(write_error)?;
         }
         let spill_error = |source| ShardError::Io {
-            path: std::env::temp_dir(),
+            path: self.spill_folder.clone(),
             source,
         };
         let mut spill = self
@@ -715,7 +793,7 @@ impl<'p> RegionWriter<'p> {
         let copied = std::io::copy(&mut spill, out).map_err(write_error)?;
         let spilled: u64 = summaries[top_pages.len()..]
             .iter()
-            .map(|(p, _)| u64::from(p.compressed_length))
+            .map(|p| u64::from(p.compressed_length))
             .sum();
         if copied != spilled {
             return Err(spill_error(std::io::Error::other(

@@ -4,10 +4,11 @@
 //! each cell, so a small *top tree* can be planned first ([`plan()`]). Its leaves, the *shard
 //! roots*, are octree nodes whose subtrees depend only on their own vertices in input order:
 //! each shard builds the subtrees of a contiguous run of roots ([`build_shard`]) with the
-//! in-memory builder's own clustering and attribute passes, and a merge ([`merge`]) fills the
-//! top nodes from the roots' accumulated sums, renumbers leaf ranks and nodes, and places the
-//! triangles whose corners lie under different roots. The result is the tree the in-memory
-//! build makes, node for node and bit for bit: the writer then makes the same file.
+//! in-memory builder's own clustering and attribute passes, and a merge ([`merge_to`]) fills
+//! the top nodes from the roots' accumulated sums, renumbers leaf ranks and nodes, places the
+//! triangles whose corners lie under different roots, and writes the file one part at a time
+//! (the file's pages fall in regions that each lie under one root). The result is the tree the
+//! in-memory build makes, node for node and bit for bit, in the same file, byte for byte.
 //!
 //! What crosses shard borders:
 //! - A triangle with a corner in a shard is read by that shard: its leaf attributes (quadric,
@@ -23,7 +24,7 @@
 //! Modules: [`mod@plan`] (the top tree and the shards), `part` (one shard's build),
 //! `container` (the layout of the build's files), `input_file` (a shard's input, `.vdtin`),
 //! `part_file` (a shard's output, `.vdtpart`), `merge` (the top nodes, renumbering, the
-//! file's content).
+//! file).
 
 mod container;
 mod input_file;

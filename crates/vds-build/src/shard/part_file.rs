@@ -134,6 +134,19 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     };
     let (header, trailer) = read_ends(path, PART_MAGIC, WHAT)?;
     check_stated(plan, header.plan_id, header.index, &trailer).map_err(bad)?;
+    // A file larger than its shard's body could compress to is refused before it is read.
+    let most = HEADER_BYTES
+        + TRAILER_BYTES
+        + zstd::zstd_safe::compress_bound(body_limit(plan, header.index) as usize) as u64;
+    let size = std::fs::metadata(path)
+        .map_err(|source| ShardError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .len();
+    if size > most {
+        return Err(bad(format!("{size} bytes, more than its shard can hold")));
+    }
     let mut body = BodyReader::new(body_stream(path)?, &trailer).map_err(bad)?;
     let part = parse_body(&mut body, plan, header.index).map_err(bad)?;
     body.finish().map_err(bad)?;
@@ -544,9 +557,15 @@ mod tests {
                 scene.triangles.len() as u64,
                 grid,
                 shards,
-                Default::default(),
+                // Small pages: a merge of the part lays out regions (a region of pages holds
+                // 32 leaves), not the whole tree as its top.
+                super::super::PlanMetadata {
+                    page_bytes: 256,
+                    ..Default::default()
+                },
             )
             .unwrap();
+            assert!(plan.roots.len() > 2, "{} roots", plan.roots.len());
             let part = super::super::build_shard(&scene, &plan, 0).unwrap();
             let dir = tempfile::tempdir().unwrap();
             let path = dir.path().join("p.vdtpart");

@@ -6,7 +6,9 @@
 //! and bounds, which are the children's sizes and the bounds that decide the children's own
 //! splits. The split itself is the octree's ([`crate::octree`]): the same split point and
 //! octant test, children in octant order. A node stops being split, and becomes a *shard
-//! root*, when it holds at most an eighth of a shard's share of the vertices, when its
+//! root*, when it holds at most an eighth of a shard's share of the vertices or at most a
+//! region of the file's pages (`vds_format::region_leaves`: the merge lays out each region
+//! from one part, so no node a region could hold is split), when its
 //! vertices coincide, when rounding would leave them in one octant (the octree then cuts
 //! balanced chunks, which depend on the vertex order the shard sees anyway), or at depth
 //! [`MAX_TOP_DEPTH`] (which bounds the passes; such a root may hold more than a shard's share,
@@ -24,7 +26,7 @@ use crate::bounds::Aabb;
 use crate::octree::{octant_of, split_point};
 
 /// The plan format this crate writes and reads.
-pub const PLAN_FORMAT: u32 = 1;
+pub const PLAN_FORMAT: u32 = 2;
 
 /// Top levels deeper than this are not split further: a shard's subtree is as good a place
 /// for them, and it bounds the plan's passes over the input.
@@ -380,9 +382,9 @@ pub fn plan(
     }
     let vertices = positions.len() as u32;
     let shards = shards.max(1);
-    // Roots of at most an eighth of a shard's share: runs of them balance shards well. And
-    // no smaller than a region of the file's pages, so that every region lies under one root
-    // and the merge lays out each shard's regions from that shard's part alone.
+    // Roots of at most an eighth of a shard's share: runs of them balance shards well. And no
+    // node that a region of the file's pages could hold is split, so that every region lies
+    // under one root and the merge lays out each shard's regions from that shard's part alone.
     let root_target = vertices
         .div_ceil(shards.saturating_mul(8))
         .max(vds_format::region_leaves(metadata.page_bytes));

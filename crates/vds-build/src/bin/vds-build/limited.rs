@@ -1,14 +1,15 @@
 //! `vds-build INPUT... -o OUT.vdt --memory-limit SIZE`: the sharded build (plan, shards,
-//! merge) run by this one process, with as many shards as keep the shards and the merge within
+//! merge) run by this one process, with shards enough to keep the shards and the merge within
 //! the limit. The file is the in-memory build's, byte for byte.
 //!
 //! The shard count comes from what the jobs were measured to hold (`docs/benchmarks.md`,
 //! "Sharded build"): a shard about 105 bytes per triangle it reads, the merge about 175 bytes
 //! per triangle of the part it holds. Shards run side by side, as many as the cores and the
-//! limit allow. Their inputs and parts go to a temporary folder beside the output (not
-//! `TMPDIR`, which may be memory), removed at the end. The import still reads the whole scene
-//! into memory, as an in-memory build's does (about 45 bytes per triangle): where that alone
-//! is over the limit, the build says so and goes on.
+//! limit allow. Their inputs and parts, and the merge's spilled pages, go beside the output
+//! (not `TMPDIR`, which may be memory) and are removed at the end. The import still reads the
+//! whole scene into memory, as an in-memory build's does (about 45 bytes per triangle): the
+//! build reports the import's peak and the shards' and merge's apart, and warns when either
+//! is over the limit.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -30,6 +31,9 @@ const SHARD_BYTES_PER_TRIANGLE: u64 = 120;
 /// Bytes the merge holds per triangle of the part it reads, with a margin over the 175
 /// measured.
 const MERGE_BYTES_PER_TRIANGLE: u64 = 200;
+/// Bytes a shard job holds whatever its size (its zstd contexts, buffers, the allocator's
+/// caches of its threads).
+const SHARD_OVERHEAD_BYTES: u64 = 8 << 20;
 /// The most shards a plan has.
 const MAX_SHARDS: u32 = 4096;
 
@@ -104,8 +108,10 @@ pub(crate) fn build_within(
     }
     check_output(output, inputs)?;
     let start = Instant::now();
-    // What the process holds before any work (code, thread stacks), and room for the merge's
-    // top of the tree and triangles across shards.
+    // What the process holds before any work (code, the worker threads' stacks, started here
+    // so that they are counted), and room for the merge's top of the tree and triangles
+    // across shards.
+    rayon::broadcast(|_| ());
     let reserve = rss_bytes().unwrap_or(0) + (16 << 20);
     let Some(budget) = limit.checked_sub(reserve).filter(|&b| b >= 8 << 20) else {
         bail!(
@@ -131,8 +137,10 @@ pub(crate) fn build_within(
     let plan_path = work.path().join("plan.json");
     let threads = rayon::current_num_threads();
     let basis = plan_basis(&mut scene, inputs, args.pages)?;
-    // The fewest shards that run one per core side by side and whose parts the merge can
-    // hold (the plan's shares are only about equal: check, and cut finer if they do not fit).
+    // Shards enough for one per core to run side by side and for the merge to hold a part,
+    // by the measured figures; the plan's shares are only about equal, so its actual shard
+    // sizes are checked, and the model cut finer while the merge or a single shard would not
+    // fit. Fewer shards run side by side where the limit does not hold one per core.
     let triangles = scene.triangles.len() as u64;
     let per_triangle = MERGE_BYTES_PER_TRIANGLE.max(threads as u64 * SHARD_BYTES_PER_TRIANGLE);
     let mut shards = u32::try_from(
@@ -141,6 +149,7 @@ pub(crate) fn build_within(
             .clamp(1, u64::from(MAX_SHARDS)),
     )
     .expect("at most MAX_SHARDS");
+    let mut previous_largest = u64::MAX;
     let (planned, concurrent) = loop {
         let planned = plan_scene(&scene, &basis, inputs, shards, &plan_path)?;
         let largest = planned
@@ -151,18 +160,28 @@ pub(crate) fn build_within(
             .max()
             .unwrap_or(0);
         let merge_fits = largest * MERGE_BYTES_PER_TRIANGLE <= budget;
-        let side_by_side = (budget / (largest * SHARD_BYTES_PER_TRIANGLE).max(1)) as usize;
-        let wanted = threads.min(shards as usize);
-        if merge_fits && side_by_side >= wanted {
-            break (planned, wanted);
+        let side_by_side =
+            (budget / (largest * SHARD_BYTES_PER_TRIANGLE + SHARD_OVERHEAD_BYTES)) as usize;
+        if merge_fits && side_by_side >= 1 {
+            let concurrent = side_by_side.min(threads).min(shards as usize);
+            break (planned, concurrent);
         }
-        if shards == MAX_SHARDS {
+        // Shards are runs of the plan's roots, which are no smaller than a region of pages:
+        // past some count, more shards no longer make smaller ones.
+        if shards == MAX_SHARDS || largest >= previous_largest {
             bail!(
-                "--memory-limit {limit}: too small for this model; {MAX_SHARDS} shards would \
-                 still hold {} bytes each",
-                largest * SHARD_BYTES_PER_TRIANGLE.max(MERGE_BYTES_PER_TRIANGLE)
+                "--memory-limit {limit}: too small for this model; its largest shard reads \
+                 {largest} triangles (about {} bytes to merge), and the model cannot be cut \
+                 finer{}",
+                largest * MERGE_BYTES_PER_TRIANGLE.max(SHARD_BYTES_PER_TRIANGLE),
+                if shards < MAX_SHARDS {
+                    " (smaller --page-bytes make smaller regions, so smaller shards)"
+                } else {
+                    ""
+                }
             );
         }
+        previous_largest = largest;
         shards = shards.saturating_mul(2).min(MAX_SHARDS);
     };
     let vertices = planned.plan.vertices;
@@ -175,8 +194,7 @@ pub(crate) fn build_within(
     {
         progress.print(&format!(
             "vds-build: warning: reading the model took {} MB, over the limit of {} MB: the \
-             import holds the whole scene (a streaming import is not built); the shards and \
-             the merge keep within the limit",
+             import holds the whole scene (a streaming import is not built)",
             peak >> 20,
             limit >> 20
         ));
@@ -212,6 +230,17 @@ pub(crate) fn build_within(
             pages: report.pages,
         },
     };
+    if let Some(peak) = report
+        .shards_and_merge_peak_rss_bytes
+        .filter(|&p| p > limit)
+        && !args.quiet
+    {
+        eprintln!(
+            "vds-build: warning: the shards and the merge took {} MB, over the limit of {} MB",
+            peak >> 20,
+            limit >> 20
+        );
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else if !args.quiet {

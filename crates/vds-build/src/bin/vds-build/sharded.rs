@@ -202,8 +202,8 @@ pub fn main() -> Result<()> {
 /// A planned build of an imported scene, not yet written: the plan and where each shard's
 /// input goes (`PLAN.shard-K.vdtin` beside the plan).
 pub(crate) struct Planned {
-    pub plan: Plan,
-    pub input_paths: Vec<PathBuf>,
+    pub(crate) plan: Plan,
+    input_paths: Vec<PathBuf>,
     /// Each vertex's root, for writing the inputs.
     root_of: Vec<u32>,
 }
@@ -327,7 +327,10 @@ pub(crate) fn merge_parts(
             shard::read_part(parts[k as usize], plan)
         },
         &mut file,
-    )?;
+        // Beside the output, not in TMPDIR, which may be memory.
+        &folder_of(output),
+    )
+    .with_context(|| format!("cannot merge into {}", output.display()))?;
     file.commit()?;
     Ok(report)
 }
@@ -438,7 +441,7 @@ fn parts_in_order<'a>(plan: &Plan, paths: &'a [PathBuf]) -> Result<Vec<&'a Path>
 
 /// Reads a plan made by this very version: the jobs of one build must all run the same
 /// `vds-build`, or the file would be one that no single version writes.
-pub(crate) fn load_plan(path: &Path) -> Result<Plan> {
+fn load_plan(path: &Path) -> Result<Plan> {
     let plan = Plan::load(path)?;
     if plan.metadata.tool != tool() {
         bail!(
@@ -465,6 +468,6 @@ fn file_name(input: &Path) -> String {
     )
 }
 
-pub(crate) fn tool() -> String {
+fn tool() -> String {
     format!("vds-build {}", env!("CARGO_PKG_VERSION"))
 }
