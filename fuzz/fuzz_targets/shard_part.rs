@@ -14,7 +14,7 @@ use libfuzzer_sys::fuzz_target;
 use vds_build::shard::{Plan, PlanMetadata, merge, part_from_bytes, plan};
 
 /// The plan every input is read against: one shard of a 16 × 16 grid of triangles, pages of
-/// 256 bytes (regions of 32 leaves).
+/// 256 bytes (regions of 64 leaves).
 fn the_plan() -> &'static Plan {
     static PLAN: OnceLock<Plan> = OnceLock::new();
     PLAN.get_or_init(|| {

@@ -28,7 +28,7 @@ fn testdata(name: &str) -> PathBuf {
 const PAGE_BYTES: u32 = 8192;
 
 /// Page sizes the files are compared at: the default of these tests, and pages so small that
-/// regions (`vds_format::region_leaves`), and so the plan's roots, hold 32 and 1 leaves.
+/// regions (`vds_format::region_leaves`), and so the plan's roots, hold 64 and 2 leaves.
 const PAGE_SIZES: [u32; 3] = [PAGE_BYTES, 256, 8];
 
 fn options_with(page_bytes: u32) -> WriteOptions {
@@ -134,8 +134,8 @@ fn assert_same_file(name: &str, scene: &Scene, grid: Grid, shard_counts: &[u32])
                 plan.top.len()
             );
             // The test means something only if the model was really cut up: with the
-            // smallest pages (regions of one leaf: the whole tree is the top) and with 256 B
-            // pages (regions of 32 leaves), on scenes of more than a few regions.
+            // smallest pages (regions of two leaves) and with 256 B pages (regions of 64
+            // leaves), on scenes of more than a few regions.
             let cut_up = page_bytes == PAGE_SIZES[2]
                 || page_bytes == PAGE_SIZES[1] && scene.positions.len() > 1000;
             if shards > 1 && cut_up {

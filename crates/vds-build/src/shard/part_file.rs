@@ -558,7 +558,7 @@ mod tests {
                 grid,
                 shards,
                 // Small pages: a merge of the part lays out regions (a region of pages holds
-                // 32 leaves), not the whole tree as its top.
+                // 64 leaves), not the whole tree as its top.
                 super::super::PlanMetadata {
                     page_bytes: 256,
                     ..Default::default()
