@@ -281,6 +281,16 @@ impl<'r> BodyReader<'r> {
     }
 }
 
+/// The size of file `path`.
+pub(crate) fn file_size(path: &Path) -> Result<u64, ShardError> {
+    std::fs::metadata(path)
+        .map(|m| m.len())
+        .map_err(|source| ShardError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+}
+
 /// The zstd stream of file `path`'s body (whose ends [`read_ends`] read).
 pub(crate) fn body_stream(path: &Path) -> Result<impl Read + use<>, ShardError> {
     let io = |source| ShardError::Io {

@@ -445,13 +445,7 @@ impl<'p> Top<'p> {
         // The plan's top nodes' sums and proxies, children (later ids) first.
         let isa = Isa::detect();
         let mut proxies = vec![[0.0f32; 3]; plan.top.len()];
-        for id in (0..plan.top.len()).rev() {
-            let t = &plan.top[id];
-            if t.root.is_some() {
-                continue;
-            }
-            let family =
-                t.first_child as usize..t.first_child as usize + usize::from(t.child_count);
+        for (id, t, family) in inner_plan_nodes(plan) {
             let mut sum = self.up[family.start].0;
             for child in family.start + 1..family.end {
                 let (child_sum, _) = self.up[child];
@@ -490,6 +484,22 @@ fn top_id_under(under_root: &[Vec<(u32, u32)>], root: u32, local: u32) -> Option
     let mine = under_root.get(root as usize)?;
     let k = mine.binary_search_by_key(&local, |&(l, _)| l).ok()?;
     Some(mine[k].1)
+}
+
+/// The plan's top nodes that are not roots, children first (the plan numbers children after
+/// their parents): each id, node and its children's ids.
+fn inner_plan_nodes(
+    plan: &Plan,
+) -> impl Iterator<Item = (usize, &TopNode, std::ops::Range<usize>)> {
+    plan.top
+        .iter()
+        .enumerate()
+        .rev()
+        .filter(|(_, t)| t.root.is_none())
+        .map(|(id, t)| {
+            let first = t.first_child as usize;
+            (id, t, first..first + usize::from(t.child_count))
+        })
 }
 
 /// The builder's node for one of the plan's top nodes (links are plan ids, which are top ids).
@@ -722,13 +732,7 @@ impl<'p> RegionWriter<'p> {
             ..
         } = top;
         // The plan's top nodes' bounds, children (later ids) first.
-        for id in (0..plan.top.len()).rev() {
-            let t = &plan.top[id];
-            if t.root.is_some() {
-                continue;
-            }
-            let family =
-                t.first_child as usize..t.first_child as usize + usize::from(t.child_count);
+        for (id, t, family) in inner_plan_nodes(plan) {
             let spheres: Vec<Sphere> = up[family].iter().map(|&(_, s)| s).collect();
             let (bounds, sphere) = inner_bounds(
                 proxies[id],

@@ -21,8 +21,8 @@ use vds_format::{NO_NODE, NodeRecord, TriangleRecord};
 use zerocopy::IntoBytes;
 
 use super::container::{
-    BodyReader, BodyWriter, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, parse_header,
-    parse_trailer, read_ends,
+    BodyReader, BodyWriter, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, file_size,
+    parse_header, parse_trailer, read_ends,
 };
 use super::part::{CrossCorner, InputTriangle, RootPart, ShardPart};
 use super::{Plan, ShardError};
@@ -138,12 +138,7 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     let most = HEADER_BYTES
         + TRAILER_BYTES
         + zstd::zstd_safe::compress_bound(body_limit(plan, header.index) as usize) as u64;
-    let size = std::fs::metadata(path)
-        .map_err(|source| ShardError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?
-        .len();
+    let size = file_size(path)?;
     if size > most {
         return Err(bad(format!("{size} bytes, more than its shard can hold")));
     }

@@ -227,12 +227,7 @@ impl Plan {
         };
         // A plan is a few hundred bytes per shard root; a gigabyte is not a plan.
         const MAX_PLAN_BYTES: u64 = 1 << 30;
-        let size = std::fs::metadata(path)
-            .map_err(|source| ShardError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?
-            .len();
+        let size = super::container::file_size(path)?;
         if size > MAX_PLAN_BYTES {
             return Err(bad(format!("{size} bytes, more than a plan holds")));
         }

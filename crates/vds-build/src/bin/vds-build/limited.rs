@@ -24,7 +24,7 @@ use vds_import::Weld;
 use crate::sharded::{
     Progress, build_shard_file, folder_of, merge_parts, plan_basis, plan_scene, write_plan,
 };
-use crate::{Args, check_output, peak_rss_bytes};
+use crate::{Args, check_output, memory_status, peak_rss_bytes};
 
 /// Bytes a shard holds per triangle it reads, with a margin over the 105 measured.
 const SHARD_BYTES_PER_TRIANGLE: u64 = 120;
@@ -72,14 +72,6 @@ struct LimitedOutput {
     pages: u32,
 }
 
-/// Resident memory of this process now (Linux `VmRSS`), if known.
-fn rss_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib * 1024)
-}
-
 /// Restarts the count of the process's peak resident memory (`VmHWM`) from what it holds
 /// now (Linux ≥ 4.0: writing 5 to `/proc/self/clear_refs`); false where it cannot.
 fn reset_peak_rss() -> bool {
@@ -112,7 +104,7 @@ pub(crate) fn build_within(
     // so that they are counted), and room for the merge's top of the tree and triangles
     // across shards.
     rayon::broadcast(|_| ());
-    let reserve = rss_bytes().unwrap_or(0) + (16 << 20);
+    let reserve = memory_status("VmRSS").unwrap_or(0) + (16 << 20);
     let Some(budget) = limit.checked_sub(reserve).filter(|&b| b >= 8 << 20) else {
         bail!(
             "--memory-limit {limit}: too small; this process alone holds {} bytes",
@@ -162,9 +154,15 @@ pub(crate) fn build_within(
         let merge_fits = largest * MERGE_BYTES_PER_TRIANGLE <= budget;
         let side_by_side =
             (budget / (largest * SHARD_BYTES_PER_TRIANGLE + SHARD_OVERHEAD_BYTES)) as usize;
-        if merge_fits && side_by_side >= 1 {
-            let concurrent = side_by_side.min(threads).min(shards as usize);
-            break (planned, concurrent);
+        let wanted = threads.min(shards as usize);
+        // Cutting finer lets more shards run side by side only while it still shrinks the
+        // largest shard (by a quarter at least): past that, fewer run side by side.
+        let still_shrinking = largest.saturating_mul(4) < previous_largest.saturating_mul(3);
+        if merge_fits
+            && side_by_side >= 1
+            && (side_by_side >= wanted || !still_shrinking || shards == MAX_SHARDS)
+        {
+            break (planned, side_by_side.min(wanted));
         }
         // Shards are runs of the plan's roots, which are no smaller than a region of pages:
         // past some count, more shards no longer make smaller ones.

@@ -302,8 +302,16 @@ struct Phases {
 
 /// Peak resident set size of this process (Linux `VmHWM`), if known.
 fn peak_rss_bytes() -> Option<u64> {
+    memory_status("VmHWM")
+}
+
+/// A byte count of this process's `/proc/self/status` (`VmHWM`, `VmRSS`), if known.
+fn memory_status(field: &str) -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let line = status.lines().find(|l| {
+        l.strip_prefix(field)
+            .is_some_and(|rest| rest.starts_with(':'))
+    })?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
 }
