@@ -206,6 +206,14 @@ fn finish_file(
         )
         .in_file(path));
     }
+    // Vertex indices are `u32`: the inputs together may not hold more vertices than that.
+    if !soup::indices_fit(soup.positions.len(), file_soup.positions.len()) {
+        return Err(FormatError::new(
+            Location::File,
+            Problem::Unsupported("more than 2^32 vertices in the inputs together".into()),
+        )
+        .in_file(path));
+    }
     if soup.positions.is_empty() && soup.part_names.is_empty() {
         *soup = file_soup; // The common single-file case: no copy.
     } else {

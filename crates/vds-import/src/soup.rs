@@ -82,7 +82,15 @@ impl MeshSoup {
     }
 
     /// Appends another soup (another input file) as further parts of this scene.
+    ///
+    /// # Panics
+    /// If the two hold more than 2^32 vertices together (vertex indices are `u32`); the
+    /// importer refuses such inputs with an error before it appends.
     pub fn append(&mut self, other: MeshSoup) {
+        assert!(
+            indices_fit(self.positions.len(), other.positions.len()),
+            "more than 2^32 vertices in one soup"
+        );
         let vertex_base = self.positions.len() as u32;
         let part_base = self.part_names.len() as u32;
         self.positions.extend(other.positions);
@@ -99,6 +107,11 @@ impl MeshSoup {
         self.short_faces_dropped += other.short_faces_dropped;
         self.warnings.extend(other.warnings);
     }
+}
+
+/// Whether soups of `a` and `b` vertices can be joined with `u32` vertex indices.
+pub(crate) fn indices_fit(a: usize, b: usize) -> bool {
+    (a as u64).saturating_add(b as u64) <= 1 << 32
 }
 
 /// Checks that a position is finite and within [`crate::MAX_COORDINATE`]: what every reader
@@ -171,5 +184,18 @@ impl ColorSum {
             self.sum
                 .map(|s| ((s / self.count as f64) as f32).clamp(0.0, 1.0))
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::indices_fit;
+
+    #[test]
+    fn soups_join_up_to_two_to_the_32_vertices() {
+        assert!(indices_fit(0, 1 << 32));
+        assert!(indices_fit((1 << 32) - 5, 5));
+        assert!(!indices_fit((1 << 32) - 5, 6));
+        assert!(!indices_fit(usize::MAX, usize::MAX));
     }
 }
