@@ -93,31 +93,17 @@ pub(crate) fn node_record(
 /// the file). Empty when the scene names no parts, or a triangle's part has no name (the
 /// file then states nothing beyond the names).
 pub fn part_records(scene: &Scene) -> Vec<vds_format::PartInfo> {
-    part_records_of(
-        scene.part_names.len(),
-        |i| {
-            let info = scene.parts.get(i).copied().unwrap_or_default();
-            (info.parent, info.color)
-        },
-        scene.triangle_parts.iter().copied(),
-    )
-}
-
-/// [`part_records`] from the part count, each part's parent and colour as imported, and
-/// every triangle's part (the sharded merge has these apart, not as a scene).
-pub(crate) fn part_records_of(
-    parts: usize,
-    info: impl Fn(usize) -> (Option<u32>, Option<[f32; 4]>),
-    triangle_parts: impl Iterator<Item = u32>,
-) -> Vec<vds_format::PartInfo> {
-    let mut counts = PartCounts::new(parts);
-    for part in triangle_parts {
+    let mut counts = PartCounts::new(scene.part_names.len());
+    for &part in &scene.triangle_parts {
         counts.add(part, 1);
     }
-    counts.records(info)
+    counts.records(|i| {
+        let info = scene.parts.get(i).copied().unwrap_or_default();
+        (info.parent, info.color)
+    })
 }
 
-/// Triangles counted by part, for [`part_records_of`]: a part out of range makes the records
+/// Triangles counted by part, for [`part_records`] and the sharded merge: a part out of range makes the records
 /// empty (the file then states nothing of its parts beyond their names).
 pub(crate) struct PartCounts {
     counts: Option<Vec<u64>>,

@@ -287,14 +287,7 @@ impl<'p> Top<'p> {
         let nodes = plan
             .top
             .iter()
-            .map(|t| {
-                let node = Node {
-                    first_child: t.first_child,
-                    child_count: t.child_count,
-                    ..Node::topology(t.leaf_begin, t.leaf_end, t.parent, t.depth)
-                };
-                node_record(&node, None, [0.0; 3])
-            })
+            .map(|t| node_record(&plan_node(t), None, [0.0; 3]))
             .collect();
         Top {
             plan,
