@@ -165,7 +165,12 @@ impl VertexPool {
 
     /// The update that brings a GPU mirror up to date after an adjust: records of the nodes
     /// that became corners of active triangles, and the dirty slots of `changes`.
+    ///
+    /// # Panics
+    /// If `cut` tracks corners by ranks ([`vds_runtime::CornerTracking::Ranks`]): it has no
+    /// slots to mirror.
     pub fn collect(&mut self, cut: &mut Cut, changes: &Changes) -> CutUpdate {
+        assert_mirrors_slots(cut);
         // Pages loaded are of no concern here: vertices go up when a slot first uses them.
         cut.store_mut().take_loaded();
         self.update(cut, &changes.dirty_slots)
@@ -173,7 +178,11 @@ impl VertexPool {
 
     /// The update that uploads the whole current cut to a new GPU mirror: this pool starts
     /// over, and every slot is written.
+    ///
+    /// # Panics
+    /// As [`VertexPool::collect`].
     pub fn everything(&mut self, cut: &mut Cut) -> CutUpdate {
+        assert_mirrors_slots(cut);
         *self = VertexPool::new();
         cut.store_mut().take_loaded();
         let all: Vec<u32> = (0..cut.slot_count()).collect();
@@ -329,4 +338,12 @@ fn octahedral(n: [f32; 3]) -> u32 {
     }
     let pack = |v: f32| ((v.clamp(-1.0, 1.0) * 32767.0).round() as i16) as u16 as u32;
     pack(x) | pack(y) << 16
+}
+
+/// The pool mirrors slots; a rank-tracked cut has none (its changes come per node).
+fn assert_mirrors_slots(cut: &Cut) {
+    assert!(
+        cut.tracking() != vds_runtime::CornerTracking::Ranks,
+        "the renderer mirrors slots: a cut with rank tracking has none to draw"
+    );
 }

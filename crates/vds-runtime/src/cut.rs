@@ -25,7 +25,16 @@
 //!   folded away) or down (it was unfolded) along its original vertex's path. Work is
 //!   proportional to the active triangles, every frame.
 //!
-//! `vds-bench cut` measures both along the same camera paths.
+//! - **Ranks** (no per-triangle state): an active triangle is a subtri of an active node, and
+//!   a corner's current node is the boundary node whose leaf-rank interval holds the corner's
+//!   original leaf rank. Fold and unfold change labels alone, the cut reports its changes per
+//!   node (the nodes that unfolded, folded and joined the boundary: what a renderer needs to
+//!   edit a draw list of subtri ranges and a rank → vertex map with range fills), and corners
+//!   are resolved only when the cut is read. Work per frame is proportional to the nodes that
+//!   change, whatever their triangles. There are no slots: a renderer that mirrors slots
+//!   cannot draw this cut yet.
+//!
+//! `vds-bench cut` measures them along the same camera paths.
 //!
 //! ## Repeats
 //! Active triangles with the same three current corners in the same winding are drawn and
@@ -35,7 +44,8 @@
 //! again. With incidence lists that happens at once, and a triangle budget counts what is
 //! drawn (an unfold that would split repeats past the budget is undone). Lazy tracking sees
 //! corners only when the cut is read, so it compares groups then, and its budget counts every
-//! active triangle (never fewer than are drawn).
+//! active triangle (never fewer than are drawn). Rank tracking finds repeats when the cut is
+//! read, among all its active triangles, and its budget too counts every active triangle.
 
 use vds_format::VdtError;
 
@@ -66,6 +76,9 @@ pub enum CornerTracking {
     Incidence,
     /// No lists; every active corner is re-checked when the cut is read.
     Lazy,
+    /// No per-triangle state at all: corners are found from leaf ranks when the cut is read,
+    /// and changes are reported per node.
+    Ranks,
 }
 
 /// One active triangle.
@@ -139,8 +152,20 @@ pub struct Changes {
     pub added: u32,
     /// Triangles that stopped being active.
     pub removed: u32,
-    /// Triangles active before and after whose corners changed.
+    /// Triangles active before and after whose corners changed (not counted with
+    /// [`CornerTracking::Ranks`], which keeps no per-triangle state).
     pub changed: u32,
+    /// With [`CornerTracking::Ranks`]: the nodes active now that were not (their subtris
+    /// became active), ascending.
+    pub unfolded: Vec<u32>,
+    /// With [`CornerTracking::Ranks`]: the nodes active before that are not now (their subtris
+    /// stopped being active), ascending.
+    pub folded: Vec<u32>,
+    /// With [`CornerTracking::Ranks`]: the nodes on the boundary now that were not, ascending.
+    /// Boundary nodes' leaf ranges are disjoint, and every leaf rank whose current node
+    /// changed lies in one of theirs: a rank → node map is kept current by filling each of
+    /// their ranges with the node.
+    pub joined_boundary: Vec<u32>,
 }
 
 /// One active node as the per-frame traversal reads it: a copy of its [`Hot`] record and its
@@ -192,6 +217,12 @@ pub struct Cut {
     repeats: Repeats,
     /// Scratch of `unfold_node`: its subtris' corners in its own cut, for grouping.
     own_corners: Vec<([u32; 3], u32)>,
+    /// Rank tracking: each node whose label changed since the last `take_changes`, with its
+    /// label then and now.
+    node_journal: rustc_hash::FxHashMap<u32, (NodeState, NodeState)>,
+    /// Rank tracking: triangles added and removed since the last `take_changes`, net.
+    net_added: i64,
+    net_removed: i64,
 }
 
 impl Cut {
@@ -218,6 +249,9 @@ impl Cut {
             drawn_len: 0,
             repeats: Repeats::default(),
             own_corners: Vec::new(),
+            node_journal: Default::default(),
+            net_added: 0,
+            net_removed: 0,
         }
     }
 
@@ -344,7 +378,7 @@ impl Cut {
     pub(crate) fn counted_triangles(&self) -> u32 {
         match self.tracking {
             CornerTracking::Incidence => self.active_triangle_count(),
-            CornerTracking::Lazy => self.active_triangle_count,
+            CornerTracking::Lazy | CornerTracking::Ranks => self.active_triangle_count,
         }
     }
 
@@ -369,8 +403,14 @@ impl Cut {
         (triangle != NIL).then_some(ActiveTriangle { triangle, corners })
     }
 
-    /// Every active triangle drawn (each class of repeats once), by slot.
+    /// Every active triangle drawn (each class of repeats once), by slot (with rank
+    /// tracking, which has no slots, by triangle index).
     pub fn active_triangles(&mut self) -> Vec<ActiveTriangle> {
+        if self.tracking == CornerTracking::Ranks {
+            let (drawn, hidden) = self.triangles_from_ranks();
+            self.repeats.hidden = hidden;
+            return drawn;
+        }
         self.refresh_lazy_corners();
         (0..self.slot_count())
             .filter_map(|s| self.peek_slot(s))
@@ -418,6 +458,11 @@ impl Cut {
         self.boundary_count += u32::from(node.child_count) - 1;
         self.count_active_child(node.parent, 1);
         self.active_node_count += 1;
+        if self.tracking == CornerTracking::Ranks {
+            self.active_triangle_count += node.subtri_count;
+            self.count_net(id, i64::from(node.subtri_count));
+            return Ok(());
+        }
         // The children's first leaf ranks, once: every corner that moves down, and every
         // subtri corner under `id`, picks its child from them without a look-up per corner.
         let mut starts = std::mem::take(&mut self.child_starts);
@@ -499,10 +544,15 @@ impl Cut {
             return false;
         }
         let node = self.store.node(id);
-        for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
-            let slot = self.store.triangle_slot(id, t);
-            if slot != NIL {
-                self.remove_slot(slot);
+        if self.tracking == CornerTracking::Ranks {
+            self.active_triangle_count -= node.subtri_count;
+            self.count_net(id, -i64::from(node.subtri_count));
+        } else {
+            for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
+                let slot = self.store.triangle_slot(id, t);
+                if slot != NIL {
+                    self.remove_slot(slot);
+                }
             }
         }
         for c in node.children() {
@@ -544,7 +594,10 @@ impl Cut {
     /// Makes room in the slot array and the active list for unfolding `id`, within the
     /// memory budget; false when the budget cannot give it.
     fn reserve_for_unfold(&mut self, id: u32) -> bool {
-        let subtris = self.store.subtris(id).len();
+        let subtris = match self.tracking {
+            CornerTracking::Ranks => 0,
+            _ => self.store.subtris(id).len(),
+        };
         let needed_slots = self.slots.len() + subtris.saturating_sub(self.free_slots.len());
         let slot_growth = grown_capacity(self.slots.capacity(), needed_slots);
         let entry_growth = grown_capacity(self.active_list.capacity(), self.active_list.len() + 1);
@@ -615,6 +668,9 @@ impl Cut {
 
     /// The changes to the active triangle list since the last call, and a fresh journal.
     pub fn take_changes(&mut self) -> Changes {
+        if self.tracking == CornerTracking::Ranks {
+            return self.take_node_changes();
+        }
         self.settle_repeats();
         // Compaction first: with lazy tracking, the groups of moved triangles are compared by
         // the refresh.
@@ -703,7 +759,8 @@ impl Cut {
         }
         let hashed = self.repeats.bytes() as usize
             + self.now_in_slot.capacity() * (size_of::<(u32, u32)>() + 1)
-            + self.before.capacity() * (size_of::<u32>() + 1);
+            + self.before.capacity() * (size_of::<u32>() + 1)
+            + self.node_journal.capacity() * (size_of::<(u32, (NodeState, NodeState))>() + 1);
         (size_of::<Cut>()
             + held(&self.active_list)
             + held(&self.active_shapes)
@@ -712,6 +769,91 @@ impl Cut {
             + held(&self.journal)
             + held(&self.dirty_bits)
             + hashed) as u64
+    }
+
+    /// Rank tracking: counts `triangles` subtris of `id` becoming active (positive) or
+    /// inactive (negative), net of what the same node did earlier since the last
+    /// `take_changes` (its journal entry says whether it was active then).
+    fn count_net(&mut self, id: u32, triangles: i64) {
+        let was_active = self
+            .node_journal
+            .get(&id)
+            .map_or(self.store.state(id) == NodeState::Active, |&(before, _)| {
+                before == NodeState::Active
+            });
+        if was_active {
+            self.net_removed -= triangles;
+        } else {
+            self.net_added += triangles;
+        }
+    }
+
+    /// Rank tracking's [`Cut::take_changes`]: the nodes whose label changed, by what they
+    /// became, from the node journal.
+    fn take_node_changes(&mut self) -> Changes {
+        let mut changes = Changes {
+            added: self.net_added as u32,
+            removed: self.net_removed as u32,
+            ..Changes::default()
+        };
+        for (&id, &(before, now)) in &self.node_journal {
+            if before == now {
+                continue;
+            }
+            match now {
+                NodeState::Active => changes.unfolded.push(id),
+                NodeState::Boundary => changes.joined_boundary.push(id),
+                NodeState::Inactive => {}
+            }
+            if before == NodeState::Active {
+                changes.folded.push(id);
+            }
+        }
+        changes.unfolded.sort_unstable();
+        changes.folded.sort_unstable();
+        changes.joined_boundary.sort_unstable();
+        let touched = self.node_journal.len();
+        self.node_journal.clear();
+        if self.node_journal.capacity() > 4 * touched.max(1024) {
+            self.node_journal.shrink_to(2 * touched);
+        }
+        (self.net_added, self.net_removed) = (0, 0);
+        shrink_if_sparse(&mut self.active_list, self.active_node_count as usize);
+        shrink_if_sparse(&mut self.active_shapes, self.active_node_count as usize);
+        self.store.set_cut_bytes(self.own_bytes());
+        changes
+    }
+
+    /// Rank tracking: every active triangle with its current corners, found from the leaf
+    /// ranks of its original corners, and how many of them repeat another. Each class of
+    /// repeats is drawn once, by its smallest triangle index; the result is in triangle order.
+    fn triangles_from_ranks(&self) -> (Vec<ActiveTriangle>, u32) {
+        let mut all = Vec::with_capacity(self.active_triangle_count as usize);
+        for entry in &self.active_list {
+            let id = entry.id;
+            let node = self.store.node(id);
+            for (t, leaves) in (node.subtri_begin..).zip(self.store.subtri_corners(id)) {
+                let corners = leaves.map(|rank| {
+                    if node.supports_rank(rank) {
+                        let child = self.store.child_supporting(id, rank);
+                        self.store
+                            .descend(child, rank, |n| self.store.state(n) == NodeState::Active)
+                    } else {
+                        self.boundary_node_of(rank, id).1
+                    }
+                });
+                all.push(ActiveTriangle {
+                    triangle: t,
+                    corners,
+                });
+            }
+        }
+        all.sort_unstable_by_key(|t| (key(t.corners), t.triangle));
+        let before = all.len();
+        all.dedup_by_key(|t| key(t.corners));
+        let hidden = (before - all.len()) as u32;
+        all.sort_unstable_by_key(|t| t.triangle);
+        (all, hidden)
     }
 
     /// Moves active triangles out of the tail of the slot array into free slots below, and
@@ -1040,6 +1182,9 @@ impl Cut {
 
     fn set_state(&mut self, id: u32, state: NodeState) {
         let was = self.store.set_state(id, state);
+        if self.tracking == CornerTracking::Ranks {
+            self.node_journal.entry(id).or_insert((was, state)).1 = state;
+        }
         if state == NodeState::Active && was != NodeState::Active {
             let index = self.active_list.len() as u32;
             let label = self.store.label_mut(id);
@@ -1164,6 +1309,29 @@ impl Cut {
         }
         if active_count != self.active_node_count as usize {
             return Err("the active node count is wrong".into());
+        }
+        if self.tracking == CornerTracking::Ranks {
+            let subtris: u32 = self
+                .active_list
+                .iter()
+                .map(|e| self.store.node(e.id).subtri_count)
+                .sum();
+            if subtris != self.active_triangle_count {
+                return Err("the active triangle count is wrong".into());
+            }
+            expected.sort_unstable_by_key(|t| (key(t.corners), t.triangle));
+            expected.dedup_by_key(|t| key(t.corners));
+            expected.sort_unstable();
+            let (actual, _) = self.triangles_from_ranks();
+            return if actual == expected {
+                Ok(())
+            } else {
+                Err(format!(
+                    "active triangles differ from the recomputed set ({} expected, {} found)",
+                    expected.len(),
+                    actual.len()
+                ))
+            };
         }
         let held = self.slots.iter().filter(|s| s.triangle != NIL).count();
         if held != self.active_triangle_count as usize {

@@ -39,7 +39,11 @@ fn canonical(corners: [[f32; 3]; 3]) -> [[u32; 3]; 3] {
 #[test]
 fn unfolding_everything_gives_the_original_mesh_and_folding_everything_the_root() {
     for (name, scene, bytes) in built_by_each(&MESHES) {
-        for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
+        for tracking in [
+            CornerTracking::Incidence,
+            CornerTracking::Lazy,
+            CornerTracking::Ranks,
+        ] {
             let mut runtime = runtime(&bytes, tracking);
             runtime.cut_mut().unfold_all().unwrap();
             runtime.cut_mut().check().unwrap();

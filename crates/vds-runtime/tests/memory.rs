@@ -56,7 +56,11 @@ fn a_tiny_budget_evicts_constantly_and_never_a_page_the_cut_needs() {
     let (bytes, center, radius) = generated(60_000);
     let decoded = decoded_size(&bytes);
     let budget = decoded / 8;
-    for tracking in [CornerTracking::Incidence, CornerTracking::Lazy] {
+    for tracking in [
+        CornerTracking::Incidence,
+        CornerTracking::Lazy,
+        CornerTracking::Ranks,
+    ] {
         for (name, path) in paths(center, radius, 40) {
             let mut runtime = runtime(&bytes, tracking);
             runtime.set_memory_budget(budget);

@@ -208,9 +208,13 @@ pub fn paths_of_vdt(
         if fly { "flying through" } else { "orbiting" },
     );
     let resident_trackings: &[CornerTracking] = if resident_only {
-        &[CornerTracking::Incidence]
+        &[CornerTracking::Incidence, CornerTracking::Ranks]
     } else {
-        &[CornerTracking::Incidence, CornerTracking::Lazy]
+        &[
+            CornerTracking::Incidence,
+            CornerTracking::Lazy,
+            CornerTracking::Ranks,
+        ]
     };
     for t in [1.0, 5.0] {
         for &tracking in resident_trackings {

@@ -122,7 +122,7 @@ enum Commands {
         /// Skip the bunny paths.
         #[arg(long)]
         no_bunny: bool,
-        /// Only the default configuration (incidence lists, pages resident): quicker A/B runs.
+        /// Only resident pages, incidence lists and rank tracking: quicker A/B runs.
         #[arg(long)]
         resident_only: bool,
         /// Fly through this `.vdt` file instead of the bunny and the generated scenes: nothing

@@ -125,9 +125,11 @@ struct Args {
     /// paper's measure). Default: surface. A --threshold cut always holds the vertex bound.
     #[arg(long, value_enum)]
     bound: Option<BoundArg>,
-    /// Keep corners by lazy evaluation instead of incidence lists.
-    #[arg(long)]
-    lazy: bool,
+    /// How active triangles' corners are kept: incidence lists, lazy evaluation when the cut
+    /// is read, or no per-triangle state at all (corners from leaf ranks when read; changes
+    /// per node). --prevent-folds needs incidence lists.
+    #[arg(long, value_enum, default_value_t = CornersArg::Incidence)]
+    corners: CornersArg,
     /// Check the cut against a recomputation from scratch.
     #[arg(long)]
     verify: bool,
@@ -140,6 +142,13 @@ struct Args {
 enum LoadingMode {
     Synchronous,
     Background,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum CornersArg {
+    Incidence,
+    Lazy,
+    Ranks,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -324,11 +333,16 @@ fn run(args: &Args) -> Result<()> {
     let start = Instant::now();
     let file = vds_format::VdtFile::open(&args.file).map_err(naming(&args.file))?;
     let part_names = file.metadata().part_names.clone();
-    let tracking = if args.lazy {
-        CornerTracking::Lazy
-    } else {
-        CornerTracking::Incidence
+    let tracking = match args.corners {
+        CornersArg::Incidence => CornerTracking::Incidence,
+        CornersArg::Lazy => CornerTracking::Lazy,
+        CornersArg::Ranks => CornerTracking::Ranks,
     };
+    if args.prevent_folds && tracking != CornerTracking::Incidence {
+        bail!(
+            "--prevent-folds needs --corners incidence: only incidence lists see the triangles a fold moves"
+        );
+    }
     let loading = match args.loading {
         LoadingMode::Synchronous => Loading::Synchronous,
         LoadingMode::Background => Loading::Background {

@@ -1,0 +1,166 @@
+//! Rank tracking ([`CornerTracking::Ranks`]): the cut keeps no per-triangle state and reports
+//! its changes per node. A renderer's mirror built from those changes alone — a set of active
+//! nodes whose subtris it draws, and a leaf rank → node map kept by range fills — must draw
+//! exactly the triangles the cut reads out, with the same corners, and the cut must be the
+//! one lazy tracking (the same adjust, corners kept per triangle) makes, frame after frame.
+
+mod common;
+
+use std::collections::{HashMap, HashSet};
+
+use common::*;
+use vds_runtime::{
+    ActiveTriangle, Changes, CornerTracking, Criteria, FrustumMode, Goal, Runtime, Viewpoint,
+};
+
+/// What a renderer keeps of a rank-tracked cut.
+struct Mirror {
+    /// Active nodes and their subtris (first triangle, count).
+    active: HashMap<u32, (u32, u32)>,
+    /// Current node of every leaf rank (the whole model: this is a test).
+    node_of_rank: Vec<u32>,
+}
+
+impl Mirror {
+    fn new(vertices: usize) -> Mirror {
+        Mirror {
+            active: HashMap::new(),
+            node_of_rank: vec![0; vertices],
+        }
+    }
+
+    /// Applies one frame's node changes; returns the triangles it added and removed.
+    fn apply(&mut self, frame_changes: &Changes, runtime: &Runtime, what: &str) -> (u32, u32) {
+        assert!(
+            frame_changes.dirty_slots.is_empty(),
+            "{what}: rank tracking has no slots"
+        );
+        let cut = runtime.cut();
+        let (mut added, mut removed) = (0, 0);
+        for &id in &frame_changes.folded {
+            let (_, count) = self
+                .active
+                .remove(&id)
+                .unwrap_or_else(|| panic!("{what}: node {id} folded but was not active"));
+            removed += count;
+        }
+        for &id in &frame_changes.unfolded {
+            let node = cut.node(id);
+            let before = self
+                .active
+                .insert(id, (node.subtri_begin, node.subtri_count));
+            assert!(before.is_none(), "{what}: node {id} unfolded twice");
+            added += node.subtri_count;
+        }
+        for &id in &frame_changes.joined_boundary {
+            let node = cut.node(id);
+            self.node_of_rank[node.leaf_begin as usize..node.leaf_end as usize].fill(id);
+        }
+        assert_eq!(frame_changes.added, added, "{what}: added");
+        assert_eq!(frame_changes.removed, removed, "{what}: removed");
+        (added, removed)
+    }
+
+    /// What the mirror draws: every subtri of its active nodes with corners from the rank
+    /// map, each class of same-winding repeats once (its smallest triangle index).
+    fn drawn(&self, runtime: &Runtime) -> Vec<ActiveTriangle> {
+        let store = runtime.cut().store();
+        let mut by_class: HashMap<[u32; 3], u32> = HashMap::new();
+        let mut all = Vec::new();
+        for &(first, count) in self.active.values() {
+            for t in first..first + count {
+                let corners = store
+                    .triangle_corners(t)
+                    .map(|rank| self.node_of_rank[rank as usize]);
+                let lead = (0..3).min_by_key(|&k| corners[k]).unwrap();
+                let class = [0, 1, 2].map(|k| corners[(lead + k) % 3]);
+                let smallest = by_class.entry(class).or_insert(t);
+                *smallest = (*smallest).min(t);
+                all.push((
+                    class,
+                    ActiveTriangle {
+                        triangle: t,
+                        corners,
+                    },
+                ));
+            }
+        }
+        let mut drawn: Vec<_> = all
+            .into_iter()
+            .filter(|(class, t)| by_class[class] == t.triangle)
+            .map(|(_, t)| t)
+            .collect();
+        drawn.sort_unstable();
+        drawn
+    }
+}
+
+#[test]
+fn node_changes_alone_let_a_renderer_draw_the_cut_and_it_is_lazy_trackings_cut() {
+    let mut hidden = 0u64;
+    for (name, scene, bytes) in built_by_each(&["bunny.obj", "as1_assembly.obj", "airplane.obj"]) {
+        let (center, radius) = bounds(&scene.positions);
+        let mut ranks = runtime(&bytes, CornerTracking::Ranks);
+        let mut lazy = runtime(&bytes, CornerTracking::Lazy);
+        let vertices = ranks.leaf_positions().unwrap().len();
+        let mut mirror = Mirror::new(vertices);
+        let mut rng = Rng(23);
+        let mut camera = random_camera(&mut rng, center, radius);
+        let mut changed_frames = 0;
+        for step in 0..60u32 {
+            if step % 12 == 11 {
+                camera = random_camera(&mut rng, center, radius);
+            } else {
+                let d = rng.unit_vector();
+                for k in 0..3 {
+                    camera.eye[k] += d[k] * radius * 0.06;
+                }
+            }
+            let (viewpoint, goal) = match step % 5 {
+                0 | 1 => (Viewpoint::Camera(camera), Goal::Threshold(1.0)),
+                2 => (Viewpoint::Camera(camera), Goal::Threshold(6.0)),
+                3 => (Viewpoint::Camera(camera), Goal::Budget(500 + 150 * step)),
+                _ => (Viewpoint::Independent, Goal::Budget(300 + 80 * step)),
+            };
+            let criteria = Criteria {
+                frustum: [FrustumMode::Fold, FrustumMode::Ignore][step as usize % 2],
+                ..Criteria::default()
+            };
+            let what = format!("{name} step {step}");
+            let frame = ranks.adjust(&viewpoint, &criteria, goal).unwrap();
+            lazy.adjust(&viewpoint, &criteria, goal).unwrap();
+            let (added, removed) = mirror.apply(&frame.changes, &ranks, &what);
+            changed_frames += u32::from(added + removed > 0);
+            ranks.cut_mut().check().unwrap();
+
+            let mirrored: HashSet<u32> = mirror.active.keys().copied().collect();
+            let active: HashSet<u32> = ranks.cut().active_entries().iter().map(|e| e.id).collect();
+            assert!(
+                mirrored == active,
+                "{what}: the mirror's active nodes differ"
+            );
+            let drawn = ranks.cut_mut().active_triangles();
+            assert!(
+                mirror.drawn(&ranks) == drawn,
+                "{what}: the mirror draws other triangles"
+            );
+            let mut lazily = lazy.cut_mut().active_triangles();
+            lazily.sort_unstable();
+            assert!(drawn == lazily, "{what}: rank and lazy tracking disagree");
+            let cut = ranks.cut();
+            assert_eq!(cut.active_triangle_count() as usize, drawn.len(), "{what}");
+            assert_eq!(
+                cut.active_triangle_count_with_repeats(),
+                lazy.cut().active_triangle_count_with_repeats(),
+                "{what}"
+            );
+            if let Goal::Budget(budget) = goal {
+                assert!(cut.active_triangle_count_with_repeats() <= budget, "{what}");
+            }
+            hidden += u64::from(cut.active_triangle_count_with_repeats())
+                - u64::from(cut.active_triangle_count());
+        }
+        assert!(changed_frames > 30, "{name}: the path changed too little");
+    }
+    assert!(hidden > 0, "no repeat was ever hidden");
+}
