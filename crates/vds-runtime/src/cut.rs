@@ -156,12 +156,12 @@ pub struct Changes {
     /// [`CornerTracking::Ranks`], which keeps no per-triangle state).
     pub changed: u32,
     /// With [`CornerTracking::Ranks`]: the nodes active now that were not (their subtris
-    /// became active), ascending.
+    /// became active). These three lists are in the order the nodes first changed.
     pub unfolded: Vec<u32>,
     /// With [`CornerTracking::Ranks`]: the nodes active before that are not now (their subtris
-    /// stopped being active), ascending.
+    /// stopped being active).
     pub folded: Vec<u32>,
-    /// With [`CornerTracking::Ranks`]: the nodes on the boundary now that were not, ascending.
+    /// With [`CornerTracking::Ranks`]: the nodes on the boundary now that were not.
     /// Boundary nodes' leaf ranges are disjoint, and every leaf rank whose current node
     /// changed lies in one of theirs: a rank → node map is kept current by filling each of
     /// their ranges with the node.
@@ -217,9 +217,12 @@ pub struct Cut {
     repeats: Repeats,
     /// Scratch of `unfold_node`: its subtris' corners in its own cut, for grouping.
     own_corners: Vec<([u32; 3], u32)>,
-    /// Rank tracking: each node whose label changed since the last `take_changes`, with its
-    /// label then and now.
-    node_journal: rustc_hash::FxHashMap<u32, (NodeState, NodeState)>,
+    /// Rank tracking: the nodes whose state changed since the last `take_changes`, each
+    /// with its state then (also in its label, which marks it listed), and the store's
+    /// eviction count then: a node whose page was evicted and loaded again in between may
+    /// be listed twice, its first entry holding its state before.
+    node_journal: Vec<(u32, NodeState)>,
+    evictions_at_take: u64,
     /// Rank tracking: triangles added and removed since the last `take_changes`, net.
     net_added: i64,
     net_removed: i64,
@@ -249,7 +252,8 @@ impl Cut {
             drawn_len: 0,
             repeats: Repeats::default(),
             own_corners: Vec::new(),
-            node_journal: Default::default(),
+            node_journal: Vec::new(),
+            evictions_at_take: 0,
             net_added: 0,
             net_removed: 0,
         }
@@ -759,8 +763,7 @@ impl Cut {
         }
         let hashed = self.repeats.bytes() as usize
             + self.now_in_slot.capacity() * (size_of::<(u32, u32)>() + 1)
-            + self.before.capacity() * (size_of::<u32>() + 1)
-            + self.node_journal.capacity() * (size_of::<(u32, (NodeState, NodeState))>() + 1);
+            + self.before.capacity() * (size_of::<u32>() + 1);
         (size_of::<Cut>()
             + held(&self.active_list)
             + held(&self.active_shapes)
@@ -768,6 +771,7 @@ impl Cut {
             + held(&self.free_slots)
             + held(&self.journal)
             + held(&self.dirty_bits)
+            + held(&self.node_journal)
             + hashed) as u64
     }
 
@@ -775,12 +779,8 @@ impl Cut {
     /// inactive (negative), net of what the same node did earlier since the last
     /// `take_changes` (its journal entry says whether it was active then).
     fn count_net(&mut self, id: u32, triangles: i64) {
-        let was_active = self
-            .node_journal
-            .get(&id)
-            .map_or(self.store.state(id) == NodeState::Active, |&(before, _)| {
-                before == NodeState::Active
-            });
+        let label = self.store.label(id);
+        let was_active = label.journaled.unwrap_or(label.state) == NodeState::Active;
         if was_active {
             self.net_removed -= triangles;
         } else {
@@ -796,7 +796,21 @@ impl Cut {
             removed: self.net_removed as u32,
             ..Changes::default()
         };
-        for (&id, &(before, now)) in &self.node_journal {
+        let mut journal = std::mem::take(&mut self.node_journal);
+        let evictions = self.store.memory().pages_evicted;
+        if evictions != std::mem::replace(&mut self.evictions_at_take, evictions) {
+            let mut seen = rustc_hash::FxHashSet::default();
+            journal.retain(|&(id, _)| seen.insert(id));
+        }
+        for &(id, before) in &journal {
+            // A node whose page was evicted is inactive; its label went with the page.
+            let now = match self.store.label_if_resident_mut(id) {
+                Some(label) => {
+                    label.journaled = None;
+                    label.state
+                }
+                None => NodeState::Inactive,
+            };
             if before == now {
                 continue;
             }
@@ -809,14 +823,10 @@ impl Cut {
                 changes.folded.push(id);
             }
         }
-        changes.unfolded.sort_unstable();
-        changes.folded.sort_unstable();
-        changes.joined_boundary.sort_unstable();
-        let touched = self.node_journal.len();
-        self.node_journal.clear();
-        if self.node_journal.capacity() > 4 * touched.max(1024) {
-            self.node_journal.shrink_to(2 * touched);
-        }
+        let touched = journal.len();
+        journal.clear();
+        shrink_if_sparse(&mut journal, 2 * touched);
+        self.node_journal = journal;
         (self.net_added, self.net_removed) = (0, 0);
         shrink_if_sparse(&mut self.active_list, self.active_node_count as usize);
         shrink_if_sparse(&mut self.active_shapes, self.active_node_count as usize);
@@ -1183,7 +1193,11 @@ impl Cut {
     fn set_state(&mut self, id: u32, state: NodeState) {
         let was = self.store.set_state(id, state);
         if self.tracking == CornerTracking::Ranks {
-            self.node_journal.entry(id).or_insert((was, state)).1 = state;
+            let label = self.store.label_mut(id);
+            if label.journaled.is_none() {
+                label.journaled = Some(was);
+                self.node_journal.push((id, was));
+            }
         }
         if state == NodeState::Active && was != NodeState::Active {
             let index = self.active_list.len() as u32;

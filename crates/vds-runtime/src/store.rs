@@ -243,17 +243,23 @@ pub struct NodeLabel {
     pub(crate) state: crate::cut::NodeState,
     /// How many of its children are active.
     pub(crate) active_children: u8,
+    /// Rank tracking: its state at the cut's last change report, while it is in the cut's
+    /// journal of changed nodes (in what would be padding).
+    pub(crate) journaled: Option<crate::cut::NodeState>,
     /// Its index in the cut's active list, or [`NIL`].
     pub(crate) active_index: u32,
     /// First incidence-list entry it heads, or [`NIL`].
     pub(crate) head: u32,
 }
 
+const _: () = assert!(size_of::<NodeLabel>() == 12);
+
 impl NodeLabel {
     /// The label of a node below the boundary.
     pub(crate) const INACTIVE: NodeLabel = NodeLabel {
         state: crate::cut::NodeState::Inactive,
         active_children: 0,
+        journaled: None,
         active_index: NIL,
         head: NIL,
     };
@@ -955,6 +961,14 @@ impl NodeStore {
     #[inline]
     pub fn state(&self, id: u32) -> crate::cut::NodeState {
         self.label(id).state
+    }
+
+    /// The cut's label of node `id` if its page is resident (a page is evicted only once
+    /// every node in it is inactive).
+    #[inline]
+    pub(crate) fn label_if_resident_mut(&mut self, id: u32) -> Option<&mut NodeLabel> {
+        let p = self.place(id)?;
+        Some(&mut self.resident_mut(p.slot).labels[p.local as usize])
     }
 
     /// The cut's label of resident node `id`, to change anything but its state.

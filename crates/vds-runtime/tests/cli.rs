@@ -458,3 +458,44 @@ fn a_single_camera_cut_under_a_tight_budget_fits_and_reports_the_raised_threshol
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn every_corner_tracking_exports_the_same_cut_and_ranks_refuse_fold_prevention() {
+    let dir = temp_dir("corners");
+    let file = small_vdt(&dir);
+    let mut exports = Vec::new();
+    for corners in ["incidence", "lazy", "ranks"] {
+        let out = dir.join(format!("{corners}.ply"));
+        let result = vds_cut()
+            .arg(&file)
+            .arg("-o")
+            .arg(&out)
+            .args(["--threshold", "2", "--corners", corners])
+            .output()
+            .unwrap();
+        assert!(
+            result.status.success(),
+            "{corners}: {}",
+            String::from_utf8_lossy(&result.stderr)
+        );
+        exports.push(std::fs::read(&out).unwrap());
+    }
+    assert!(exports[0].len() > 1000, "the cut is not empty");
+    assert!(
+        exports.iter().all(|e| *e == exports[0]),
+        "the exports differ"
+    );
+    let refused = dir.join("refused.ply");
+    let result = vds_cut()
+        .arg(&file)
+        .arg("-o")
+        .arg(&refused)
+        .args(["--threshold", "2", "--corners", "ranks", "--prevent-folds"])
+        .output()
+        .unwrap();
+    assert_eq!(result.status.code(), Some(1));
+    let message = String::from_utf8_lossy(&result.stderr);
+    assert!(message.contains("--prevent-folds"), "{message}");
+    assert!(!refused.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
