@@ -230,7 +230,10 @@ pub struct Cut {
 
 impl Cut {
     /// The coarsest cut over `store`: the root alone, folded.
-    pub fn new(store: NodeStore, tracking: CornerTracking) -> Cut {
+    pub fn new(mut store: NodeStore, tracking: CornerTracking) -> Cut {
+        if tracking == CornerTracking::Ranks {
+            store.drop_triangle_slots();
+        }
         Cut {
             store,
             tracking,

@@ -300,7 +300,8 @@ struct ResidentPage {
     checked: Vec<u64>,
     corners: Vec<[u32; 3]>,
     parts: Vec<u32>,
-    /// Per triangle: the cut's slot holding it while it is active, or [`NIL`].
+    /// Per triangle: the cut's slot holding it while it is active, or [`NIL`]; empty when
+    /// the cut keeps no slots ([`crate::CornerTracking::Ranks`]).
     triangle_slot: Vec<u32>,
     /// Nodes of this page on or above the boundary: while any is, the page stays.
     pins: u32,
@@ -312,7 +313,7 @@ struct ResidentPage {
 }
 
 impl ResidentPage {
-    fn from_page(index: u32, page: &Page) -> ResidentPage {
+    fn from_page(index: u32, page: &Page, triangle_slots: bool) -> ResidentPage {
         let n = page.nodes.len();
         let t = page.triangles.len();
         let mut resident = ResidentPage {
@@ -327,7 +328,11 @@ impl ResidentPage {
             checked: vec![0; n.div_ceil(64)],
             corners: Vec::with_capacity(t),
             parts: Vec::with_capacity(t),
-            triangle_slot: vec![NIL; t],
+            triangle_slot: if triangle_slots {
+                vec![NIL; t]
+            } else {
+                Vec::new()
+            },
             pins: 0,
             stamp: 0,
             bytes: 0,
@@ -385,8 +390,11 @@ impl ResidentPage {
             + held(&self.triangle_slot)) as u64
     }
 
-    /// The bytes a page of `nodes` nodes and `triangles` triangles takes once resident.
-    fn bytes_for(nodes: usize, triangles: usize) -> u64 {
+    /// The bytes a page of `nodes` nodes and `triangles` triangles takes once resident, with
+    /// or without a slot per triangle.
+    fn bytes_for(nodes: usize, triangles: usize, triangle_slots: bool) -> u64 {
+        let per_triangle =
+            size_of::<[u32; 3]>() + size_of::<u32>() * (1 + usize::from(triangle_slots));
         (size_of::<ResidentPage>()
             + nodes
                 * (size_of::<Hot>()
@@ -395,7 +403,7 @@ impl ResidentPage {
                     + size_of::<Topology>()
                     + size_of::<NodeLabel>())
             + nodes.div_ceil(64) * size_of::<u64>()
-            + triangles * (size_of::<[u32; 3]>() + 2 * size_of::<u32>())) as u64
+            + triangles * per_triangle) as u64
     }
 }
 
@@ -511,6 +519,8 @@ pub struct NodeStore {
     stale_before: u64,
     /// The decoded size of an average page of the file, for fetching ahead of need.
     typical_page_bytes: u64,
+    /// Whether resident pages keep a cut slot per triangle (every corner tracking but ranks).
+    triangle_slots: bool,
     /// Pages stamped at or after this tick are not evicted to make room (see the type's
     /// documentation).
     protect_from: u64,
@@ -624,7 +634,9 @@ impl NodeStore {
             typical_page_bytes: ResidentPage::bytes_for(
                 (node_count as usize).div_ceil(page_count),
                 (triangle_count as usize).div_ceil(page_count),
+                true,
             ),
+            triangle_slots: true,
             protect_from: 0,
             frame_start: 0,
             pages_loaded: 0,
@@ -650,6 +662,22 @@ impl NodeStore {
         // The root is always on or above the boundary.
         store.set_state(0, crate::cut::NodeState::Boundary);
         Ok(store)
+    }
+
+    /// Stops keeping a cut slot per resident triangle (for a cut that keeps no slots,
+    /// [`crate::CornerTracking::Ranks`]): pages already resident give theirs back, and pages
+    /// are counted without them from now on.
+    pub(crate) fn drop_triangle_slots(&mut self) {
+        self.triangle_slots = false;
+        for page in self.pages.iter_mut().flatten() {
+            page.triangle_slot = Vec::new();
+            let freed = page.bytes - page.counted_bytes();
+            page.bytes -= freed;
+            self.page_bytes -= freed;
+            if page.pins == 0 {
+                self.evictable_bytes -= freed;
+            }
+        }
     }
 
     /// Sets the memory budget in bytes ([`u64::MAX`]: none). Takes effect as pages arrive and
@@ -1273,7 +1301,11 @@ impl NodeStore {
         }
         match result {
             Ok(page) => {
-                let bytes = ResidentPage::bytes_for(page.nodes.len(), page.triangles.len());
+                let bytes = ResidentPage::bytes_for(
+                    page.nodes.len(),
+                    page.triangles.len(),
+                    self.triangle_slots,
+                );
                 if needed && self.make_room(bytes, &NO_PAGES) {
                     self.install(index, &page, false);
                 } else if needed {
@@ -1606,7 +1638,11 @@ impl NodeStore {
         let result = self.source.read_page_into(index, &mut scratch);
         let outcome = match result {
             Ok(()) => {
-                let bytes = ResidentPage::bytes_for(scratch.nodes.len(), scratch.triangles.len());
+                let bytes = ResidentPage::bytes_for(
+                    scratch.nodes.len(),
+                    scratch.triangles.len(),
+                    self.triangle_slots,
+                );
                 if self.make_room(bytes, keep) || !refusable {
                     self.install(index, &scratch, false);
                     Ok(())
@@ -1626,7 +1662,7 @@ impl NodeStore {
     /// push out pages the cut has used, nor be kept from eviction as a page that just
     /// arrived for a waiting node is.
     fn install(&mut self, index: u32, page: &Page, ahead_of_need: bool) {
-        let mut resident = ResidentPage::from_page(index, page);
+        let mut resident = ResidentPage::from_page(index, page, self.triangle_slots);
         resident.stamp = if ahead_of_need { 0 } else { self.tick };
         self.tick += 1;
         let bytes = resident.bytes;

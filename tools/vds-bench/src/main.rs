@@ -106,6 +106,9 @@ enum Commands {
         /// Memory budget of the loading runs (the resident comparison has none).
         #[arg(long, default_value = "256MiB", value_parser = vds_runtime::size::parse_size)]
         memory_budget: u64,
+        /// Keep corners by rank tracking (no slots) instead of incidence lists.
+        #[arg(long)]
+        ranks: bool,
     },
     /// The runtime: adjust time along camera paths (bunny orbit, generated CAD scene
     /// fly-through) at t = 1 and 5 px, and the bunny's fidelity table (`vds-bench fidelity`).
@@ -199,6 +202,7 @@ fn main() -> Result<()> {
             pace_ms,
             frames,
             memory_budget,
+            ranks,
         }) => {
             let threads = threads
                 .unwrap_or_else(vds_runtime::default_loading_threads)
@@ -213,6 +217,11 @@ fn main() -> Result<()> {
                 pace_ms,
                 frames.max(2),
                 memory_budget,
+                if ranks {
+                    vds_runtime::CornerTracking::Ranks
+                } else {
+                    vds_runtime::CornerTracking::Incidence
+                },
             );
         }
         Some(Commands::Fidelity { meshes }) => {

@@ -133,6 +133,7 @@ pub fn run(
     pace_ms: f64,
     frames: u32,
     budget: u64,
+    tracking: CornerTracking,
 ) -> Result<()> {
     let pace = Duration::from_secs_f64(pace_ms / 1e3);
     let goal = Goal::Threshold(t);
@@ -140,12 +141,9 @@ pub fn run(
     let open_start = Instant::now();
     let vdt = vds_format::VdtFile::open(file).with_context(|| file.display().to_string())?;
     let pages = vdt.directory().len();
-    let mut runtime = Runtime::with_loading(
-        Box::new(vdt),
-        CornerTracking::Incidence,
-        Loading::Background { threads },
-    )
-    .with_context(|| file.display().to_string())?;
+    let mut runtime =
+        Runtime::with_loading(Box::new(vdt), tracking, Loading::Background { threads })
+            .with_context(|| file.display().to_string())?;
     runtime.set_memory_budget(budget);
     let root = runtime.cut().node(0);
     let (center, radius) = (root.sphere_center, root.sphere_radius);
@@ -162,7 +160,7 @@ pub fn run(
 
     println!(
         "{}: {pages} pages, t = {t} px, {threads} loading thread(s), frames every {pace_ms:.1} ms, \
-         memory budget {}, page cache {}",
+         memory budget {}, page cache {}, {tracking:?} corners",
         file.display(),
         vds_runtime::size::format_size(budget),
         if cold { "evicted first" } else { "as it was" }
@@ -190,16 +188,13 @@ pub fn run(
     drop(runtime);
     evict(file);
     let vdt = vds_format::VdtFile::open(file)?;
-    let mut loading = Runtime::with_loading(
-        Box::new(vdt),
-        CornerTracking::Incidence,
-        Loading::Background { threads },
-    )?;
+    let mut loading =
+        Runtime::with_loading(Box::new(vdt), tracking, Loading::Background { threads })?;
     loading.set_memory_budget(budget);
     let background = play(&mut loading, &path, goal, pace)?;
     // ...and the same path with every page decoded first.
     let vdt = vds_format::VdtFile::open(file)?;
-    let mut resident = Runtime::new(Box::new(vdt), CornerTracking::Incidence)?;
+    let mut resident = Runtime::new(Box::new(vdt), tracking)?;
     resident.set_memory_budget(u64::MAX);
     resident.load_every_page()?;
     let synchronous = play(&mut resident, &path, goal, pace)?;
