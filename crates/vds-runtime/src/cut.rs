@@ -44,8 +44,10 @@
 //! again. With incidence lists that happens at once, and a triangle budget counts what is
 //! drawn (an unfold that would split repeats past the budget is undone). Lazy tracking sees
 //! corners only when the cut is read, so it compares groups then, and its budget counts every
-//! active triangle (never fewer than are drawn). Rank tracking finds repeats when the cut is
-//! read, among all its active triangles, and its budget too counts every active triangle.
+//! active triangle (never fewer than are drawn). Rank tracking finds groups cheaply (only
+//! subtris sharing their corners inside the node need their outside corners), watches the
+//! ranks of their corners, and compares a group again when a node joins the boundary over
+//! one, once a frame; its budget too counts every active triangle.
 
 use vds_format::VdtError;
 
@@ -161,6 +163,11 @@ pub struct Changes {
     /// With [`CornerTracking::Ranks`]: the nodes active before that are not now (their subtris
     /// stopped being active).
     pub folded: Vec<u32>,
+    /// With [`CornerTracking::Ranks`]: active triangles hidden now as repeats that were drawn
+    /// (or not active) at the last report.
+    pub hidden: Vec<u32>,
+    /// With [`CornerTracking::Ranks`]: active triangles drawn now that were hidden as repeats.
+    pub shown: Vec<u32>,
     /// With [`CornerTracking::Ranks`]: the nodes on the boundary now that were not.
     /// Boundary nodes' leaf ranges are disjoint, and every leaf rank whose current node
     /// changed lies in one of theirs: a rank → node map is kept current by filling each of
@@ -223,6 +230,15 @@ pub struct Cut {
     /// be listed twice, its first entry holding its state before.
     node_journal: Vec<(u32, NodeState)>,
     evictions_at_take: u64,
+    /// Rank tracking: every leaf rank that is a corner of a grouped subtri, with the node
+    /// owning the group: a node joining the boundary over such a rank may change what the
+    /// group hides.
+    watched: std::collections::BTreeSet<(u32, u32)>,
+    /// Rank tracking: the active triangles hidden as repeats.
+    hidden_set: rustc_hash::FxHashSet<u32>,
+    /// Rank tracking: the triangles hidden or shown since the last report, with whether each
+    /// was hidden then and the node owning it.
+    hidden_was: rustc_hash::FxHashMap<u32, (bool, u32)>,
     /// Rank tracking: triangles added and removed since the last `take_changes`, net.
     net_added: i64,
     net_removed: i64,
@@ -257,6 +273,9 @@ impl Cut {
             own_corners: Vec::new(),
             node_journal: Vec::new(),
             evictions_at_take: 0,
+            watched: Default::default(),
+            hidden_set: Default::default(),
+            hidden_was: Default::default(),
             net_added: 0,
             net_removed: 0,
         }
@@ -414,9 +433,7 @@ impl Cut {
     /// tracking, which has no slots, by triangle index).
     pub fn active_triangles(&mut self) -> Vec<ActiveTriangle> {
         if self.tracking == CornerTracking::Ranks {
-            let (drawn, hidden) = self.triangles_from_ranks();
-            self.repeats.hidden = hidden;
-            return drawn;
+            return self.triangles_from_ranks();
         }
         self.refresh_lazy_corners();
         (0..self.slot_count())
@@ -468,6 +485,9 @@ impl Cut {
         if self.tracking == CornerTracking::Ranks {
             self.active_triangle_count += node.subtri_count;
             self.count_net(id, i64::from(node.subtri_count));
+            if node.subtri_count > 1 {
+                self.group_by_ranks(id, &node);
+            }
             return Ok(());
         }
         // The children's first leaf ranks, once: every corner that moves down, and every
@@ -554,6 +574,7 @@ impl Cut {
         if self.tracking == CornerTracking::Ranks {
             self.active_triangle_count -= node.subtri_count;
             self.count_net(id, -i64::from(node.subtri_count));
+            self.ungroup_by_ranks(id);
         } else {
             for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
                 let slot = self.store.triangle_slot(id, t);
@@ -766,7 +787,12 @@ impl Cut {
         }
         let hashed = self.repeats.bytes() as usize
             + self.now_in_slot.capacity() * (size_of::<(u32, u32)>() + 1)
-            + self.before.capacity() * (size_of::<u32>() + 1);
+            + self.before.capacity() * (size_of::<u32>() + 1)
+            + self.hidden_set.capacity() * (size_of::<u32>() + 1)
+            + self.hidden_was.capacity() * (size_of::<(u32, (bool, u32))>() + 1)
+            // A B-tree's nodes hold 11 entries and are two thirds full on average, with
+            // child links in the inner ones: 16 bytes an 8-byte entry covers it.
+            + self.watched.len() * 16;
         (size_of::<Cut>()
             + held(&self.active_list)
             + held(&self.active_shapes)
@@ -808,10 +834,7 @@ impl Cut {
         for &(id, before) in &journal {
             // A node whose page was evicted is inactive; its label went with the page.
             let now = match self.store.label_if_resident_mut(id) {
-                Some(label) => {
-                    label.journaled = None;
-                    label.state
-                }
+                Some(label) => label.state,
                 None => NodeState::Inactive,
             };
             if before == now {
@@ -826,6 +849,28 @@ impl Cut {
                 changes.folded.push(id);
             }
         }
+        self.node_journal = journal;
+        self.settle_rank_repeats();
+        let mut journal = std::mem::take(&mut self.node_journal);
+        for &(id, _) in &journal {
+            if let Some(label) = self.store.label_if_resident_mut(id) {
+                label.journaled = None;
+            }
+        }
+        for (t, (was, owner)) in std::mem::take(&mut self.hidden_was) {
+            let now = self.hidden_set.contains(&t);
+            let owner_active = self
+                .store
+                .label_if_resident_mut(owner)
+                .is_some_and(|l| l.state == NodeState::Active);
+            if now && !was {
+                changes.hidden.push(t);
+            } else if !now && was && owner_active {
+                changes.shown.push(t);
+            }
+        }
+        changes.hidden.sort_unstable();
+        changes.shown.sort_unstable();
         let touched = journal.len();
         journal.clear();
         shrink_if_sparse(&mut journal, 2 * touched);
@@ -837,36 +882,175 @@ impl Cut {
         changes
     }
 
-    /// Rank tracking: every active triangle with its current corners, found from the leaf
-    /// ranks of its original corners, and how many of them repeat another. Each class of
-    /// repeats is drawn once, by its smallest triangle index; the result is in triangle order.
-    fn triangles_from_ranks(&self) -> (Vec<ActiveTriangle>, u32) {
-        let mut all = Vec::with_capacity(self.active_triangle_count as usize);
+    /// Rank tracking: the current node of leaf rank `rank`, a corner of a subtri of active
+    /// node `owner`: under the owner, down from its child holding the rank; outside it, down
+    /// from the first ancestor holding the rank.
+    fn current_corner(&self, rank: u32, owner: u32, owner_node: &Node) -> u32 {
+        let is_active = |n: u32| self.store.state(n) == NodeState::Active;
+        if owner_node.supports_rank(rank) {
+            let child = self.store.child_supporting(owner, rank);
+            self.store.descend(child, rank, is_active)
+        } else {
+            self.boundary_node_of(rank, owner).1
+        }
+    }
+
+    /// Rank tracking: every active triangle drawn (the hidden repeats left out) with its
+    /// current corners, in triangle order.
+    fn triangles_from_ranks(&mut self) -> Vec<ActiveTriangle> {
+        self.settle_rank_repeats();
+        let mut drawn = Vec::with_capacity(self.active_triangle_count() as usize);
         for entry in &self.active_list {
             let id = entry.id;
             let node = self.store.node(id);
             for (t, leaves) in (node.subtri_begin..).zip(self.store.subtri_corners(id)) {
-                let corners = leaves.map(|rank| {
-                    if node.supports_rank(rank) {
-                        let child = self.store.child_supporting(id, rank);
-                        self.store
-                            .descend(child, rank, |n| self.store.state(n) == NodeState::Active)
-                    } else {
-                        self.boundary_node_of(rank, id).1
-                    }
-                });
-                all.push(ActiveTriangle {
+                if self.hidden_set.contains(&t) {
+                    continue;
+                }
+                let corners = leaves.map(|rank| self.current_corner(rank, id, &node));
+                drawn.push(ActiveTriangle {
                     triangle: t,
                     corners,
                 });
             }
         }
-        all.sort_unstable_by_key(|t| (key(t.corners), t.triangle));
-        let before = all.len();
-        all.dedup_by_key(|t| key(t.corners));
-        let hidden = (before - all.len()) as u32;
-        all.sort_unstable_by_key(|t| t.triangle);
-        (all, hidden)
+        drawn.sort_unstable_by_key(|t| t.triangle);
+        drawn
+    }
+
+    /// Rank tracking: the groups of `id`'s subtris that can repeat (those with equal corners
+    /// in `id`'s own cut, [`crate::repeats`]), registered and watched. Their corners inside
+    /// `id` are its children, so subtris whose inside corners differ cannot repeat: corners
+    /// outside `id` (an ancestor walk each) are found only for subtris that share their
+    /// inside corners with another.
+    fn group_by_ranks(&mut self, id: u32, node: &Node) {
+        let mut starts = std::mem::take(&mut self.child_starts);
+        starts.clear();
+        starts.extend(node.children().map(|c| self.store.leaf_begin(c)));
+        let child_of =
+            |rank: u32| node.first_child + starts.partition_point(|&b| b <= rank) as u32 - 1;
+        let mut own = std::mem::take(&mut self.own_corners);
+        own.clear();
+        for (t, leaves) in (node.subtri_begin..).zip(self.store.subtri_corners(id)) {
+            let mut inside = leaves.map(|r| {
+                if node.supports_rank(r) {
+                    child_of(r)
+                } else {
+                    NIL
+                }
+            });
+            inside.sort_unstable();
+            own.push((inside, t));
+        }
+        own.sort_unstable();
+        let mut candidates = Vec::new();
+        for shared in own.chunk_by(|a, b| a.0 == b.0).filter(|c| c.len() > 1) {
+            for &(_, t) in shared {
+                let corners = self.store.triangle_corners(t).map(|r| {
+                    if node.supports_rank(r) {
+                        child_of(r)
+                    } else {
+                        self.outside_child(r, id)
+                    }
+                });
+                candidates.push((corners, t));
+            }
+        }
+        self.own_corners = own;
+        self.child_starts = starts;
+        if candidates.is_empty() {
+            return;
+        }
+        let groups = groups_of(&mut candidates);
+        if groups.is_empty() {
+            return;
+        }
+        for &t in groups.iter().flatten() {
+            for rank in self.store.triangle_corners(t) {
+                self.watched.insert((rank, id));
+            }
+        }
+        self.repeats.groups.insert(id, groups);
+        self.repeats.dirty.push(id);
+    }
+
+    /// Rank tracking: forgets folded node `id`'s groups; their hidden members leave with it.
+    fn ungroup_by_ranks(&mut self, id: u32) {
+        let Some(groups) = self.repeats.groups.remove(&id) else {
+            return;
+        };
+        for &t in groups.iter().flatten() {
+            for rank in self.store.triangle_corners(t) {
+                self.watched.remove(&(rank, id));
+            }
+            self.set_hidden_by_rank(t, id, false);
+        }
+    }
+
+    /// Rank tracking: hides or shows active triangle `t` of node `owner`, noting its state at
+    /// the last report the first time it moves.
+    fn set_hidden_by_rank(&mut self, t: u32, owner: u32, hidden: bool) {
+        let was = self.hidden_set.contains(&t);
+        if was == hidden {
+            return;
+        }
+        self.hidden_was.entry(t).or_insert((was, owner));
+        if hidden {
+            self.hidden_set.insert(t);
+            self.repeats.hidden += 1;
+        } else {
+            self.hidden_set.remove(&t);
+            self.repeats.hidden -= 1;
+        }
+    }
+
+    /// Rank tracking: compares again every group with a member corner under a node that
+    /// joined the boundary since the last report (a corner's current node changes only so),
+    /// and every group made since.
+    fn settle_rank_repeats(&mut self) {
+        if !self.watched.is_empty() {
+            for &(id, _) in &self.node_journal {
+                let joined = match self.store.label_if_resident_mut(id) {
+                    Some(label) => label.state == NodeState::Boundary,
+                    None => false,
+                };
+                if !joined {
+                    continue;
+                }
+                let (begin, end) = (self.store.leaf_begin(id), self.store.node(id).leaf_end);
+                self.repeats.dirty.extend(
+                    self.watched
+                        .range((begin, 0)..(end, 0))
+                        .map(|&(_, owner)| owner),
+                );
+            }
+        }
+        if self.repeats.dirty.is_empty() {
+            return;
+        }
+        let mut dirty = std::mem::take(&mut self.repeats.dirty);
+        dirty.sort_unstable();
+        dirty.dedup();
+        let mut corners: Vec<[u32; 3]> = Vec::new();
+        for &owner in &dirty {
+            let Some(groups) = self.repeats.groups.get(&owner).cloned() else {
+                continue;
+            };
+            let owner_node = self.store.node(owner);
+            for group in &groups {
+                corners.clear();
+                for &t in group {
+                    let leaves = self.store.triangle_corners(t);
+                    corners.push(leaves.map(|r| self.current_corner(r, owner, &owner_node)));
+                }
+                let verdicts: Vec<bool> = hidden_members(&corners).collect();
+                for (&t, hidden) in group.iter().zip(verdicts) {
+                    self.set_hidden_by_rank(t, owner, hidden);
+                }
+            }
+        }
+        dirty.clear();
+        self.repeats.dirty = dirty;
     }
 
     /// Moves active triangles out of the tail of the slot array into free slots below, and
@@ -1033,16 +1217,21 @@ impl Cut {
     /// down through active nodes. Also returns the first node of the way down: the child of
     /// that ancestor which holds `rank`.
     fn boundary_node_of(&self, rank: u32, near: u32) -> (u32, u32) {
-        let mut node = self.store.parent(near);
-        while !self.store.supports_rank(node, rank) {
-            node = self.store.parent(node);
-        }
-        // The ancestor is active, being above `near`.
-        let first = self.store.child_supporting(node, rank);
+        let first = self.outside_child(rank, near);
         let boundary = self
             .store
             .descend(first, rank, |id| self.store.state(id) == NodeState::Active);
         (first, boundary)
+    }
+
+    /// The child, holding `rank`, of the first ancestor of `near` that supports `rank` (an
+    /// active node: `near` is active and does not support `rank`).
+    fn outside_child(&self, rank: u32, near: u32) -> u32 {
+        let mut node = self.store.parent(near);
+        while !self.store.supports_rank(node, rank) {
+            node = self.store.parent(node);
+        }
+        self.store.child_supporting(node, rank)
     }
 
     fn fold_would_flip(&self, id: u32) -> bool {
@@ -1339,7 +1528,12 @@ impl Cut {
             expected.sort_unstable_by_key(|t| (key(t.corners), t.triangle));
             expected.dedup_by_key(|t| key(t.corners));
             expected.sort_unstable();
-            let (actual, _) = self.triangles_from_ranks();
+            let actual = self.triangles_from_ranks();
+            if self.repeats.hidden as usize != self.hidden_set.len()
+                || actual.len() != self.active_triangle_count() as usize
+            {
+                return Err("the hidden repeat count is wrong".into());
+            }
             return if actual == expected {
                 Ok(())
             } else {

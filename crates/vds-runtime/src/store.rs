@@ -1384,6 +1384,13 @@ impl NodeStore {
         self.resident(p.slot).topology[p.local as usize].parent
     }
 
+    /// The first leaf rank of resident node `id`.
+    #[inline]
+    pub fn leaf_begin(&self, id: u32) -> u32 {
+        let p = self.expect_place(id);
+        self.resident(p.slot).leaf_begin[p.local as usize]
+    }
+
     /// True when resident node `id` supports the vertex of leaf rank `rank`.
     #[inline]
     #[track_caller]

@@ -19,6 +19,8 @@ struct Mirror {
     active: HashMap<u32, (u32, u32)>,
     /// Current node of every leaf rank (the whole model: this is a test).
     node_of_rank: Vec<u32>,
+    /// Active triangles hidden as repeats.
+    hidden: HashSet<u32>,
 }
 
 impl Mirror {
@@ -26,6 +28,7 @@ impl Mirror {
         Mirror {
             active: HashMap::new(),
             node_of_rank: vec![0; vertices],
+            hidden: HashSet::new(),
         }
     }
 
@@ -38,11 +41,15 @@ impl Mirror {
         let cut = runtime.cut();
         let (mut added, mut removed) = (0, 0);
         for &id in &frame_changes.folded {
-            let (_, count) = self
+            let (first, count) = self
                 .active
                 .remove(&id)
                 .unwrap_or_else(|| panic!("{what}: node {id} folded but was not active"));
             removed += count;
+            // Hidden repeats leave with their node.
+            for t in first..first + count {
+                self.hidden.remove(&t);
+            }
         }
         for &id in &frame_changes.unfolded {
             let node = cut.node(id);
@@ -56,14 +63,29 @@ impl Mirror {
             let node = cut.node(id);
             self.node_of_rank[node.leaf_begin as usize..node.leaf_end as usize].fill(id);
         }
+        let active = |t: u32| self.active.values().any(|&(f, c)| (f..f + c).contains(&t));
+        for &t in &frame_changes.hidden {
+            assert!(active(t), "{what}: triangle {t} hidden but not active");
+        }
+        for &t in &frame_changes.hidden {
+            assert!(self.hidden.insert(t), "{what}: triangle {t} hidden twice");
+        }
+        for &t in &frame_changes.shown {
+            assert!(
+                self.hidden.remove(&t),
+                "{what}: triangle {t} shown but not hidden"
+            );
+        }
         assert_eq!(frame_changes.added, added, "{what}: added");
         assert_eq!(frame_changes.removed, removed, "{what}: removed");
         (added, removed)
     }
 
-    /// What the mirror draws: every subtri of its active nodes with corners from the rank
-    /// map, each class of same-winding repeats once (its smallest triangle index).
-    fn drawn(&self, runtime: &Runtime) -> Vec<ActiveTriangle> {
+    /// What the mirror draws: every subtri of its active nodes but those it was told are
+    /// hidden, with corners from the rank map; and what it should draw by a recomputation of
+    /// repeats from all of them (each class of same-winding repeats once, by its smallest
+    /// triangle index).
+    fn drawn(&self, runtime: &Runtime) -> (Vec<ActiveTriangle>, Vec<ActiveTriangle>) {
         let store = runtime.cut().store();
         let mut by_class: HashMap<[u32; 3], u32> = HashMap::new();
         let mut all = Vec::new();
@@ -85,13 +107,19 @@ impl Mirror {
                 ));
             }
         }
-        let mut drawn: Vec<_> = all
+        let mut told: Vec<_> = all
+            .iter()
+            .filter(|(_, t)| !self.hidden.contains(&t.triangle))
+            .map(|&(_, t)| t)
+            .collect();
+        let mut recomputed: Vec<_> = all
             .into_iter()
             .filter(|(class, t)| by_class[class] == t.triangle)
             .map(|(_, t)| t)
             .collect();
-        drawn.sort_unstable();
-        drawn
+        told.sort_unstable();
+        recomputed.sort_unstable();
+        (told, recomputed)
     }
 }
 
@@ -140,9 +168,14 @@ fn node_changes_alone_let_a_renderer_draw_the_cut_and_it_is_lazy_trackings_cut()
                 "{what}: the mirror's active nodes differ"
             );
             let drawn = ranks.cut_mut().active_triangles();
+            let (told, recomputed) = mirror.drawn(&ranks);
             assert!(
-                mirror.drawn(&ranks) == drawn,
-                "{what}: the mirror draws other triangles"
+                recomputed == drawn,
+                "{what}: the cut draws other triangles than its node changes give"
+            );
+            assert!(
+                told == drawn,
+                "{what}: the repeats the cut reported hidden and shown are not its repeats"
             );
             let mut lazily = lazy.cut_mut().active_triangles();
             lazily.sort_unstable();
