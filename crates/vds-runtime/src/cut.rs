@@ -485,8 +485,12 @@ impl Cut {
         if self.tracking == CornerTracking::Ranks {
             self.active_triangle_count += node.subtri_count;
             self.count_net(id, i64::from(node.subtri_count));
-            if node.subtri_count > 1 {
-                self.group_by_ranks(id, &node);
+            self.note_ranks_moved(node.leaf_begin, node.leaf_end);
+            if node.subtri_count > 1
+                && !self.store.is_unrepeated(id)
+                && !self.group_by_ranks(id, &node)
+            {
+                self.store.mark_unrepeated(id);
             }
             return Ok(());
         }
@@ -575,6 +579,7 @@ impl Cut {
             self.active_triangle_count -= node.subtri_count;
             self.count_net(id, -i64::from(node.subtri_count));
             self.ungroup_by_ranks(id);
+            self.note_ranks_moved(node.leaf_begin, node.leaf_end);
         } else {
             for t in node.subtri_begin..node.subtri_begin + node.subtri_count {
                 let slot = self.store.triangle_slot(id, t);
@@ -922,8 +927,8 @@ impl Cut {
     /// in `id`'s own cut, [`crate::repeats`]), registered and watched. Their corners inside
     /// `id` are its children, so subtris whose inside corners differ cannot repeat: corners
     /// outside `id` (an ancestor walk each) are found only for subtris that share their
-    /// inside corners with another.
-    fn group_by_ranks(&mut self, id: u32, node: &Node) {
+    /// inside corners with another. Returns whether any group was found.
+    fn group_by_ranks(&mut self, id: u32, node: &Node) -> bool {
         let mut starts = std::mem::take(&mut self.child_starts);
         starts.clear();
         starts.extend(node.children().map(|c| self.store.leaf_begin(c)));
@@ -959,11 +964,11 @@ impl Cut {
         self.own_corners = own;
         self.child_starts = starts;
         if candidates.is_empty() {
-            return;
+            return false;
         }
         let groups = groups_of(&mut candidates);
         if groups.is_empty() {
-            return;
+            return false;
         }
         for &t in groups.iter().flatten() {
             for rank in self.store.triangle_corners(t) {
@@ -972,6 +977,7 @@ impl Cut {
         }
         self.repeats.groups.insert(id, groups);
         self.repeats.dirty.push(id);
+        true
     }
 
     /// Rank tracking: forgets folded node `id`'s groups; their hidden members leave with it.
@@ -1004,27 +1010,22 @@ impl Cut {
         }
     }
 
-    /// Rank tracking: compares again every group with a member corner under a node that
-    /// joined the boundary since the last report (a corner's current node changes only so),
-    /// and every group made since.
-    fn settle_rank_repeats(&mut self) {
+    /// Rank tracking: the current node of every leaf rank in `begin..end` has changed (a node
+    /// holding them folded or unfolded): groups with a corner there are compared again.
+    #[inline]
+    fn note_ranks_moved(&mut self, begin: u32, end: u32) {
         if !self.watched.is_empty() {
-            for &(id, _) in &self.node_journal {
-                let joined = match self.store.label_if_resident_mut(id) {
-                    Some(label) => label.state == NodeState::Boundary,
-                    None => false,
-                };
-                if !joined {
-                    continue;
-                }
-                let (begin, end) = (self.store.leaf_begin(id), self.store.node(id).leaf_end);
-                self.repeats.dirty.extend(
-                    self.watched
-                        .range((begin, 0)..(end, 0))
-                        .map(|&(_, owner)| owner),
-                );
-            }
+            self.repeats.dirty.extend(
+                self.watched
+                    .range((begin, 0)..(end, 0))
+                    .map(|&(_, owner)| owner),
+            );
         }
+    }
+
+    /// Rank tracking: compares again the groups whose corners moved, and every group made
+    /// since the last comparison.
+    fn settle_rank_repeats(&mut self) {
         if self.repeats.dirty.is_empty() {
             return;
         }

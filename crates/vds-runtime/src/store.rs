@@ -298,6 +298,9 @@ struct ResidentPage {
     labels: Vec<NodeLabel>,
     /// One bit per node: its children were checked against it ([`NodeStore::load_children`]).
     checked: Vec<u64>,
+    /// One bit per node: no two of its subtris can ever repeat (found when it last unfolded
+    /// under rank tracking; a fact of the tree, kept while the page is resident).
+    unrepeated: Vec<u64>,
     corners: Vec<[u32; 3]>,
     parts: Vec<u32>,
     /// Per triangle: the cut's slot holding it while it is active, or [`NIL`]; empty when
@@ -326,6 +329,7 @@ impl ResidentPage {
             topology: Vec::with_capacity(n),
             labels: vec![NodeLabel::INACTIVE; n],
             checked: vec![0; n.div_ceil(64)],
+            unrepeated: vec![0; n.div_ceil(64)],
             corners: Vec::with_capacity(t),
             parts: Vec::with_capacity(t),
             triangle_slot: if triangle_slots {
@@ -385,6 +389,7 @@ impl ResidentPage {
             + held(&self.topology)
             + held(&self.labels)
             + held(&self.checked)
+            + held(&self.unrepeated)
             + held(&self.corners)
             + held(&self.parts)
             + held(&self.triangle_slot)) as u64
@@ -402,7 +407,7 @@ impl ResidentPage {
                     + size_of::<u32>()
                     + size_of::<Topology>()
                     + size_of::<NodeLabel>())
-            + nodes.div_ceil(64) * size_of::<u64>()
+            + 2 * nodes.div_ceil(64) * size_of::<u64>()
             + triangles * per_triangle) as u64
     }
 }
@@ -1147,6 +1152,22 @@ impl NodeStore {
             Err(LoadError::OverBudget) => Ok(false),
             Err(LoadError::File(e)) => Err(e),
         }
+    }
+
+    /// Whether resident node `id` is known to have no subtris that can repeat
+    /// ([`NodeStore::mark_unrepeated`]).
+    #[inline]
+    pub(crate) fn is_unrepeated(&self, id: u32) -> bool {
+        let p = self.expect_place(id);
+        self.resident(p.slot).unrepeated[(p.local / 64) as usize] & (1 << (p.local % 64)) != 0
+    }
+
+    /// Records that no two subtris of resident node `id` can repeat, so that its next unfold
+    /// need not group them again.
+    #[inline]
+    pub(crate) fn mark_unrepeated(&mut self, id: u32) {
+        let p = self.expect_place(id);
+        self.resident_mut(p.slot).unrepeated[(p.local / 64) as usize] |= 1 << (p.local % 64);
     }
 
     fn is_checked(&self, id: u32) -> bool {
