@@ -164,15 +164,19 @@ pub struct Changes {
     /// stopped being active).
     pub folded: Vec<u32>,
     /// With [`CornerTracking::Ranks`]: active triangles hidden now as repeats that were drawn
-    /// (or not active) at the last report.
-    pub hidden: Vec<u32>,
-    /// With [`CornerTracking::Ranks`]: active triangles drawn now that were hidden as repeats.
-    pub shown: Vec<u32>,
+    /// (or not active) at the last report, each with the node it is a subtri of.
+    pub hidden: Vec<(u32, u32)>,
+    /// With [`CornerTracking::Ranks`]: active triangles drawn now that were hidden as repeats,
+    /// each with the node it is a subtri of.
+    pub shown: Vec<(u32, u32)>,
     /// With [`CornerTracking::Ranks`]: the nodes on the boundary now that were not.
     /// Boundary nodes' leaf ranges are disjoint, and every leaf rank whose current node
     /// changed lies in one of theirs: a rank → node map is kept current by filling each of
     /// their ranges with the node.
     pub joined_boundary: Vec<u32>,
+    /// With [`CornerTracking::Ranks`]: the nodes on the boundary before that are not now
+    /// (their vertex is no longer in the mesh).
+    pub left_boundary: Vec<u32>,
 }
 
 /// One active node as the per-frame traversal reads it: a copy of its [`Hot`] record and its
@@ -850,8 +854,10 @@ impl Cut {
                 NodeState::Boundary => changes.joined_boundary.push(id),
                 NodeState::Inactive => {}
             }
-            if before == NodeState::Active {
-                changes.folded.push(id);
+            match before {
+                NodeState::Active => changes.folded.push(id),
+                NodeState::Boundary => changes.left_boundary.push(id),
+                NodeState::Inactive => {}
             }
         }
         self.node_journal = journal;
@@ -869,9 +875,9 @@ impl Cut {
                 .label_if_resident_mut(owner)
                 .is_some_and(|l| l.state == NodeState::Active);
             if now && !was {
-                changes.hidden.push(t);
+                changes.hidden.push((t, owner));
             } else if !now && was && owner_active {
-                changes.shown.push(t);
+                changes.shown.push((t, owner));
             }
         }
         changes.hidden.sort_unstable();

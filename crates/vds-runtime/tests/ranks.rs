@@ -21,6 +21,8 @@ struct Mirror {
     node_of_rank: Vec<u32>,
     /// Active triangles hidden as repeats.
     hidden: HashSet<u32>,
+    /// Boundary nodes (the vertices a renderer holds).
+    boundary: HashSet<u32>,
 }
 
 impl Mirror {
@@ -29,6 +31,7 @@ impl Mirror {
             active: HashMap::new(),
             node_of_rank: vec![0; vertices],
             hidden: HashSet::new(),
+            boundary: HashSet::from([0]),
         }
     }
 
@@ -59,18 +62,30 @@ impl Mirror {
             assert!(before.is_none(), "{what}: node {id} unfolded twice");
             added += node.subtri_count;
         }
+        for &id in &frame_changes.left_boundary {
+            assert!(
+                self.boundary.remove(&id),
+                "{what}: node {id} left but was not there"
+            );
+        }
         for &id in &frame_changes.joined_boundary {
+            assert!(self.boundary.insert(id), "{what}: node {id} joined twice");
             let node = cut.node(id);
             self.node_of_rank[node.leaf_begin as usize..node.leaf_end as usize].fill(id);
         }
         let active = |t: u32| self.active.values().any(|&(f, c)| (f..f + c).contains(&t));
-        for &t in &frame_changes.hidden {
+        for &(t, owner) in &frame_changes.hidden {
             assert!(active(t), "{what}: triangle {t} hidden but not active");
+            let (first, count) = self.active[&owner];
+            assert!(
+                (first..first + count).contains(&t),
+                "{what}: triangle {t} is not a subtri of node {owner}"
+            );
         }
-        for &t in &frame_changes.hidden {
+        for &(t, _) in &frame_changes.hidden {
             assert!(self.hidden.insert(t), "{what}: triangle {t} hidden twice");
         }
-        for &t in &frame_changes.shown {
+        for &(t, _) in &frame_changes.shown {
             assert!(
                 self.hidden.remove(&t),
                 "{what}: triangle {t} shown but not hidden"
@@ -166,6 +181,11 @@ fn node_changes_alone_let_a_renderer_draw_the_cut_and_it_is_lazy_trackings_cut()
             assert!(
                 mirrored == active,
                 "{what}: the mirror's active nodes differ"
+            );
+            let boundary: HashSet<u32> = ranks.cut().boundary().into_iter().collect();
+            assert!(
+                mirror.boundary == boundary,
+                "{what}: the mirror's boundary differs"
             );
             let drawn = ranks.cut_mut().active_triangles();
             let (told, recomputed) = mirror.drawn(&ranks);
