@@ -4,6 +4,8 @@
 //! - [`gpu`]: device creation (headless or for a surface).
 //! - [`update`]: the CPU-side batch of changes ([`CutUpdate`]) collected after an adjust by a
 //!   [`VertexPool`], which gives GPU vertices only to the nodes the cut uses.
+//! - [`ranks`]: the same for a rank-tracked cut ([`RankMirror`]): vertices for boundary
+//!   nodes, a rank → vertex map edited by range fills, and slots of original corners.
 //! - [`cut_renderer`]: buffers, uploads, the pipeline and `shaders/cut.wgsl`.
 //! - [`target`]: offscreen targets, readback, PNG files.
 //! - [`mod@pick`]: what a pixel shows (part id and world position), by an id buffer.
@@ -17,6 +19,7 @@
 pub mod cut_renderer;
 pub mod gpu;
 pub mod pick;
+pub mod ranks;
 pub mod target;
 pub mod update;
 
@@ -31,6 +34,7 @@ pub fn target_format() -> wgpu::TextureFormat {
     cut_renderer::COLOR_FORMAT
 }
 pub use gpu::Gpu;
+pub use ranks::RankMirror;
 pub use target::{Image, Offscreen};
 pub use update::{CutUpdate, GpuNode, VertexPool};
 

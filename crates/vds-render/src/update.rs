@@ -77,6 +77,15 @@ pub struct CutUpdate {
     pub vertex_count: u32,
     /// The deepest node depth seen (for the depth colouring).
     pub max_depth: u32,
+    /// For a rank-tracked cut ([`crate::RankMirror`]): runs of the rank map's block words,
+    /// first block and words; slots then hold leaf ranks, not vertices.
+    pub rank_blocks: Vec<(u32, Vec<u32>)>,
+    /// Runs of the rank map's divided blocks' words: first word, words.
+    pub rank_words: Vec<(u32, Vec<u32>)>,
+    /// Blocks of the rank map (0: slots hold vertices).
+    pub rank_block_count: u32,
+    /// Words of divided blocks the rank map holds after this update.
+    pub rank_word_count: u32,
 }
 
 impl CutUpdate {
@@ -84,7 +93,11 @@ impl CutUpdate {
     pub fn bytes(&self) -> u64 {
         let nodes: usize = self.nodes.iter().map(|(_, n)| n.len()).sum();
         let slots: usize = self.slots.iter().map(|(_, s)| s.len()).sum();
-        (nodes * size_of::<GpuNode>() + slots * 16) as u64
+        let words: usize = (self.rank_blocks.iter())
+            .chain(&self.rank_words)
+            .map(|(_, w)| w.len())
+            .sum();
+        (nodes * size_of::<GpuNode>() + slots * 16 + words * 4) as u64
     }
 
     /// Merges `later` into this update (for a queue of batches applied together): later node
@@ -93,6 +106,10 @@ impl CutUpdate {
         self.nodes.extend(later.nodes);
         self.vertex_nodes.extend(later.vertex_nodes);
         self.slots.extend(later.slots);
+        self.rank_blocks.extend(later.rank_blocks);
+        self.rank_words.extend(later.rank_words);
+        self.rank_block_count = later.rank_block_count;
+        self.rank_word_count = self.rank_word_count.max(later.rank_word_count);
         self.slot_count = later.slot_count;
         self.vertex_count = self.vertex_count.max(later.vertex_count);
         self.max_depth = self.max_depth.max(later.max_depth);
@@ -121,7 +138,7 @@ impl CutUpdate {
             slots: vec![(0, slots)],
             slot_count: triangles.len() as u32,
             vertex_count: positions.len() as u32,
-            max_depth: 0,
+            ..CutUpdate::default()
         }
     }
 }
@@ -312,7 +329,7 @@ impl VertexPool {
 
 /// Sorted, distinct indices as ranges, joined where the gap between them is at most
 /// [`JOIN_GAP`].
-fn runs(sorted: &[u32]) -> impl Iterator<Item = Range<u32>> + '_ {
+pub(crate) fn runs(sorted: &[u32]) -> impl Iterator<Item = Range<u32>> + '_ {
     let mut k = 0;
     std::iter::from_fn(move || {
         let &start = sorted.get(k)?;
