@@ -1,9 +1,11 @@
 //! The GPU mirror of a cut and the pipeline that draws it.
 //!
-//! Six bindings (see `shaders/cut.wgsl`): per-frame uniforms, vertex records (`vec4` proxy
+//! Eight bindings (see `shaders/cut.wgsl`): per-frame uniforms, vertex records (`vec4` proxy
 //! and error radius, `vec2<u32>` depth and normal, `vec4` sphere) indexed by the vertex
-//! indices a [`crate::update::VertexPool`] hands out, the slot array, and the per-part looks
-//! ([`PartLook`]: colour, hidden, picked). Updates write only
+//! indices a [`crate::update::VertexPool`] or [`crate::RankMirror`] hands out, the slot
+//! array, the per-part looks ([`PartLook`]: colour, hidden, picked), and for a rank-tracked
+//! cut the rank → vertex map's blocks (after a header word holding their count, 0 when
+//! slots hold vertices) and divided blocks' words. Updates write only
 //! the runs a [`CutUpdate`] carries; the vertex buffers and the slot array grow by
 //! reallocation (the old contents copied on the GPU), and the slot array is split into chunks
 //! no larger than the adapter can bind.
@@ -216,6 +218,8 @@ impl CutPipeline {
                 storage(3),
                 storage(4),
                 storage(5),
+                storage(6),
+                storage(7),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -319,6 +323,25 @@ pub struct GpuCut {
     parts: wgpu::Buffer,
     /// Entries of `parts` in use.
     part_count: u32,
+    /// The rank → vertex map of a rank-tracked cut: a header word (the block count; 0 while
+    /// slots hold vertices), then the block words; and the divided blocks' words. Each holds
+    /// one word at least: bindings cannot be empty.
+    rank_blocks: wgpu::Buffer,
+    rank_words: wgpu::Buffer,
+    rank_block_count: u32,
+}
+
+/// A buffer of `words` 32-bit words (one at least; wgpu zero-initialises it), kept on growth
+/// (copied on the GPU).
+fn word_buffer(gpu: &Gpu, label: &str, words: u64) -> wgpu::Buffer {
+    gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: words.max(1) * 4,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    })
 }
 
 /// A buffer for `count` packed part looks (room for one at least: bindings cannot be empty).
@@ -362,7 +385,29 @@ impl GpuCut {
             max_depth: 0,
             parts: part_buffer(gpu, 1),
             part_count: 0,
+            rank_blocks: word_buffer(gpu, "rank blocks", 1),
+            rank_words: word_buffer(gpu, "rank words", 1),
+            rank_block_count: 0,
         }
+    }
+
+    /// Grows a word buffer of the rank map to hold `words` (by at least 1.5×, contents copied
+    /// on the GPU); true when it was reallocated.
+    fn reserve_words(gpu: &Gpu, buffer: &mut wgpu::Buffer, label: &str, words: u64) -> bool {
+        let have = buffer.size() / 4;
+        if words <= have {
+            return false;
+        }
+        let grown = word_buffer(gpu, label, words.max(have * 3 / 2));
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("grow rank map"),
+            });
+        encoder.copy_buffer_to_buffer(buffer, 0, &grown, 0, buffer.size());
+        gpu.queue.submit([encoder.finish()]);
+        *buffer = grown;
+        true
     }
 
     /// Sets how each part is drawn, by part id (ids past `looks` take the default look:
@@ -463,6 +508,8 @@ impl GpuCut {
             slots,
             &self.node_spheres,
             &self.parts,
+            &self.rank_blocks,
+            &self.rank_words,
         ];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
@@ -494,7 +541,7 @@ impl GpuCut {
     ) -> Result<u64, RenderError> {
         self.reserve_vertices(gpu, pipeline, update.vertex_count)?;
         self.reserve(gpu, pipeline, update.slot_count);
-        let mut bytes = 0u64;
+        let mut bytes = self.apply_rank_map(gpu, pipeline, update)?;
         for (first, records) in &update.nodes {
             if u64::from(*first) + records.len() as u64 > u64::from(self.vertex_capacity) {
                 return Err(RenderError::TooLarge(format!(
@@ -554,6 +601,60 @@ impl GpuCut {
         }
         self.slot_count = update.slot_count;
         self.max_depth = self.max_depth.max(update.max_depth);
+        Ok(bytes)
+    }
+
+    /// Writes the rank map's runs of `update` (header word first when the block count
+    /// changes); returns the bytes written.
+    fn apply_rank_map(
+        &mut self,
+        gpu: &Gpu,
+        pipeline: &CutPipeline,
+        update: &CutUpdate,
+    ) -> Result<u64, RenderError> {
+        let limit = gpu.device.limits().max_storage_buffer_binding_size / 4;
+        let blocks = 1 + u64::from(update.rank_block_count);
+        let words = u64::from(update.rank_word_count);
+        if blocks > limit || words > limit {
+            return Err(RenderError::TooLarge(format!(
+                "a rank map of {blocks} blocks and {words} words; the adapter binds at most \
+                 {limit} words"
+            )));
+        }
+        let grew = Self::reserve_words(gpu, &mut self.rank_blocks, "rank blocks", blocks)
+            | Self::reserve_words(gpu, &mut self.rank_words, "rank words", words);
+        if grew {
+            self.rebind(gpu, pipeline);
+        }
+        let mut bytes = 0;
+        if update.rank_block_count != self.rank_block_count {
+            self.rank_block_count = update.rank_block_count;
+            gpu.queue.write_buffer(
+                &self.rank_blocks,
+                0,
+                bytemuck::bytes_of(&self.rank_block_count),
+            );
+            bytes += 4;
+        }
+        for (buffer, offset, runs) in [
+            (&self.rank_blocks, 1, &update.rank_blocks),
+            (&self.rank_words, 0, &update.rank_words),
+        ] {
+            for (first, values) in runs {
+                let end = u64::from(*first) + offset + values.len() as u64;
+                if end * 4 > buffer.size() {
+                    return Err(RenderError::TooLarge(format!(
+                        "rank map word {end} is beyond the update's counts"
+                    )));
+                }
+                gpu.queue.write_buffer(
+                    buffer,
+                    (u64::from(*first) + offset) * 4,
+                    bytemuck::cast_slice(values),
+                );
+                bytes += values.len() as u64 * 4;
+            }
+        }
         Ok(bytes)
     }
 

@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use vds_build::{build_tree, snap_to_grid, tree_content};
 use vds_format::{VdtFile, WriteOptions, encode};
 use vds_import::Scene;
-use vds_render::{CutPipeline, CutUpdate, Gpu, GpuCut, Image, Offscreen, Style, VertexPool};
+use vds_render::{
+    CutPipeline, CutUpdate, Gpu, GpuCut, Image, Offscreen, RankMirror, Style, VertexPool,
+};
 use vds_runtime::{Camera, CornerTracking, Criteria, FrustumMode, Goal, Runtime, Viewpoint};
 
 fn shared(name: &str) -> PathBuf {
@@ -364,4 +366,77 @@ fn vertex_pool_holds_the_cut_and_draws_like_a_fresh_upload() {
     let from_scratch = renderer.draw(&fresh, other, &Style::default());
     assert!(covered_pixels(&from_scratch) > 5_000);
     assert_eq!(differing_pixels(&incremental, &from_scratch, 0), 0);
+}
+
+/// A rank-tracked cut drawn through a [`RankMirror`] (slots of original ranks, mapped to
+/// vertices in the shader) gives exactly the image of the same cut drawn through slot
+/// mirroring, frame after frame of a camera path with jumps, both mirrors updated
+/// incrementally.
+#[test]
+fn rank_tracked_cuts_draw_exactly_as_slot_mirrored_cuts() {
+    let renderer = Renderer::new();
+    let criteria = Criteria::default();
+    let style = Style {
+        cull_outside: true,
+        ..Style::default()
+    };
+    for name in ["cow.obj", "as1_assembly.obj", "bunny.obj"] {
+        let (_, bytes) = build(vds_import::load_file(shared(name), &Default::default()).unwrap());
+        let mut slots = runtime(&bytes);
+        let mut ranks = Runtime::new(
+            Box::new(VdtFile::from_bytes(bytes.clone()).unwrap()),
+            CornerTracking::Ranks,
+        )
+        .unwrap();
+        let (mut slot_gpu, mut rank_gpu) = (GpuCut::new(&renderer.gpu), GpuCut::new(&renderer.gpu));
+        let (mut pool, mut mirror) = (VertexPool::new(), RankMirror::new());
+        let first = mirror.collect(ranks.cut_mut(), &RankMirror::first_changes());
+        rank_gpu
+            .apply(&renderer.gpu, &renderer.pipeline, &first)
+            .unwrap();
+        let froms = [
+            [1.0, 0.4, 1.3],
+            [0.9, 0.5, 1.1],
+            [-1.0, 0.2, 0.3],
+            [-0.8, -0.3, 0.6],
+        ];
+        for (step, (from, zoom, t)) in froms
+            .into_iter()
+            .zip([1.0f32, 0.6, 0.3, 1.4])
+            .zip([1.0f32, 3.0, 0.5, 6.0])
+            .map(|((f, z), t)| (f, z, t))
+            .enumerate()
+        {
+            let root = slots.cut().node(0);
+            let camera = Camera::framing(
+                root.sphere_center,
+                root.sphere_radius * zoom,
+                from,
+                320,
+                240,
+            );
+            let view = Viewpoint::Camera(camera);
+            let frame = slots.adjust(&view, &criteria, Goal::Threshold(t)).unwrap();
+            let update = pool.collect(slots.cut_mut(), &frame.changes);
+            slot_gpu
+                .apply(&renderer.gpu, &renderer.pipeline, &update)
+                .unwrap();
+            let frame = ranks.adjust(&view, &criteria, Goal::Threshold(t)).unwrap();
+            let update = mirror.collect(ranks.cut_mut(), &frame.changes);
+            rank_gpu
+                .apply(&renderer.gpu, &renderer.pipeline, &update)
+                .unwrap();
+            let by_slots = renderer.draw(&slot_gpu, camera, &style);
+            let by_ranks = renderer.draw(&rank_gpu, camera, &style);
+            assert!(
+                covered_pixels(&by_slots) > 2_000,
+                "{name} step {step}: the model is not in view"
+            );
+            assert_eq!(
+                differing_pixels(&by_slots, &by_ranks, 0),
+                0,
+                "{name} step {step}"
+            );
+        }
+    }
 }

@@ -43,6 +43,23 @@ struct Frame {
 @group(0) @binding(4) var<storage, read> node_spheres: array<vec4<f32>>;
 // Per part: x = linear RGBA8 colour (alpha 0: the file gives none), y = flags.
 @group(0) @binding(5) var<storage, read> parts: array<vec2<u32>>;
+// A rank-tracked cut (`RankMirror` in ranks.rs) has slots of leaf ranks, mapped to vertices
+// here: word 0 of `rank_blocks` is the block count (0: slots hold vertices), then a word per
+// block of RANK_BLOCK ranks, either UNIFORM | the vertex of the whole block or the index of
+// the block's own words in `rank_words`.
+@group(0) @binding(6) var<storage, read> rank_blocks: array<u32>;
+@group(0) @binding(7) var<storage, read> rank_words: array<u32>;
+
+const RANK_BLOCK_SHIFT: u32 = 8u;
+const UNIFORM: u32 = 0x80000000u;
+
+fn vertex_of_rank(rank: u32) -> u32 {
+    let word = rank_blocks[1u + (rank >> RANK_BLOCK_SHIFT)];
+    if ((word & UNIFORM) != 0u) {
+        return word & ~UNIFORM;
+    }
+    return rank_words[(word << RANK_BLOCK_SHIFT) + (rank & ((1u << RANK_BLOCK_SHIFT) - 1u))];
+}
 
 const PART_HIDDEN: u32 = 1u;
 const PART_PICKED: u32 = 2u;
@@ -122,7 +139,10 @@ fn screen_error(id: u32) -> f32 {
 @vertex
 fn vs_main(@builtin(vertex_index) index: u32) -> VertexOut {
     var out: VertexOut;
-    let slot = slots[index / 3u];
+    var slot = slots[index / 3u];
+    if (rank_blocks[0] != 0u && slot.x != 0xFFFFFFFFu) {
+        slot = vec4<u32>(vertex_of_rank(slot.x), vertex_of_rank(slot.y), vertex_of_rank(slot.z), slot.w);
+    }
     let k = index % 3u;
     out.barycentric = vec3<f32>(f32(k == 0u), f32(k == 1u), f32(k == 2u));
     let look = part_look(slot.w);
