@@ -13,8 +13,11 @@
 //! - **Slots**: each active node's subtris as one run of slots holding their *original*
 //!   corners as leaf ranks and their part, written once when the node unfolds and cleared
 //!   when it folds; the shader maps each rank to its current vertex. A repeat the cut hides
-//!   has its slot cleared, and written again when shown. Runs are allocated in power-of-two
-//!   sizes from free lists, so a fold's run serves a later unfold of the same size class.
+//!   has its slot cleared, and written again when shown. A folded node's run goes to a free
+//!   list by its length, for the next unfold of a node with as many subtris; when fewer
+//!   than half the slots are in runs, the runs are packed to the front and the array cut
+//!   short (every live slot is written again then: the cost of that is at most the slots
+//!   freed since the last packing, so it stays proportional to the changes).
 //!
 //! Work per frame follows the nodes that change: a vertex, a range fill and a run of slots per
 //! node, never a pass over the active triangles.
@@ -39,10 +42,11 @@ const NO_VERTEX: u32 = u32::MAX;
 struct Run {
     start: u32,
     count: u32,
-    /// The run holds `1 << class` slots.
-    class: u32,
     subtri_begin: u32,
 }
+
+/// Slot arrays shorter than this are never packed.
+const SMALLEST_PACKED: usize = 4096;
 
 /// The CPU side of a GPU mirror of a rank-tracked cut (see the module documentation). Each
 /// [`RankMirror::collect`] turns one frame's [`Changes`] into a [`CutUpdate`].
@@ -62,8 +66,10 @@ pub struct RankMirror {
     dirty_blocks: Vec<u32>,
     dirty_words: Vec<u32>,
     runs: FxHashMap<u32, Run>,
-    /// Free runs by size class.
-    free_runs: Vec<Vec<u32>>,
+    /// Free runs' starts by length.
+    free_runs: FxHashMap<u32, Vec<u32>>,
+    /// Slots in runs.
+    live_slots: usize,
     /// What each slot holds (ranks and part, or [`EMPTY_SLOT`]).
     slots: Vec<[u32; 4]>,
     dirty_slots: Vec<u32>,
@@ -86,6 +92,23 @@ impl RankMirror {
             joined_boundary: vec![0],
             ..Changes::default()
         }
+    }
+
+    /// Starts this mirror over with the whole of `cut` as it is: the cut's pending changes are
+    /// taken (and dropped: the update holds everything), so that the next
+    /// [`RankMirror::collect`] continues from here.
+    pub fn everything(&mut self, cut: &mut Cut) -> CutUpdate {
+        *self = RankMirror::new();
+        cut.take_changes();
+        let mut unfolded: Vec<u32> = cut.active_entries().iter().map(|e| e.id).collect();
+        unfolded.sort_unstable();
+        let changes = Changes {
+            joined_boundary: cut.boundary(),
+            unfolded,
+            hidden: cut.hidden_repeats(),
+            ..Changes::default()
+        };
+        self.collect(cut, &changes)
     }
 
     /// Vertices in use.
@@ -123,7 +146,8 @@ impl RankMirror {
                     self.hidden.remove(&t);
                 }
             }
-            self.free_runs[run.class as usize].push(run.start);
+            self.free_runs.entry(run.count).or_default().push(run.start);
+            self.live_slots -= run.count as usize;
         }
         for &id in &changes.left_boundary {
             if let Some(v) = self.vertex_of.remove(&id) {
@@ -150,22 +174,17 @@ impl RankMirror {
             if node.subtri_count == 0 {
                 continue;
             }
-            let class = node.subtri_count.next_power_of_two().trailing_zeros();
-            if self.free_runs.len() <= class as usize {
-                self.free_runs.resize(class as usize + 1, Vec::new());
-            }
-            let start = match self.free_runs[class as usize].pop() {
+            let count = node.subtri_count;
+            let start = match self.free_runs.get_mut(&count).and_then(Vec::pop) {
                 Some(start) => start,
                 None => {
-                    // A new run: its slots past the subtris are written empty too (a grown
-                    // GPU buffer holds zeros there, which would draw).
                     let start = self.slots.len() as u32;
                     self.slots
-                        .resize(self.slots.len() + (1 << class), EMPTY_SLOT);
-                    self.dirty_slots.extend(start..start + (1 << class));
+                        .resize(self.slots.len() + count as usize, EMPTY_SLOT);
                     start
                 }
             };
+            self.live_slots += count as usize;
             for (k, t) in (node.subtri_begin..node.subtri_begin + node.subtri_count).enumerate() {
                 let [a, b, c] = store.triangle_corners(t);
                 let slot = start + k as u32;
@@ -176,8 +195,7 @@ impl RankMirror {
                 id,
                 Run {
                     start,
-                    count: node.subtri_count,
-                    class,
+                    count,
                     subtri_begin: node.subtri_begin,
                 },
             );
@@ -195,7 +213,28 @@ impl RankMirror {
             self.slots[slot as usize] = [a, b, c, store.triangle_part(t)];
             self.dirty_slots.push(slot);
         }
+        if self.slots.len() > SMALLEST_PACKED && 2 * self.live_slots < self.slots.len() {
+            self.pack();
+        }
         self.take_update(cut)
+    }
+
+    /// Moves every run to the front of the slot array, in the order they lie, and cuts the
+    /// array short: every live slot is written again.
+    fn pack(&mut self) {
+        let mut order: Vec<(u32, u32)> = self.runs.iter().map(|(&n, r)| (r.start, n)).collect();
+        order.sort_unstable();
+        let mut packed = Vec::with_capacity(self.live_slots);
+        for (_, node) in order {
+            let run = self.runs.get_mut(&node).expect("listed above");
+            let from = run.start as usize..(run.start + run.count) as usize;
+            run.start = packed.len() as u32;
+            packed.extend_from_slice(&self.slots[from]);
+        }
+        self.slots = packed;
+        self.free_runs.clear();
+        self.dirty_slots.clear();
+        self.dirty_slots.extend(0..self.slots.len() as u32);
     }
 
     /// The slot of active triangle `t`, a subtri of `owner`.

@@ -1,7 +1,8 @@
 //! A rank-tracked cut's GPU mirror, read on the CPU as the shader reads it: after every frame
 //! of random camera paths (jumps, threshold and budget goals), the slots, mapped through the
 //! rank map to vertices and through those to nodes, draw exactly the cut's active triangles
-//! with their parts, and the vertices in use are the boundary nodes.
+//! with their parts, and the vertices in use are the boundary nodes; a mirror started over
+//! from the cut as it is draws the same and goes on from there.
 
 use std::path::PathBuf;
 
@@ -103,6 +104,7 @@ fn the_mirror_of_node_changes_draws_the_cut() {
             (seed >> 40) as f32 / (1u64 << 24) as f32
         };
         let mut most_slots = 0;
+        let mut shrank = false;
         for step in 0..50u32 {
             let distance = radius * (0.4 + 3.0 * random());
             let direction = [random() - 0.5, random() - 0.5, random() - 0.5];
@@ -134,7 +136,14 @@ fn the_mirror_of_node_changes_draws_the_cut() {
             let frame = runtime
                 .adjust(&Viewpoint::Camera(camera), &criteria, goal)
                 .unwrap();
+            let before = gpu.slots.len();
             gpu.apply(&mirror.collect(runtime.cut_mut(), &frame.changes));
+            shrank |= gpu.slots.len() < before;
+            if step % 10 == 9 {
+                // A fresh GPU mirror of the cut as it is, continued incrementally from here.
+                gpu = FakeGpu::default();
+                gpu.apply(&mirror.everything(runtime.cut_mut()));
+            }
             let active = runtime.cut_mut().active_triangles();
             let cut = runtime.cut();
             let mut expected: Vec<_> = active
@@ -156,5 +165,6 @@ fn the_mirror_of_node_changes_draws_the_cut() {
             most_slots = most_slots.max(gpu.slots.len());
         }
         assert!(most_slots > 1000, "{name}: the path never refined");
+        assert!(shrank, "{name}: the slot array was never packed");
     }
 }

@@ -445,6 +445,24 @@ impl Cut {
             .collect()
     }
 
+    /// With rank tracking: the active triangles hidden as repeats, each with the node it is a
+    /// subtri of, as of the last [`Cut::take_changes`] (for a renderer that starts from the
+    /// current cut). Empty with the other trackings.
+    pub fn hidden_repeats(&self) -> Vec<(u32, u32)> {
+        let mut hidden = Vec::with_capacity(self.hidden_set.len());
+        for (&owner, groups) in &self.repeats.groups {
+            hidden.extend(
+                groups
+                    .iter()
+                    .flatten()
+                    .filter(|t| self.hidden_set.contains(t))
+                    .map(|&t| (t, owner)),
+            );
+        }
+        hidden.sort_unstable();
+        hidden
+    }
+
     /// The boundary node above original vertex `rank`: the node whose proxy stands in for it.
     pub fn current_proxy_node(&self, rank: u32) -> u32 {
         self.store

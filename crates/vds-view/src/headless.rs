@@ -103,6 +103,9 @@ struct Mirror {
     slots: Vec<[u32; 4]>,
     /// The node each GPU vertex holds.
     vertex_nodes: Vec<u32>,
+    /// The rank map of a rank-tracked cut (no blocks: slots hold vertices).
+    rank_blocks: Vec<u32>,
+    rank_words: Vec<u32>,
 }
 
 impl Mirror {
@@ -122,6 +125,19 @@ impl Mirror {
             let first = *first as usize;
             self.vertex_nodes[first..first + nodes.len()].copy_from_slice(nodes);
         }
+        self.rank_blocks
+            .resize(update.rank_block_count as usize, u32::MAX);
+        let words = (update.rank_word_count as usize).max(self.rank_words.len());
+        self.rank_words.resize(words, u32::MAX);
+        for (into, runs) in [
+            (&mut self.rank_blocks, &update.rank_blocks),
+            (&mut self.rank_words, &update.rank_words),
+        ] {
+            for (first, values) in runs {
+                let first = *first as usize;
+                into[first..first + values.len()].copy_from_slice(values);
+            }
+        }
     }
 
     /// The slots as the cut's nodes: `[corner node, corner node, corner node, part]`.
@@ -130,7 +146,16 @@ impl Mirror {
             if slot == vds_render::update::EMPTY_SLOT {
                 slot
             } else {
-                let node = |v: u32| {
+                let node = |corner: u32| {
+                    let v = if self.rank_blocks.is_empty() {
+                        corner
+                    } else {
+                        vds_render::ranks::vertex_of_rank(
+                            &self.rank_blocks,
+                            &self.rank_words,
+                            corner,
+                        )
+                    };
                     self.vertex_nodes
                         .get(v as usize)
                         .copied()

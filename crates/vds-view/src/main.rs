@@ -155,6 +155,19 @@ struct Args {
     /// file keeps the tree it was built with.
     #[arg(long, value_name = "octree|qem", default_value = "octree")]
     builder: vds_build::Builder,
+    /// How the cut keeps its triangles' corners, and so what the GPU is sent: ranks (no
+    /// per-triangle state; per node changed, a vertex, a range of the rank map and a run of
+    /// slots of original corners) or incidence (slots of current corners kept by incidence
+    /// lists, rewritten per triangle changed).
+    #[arg(long, value_enum, default_value_t = CornersArg::Ranks)]
+    corners: CornersArg,
+}
+
+/// `--corners`.
+#[derive(Clone, Copy, ValueEnum)]
+enum CornersArg {
+    Ranks,
+    Incidence,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -309,6 +322,10 @@ impl Args {
             loading,
             self.memory_budget,
             self.builder,
+            match self.corners {
+                CornersArg::Ranks => vds_runtime::CornerTracking::Ranks,
+                CornersArg::Incidence => vds_runtime::CornerTracking::Incidence,
+            },
         )
     }
 

@@ -34,16 +34,17 @@ fn bounds_of(metadata: &vds_format::Metadata) -> [[f32; 2]; 3] {
 /// Opens `path` (or the demo when `None`). `keep_mesh` keeps the original triangles for
 /// brute-force draws (only possible for mesh inputs: a `.vdt` file is decoded fully for it).
 /// Pages are loaded as `loading` says, within `memory_budget` bytes (default:
-/// [`vds_runtime::default_memory_budget`]). A mesh's tree is made by `builder`.
+/// [`vds_runtime::default_memory_budget`]). A mesh's tree is made by `builder`; the cut keeps
+/// its corners as `tracking` says.
 pub fn open(
     path: Option<&Path>,
     keep_mesh: bool,
     loading: Loading,
     memory_budget: Option<u64>,
     builder: vds_build::Builder,
+    tracking: CornerTracking,
 ) -> Result<Model> {
     let budget = memory_budget.unwrap_or_else(vds_runtime::default_memory_budget);
-    let tracking = CornerTracking::Incidence;
     let (scene, name) = match path {
         Some(path)
             if path

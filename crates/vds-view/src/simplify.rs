@@ -15,8 +15,8 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
-use vds_render::{CutUpdate, VertexPool};
-use vds_runtime::{Camera, Criteria, Goal, Runtime, Viewpoint};
+use vds_render::{CutUpdate, RankMirror, VertexPool};
+use vds_runtime::{Camera, CornerTracking, Criteria, Goal, Runtime, Viewpoint};
 
 /// What the cut is asked for.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -83,11 +83,19 @@ pub fn fingerprint(slots: impl Iterator<Item = [u32; 4]>) -> u64 {
     hasher.finish()
 }
 
+/// What the GPU mirror holds, kept beside the runtime to turn its changes into updates.
+enum GpuMirror {
+    /// Slots of vertices (incidence or lazy corner tracking).
+    Slots(VertexPool),
+    /// Slots of original ranks and a rank → vertex map (rank tracking); `None` until the
+    /// first adjust uploads the whole cut.
+    Ranks(Option<RankMirror>),
+}
+
 /// The runtime and how to turn its adjusts into batches.
 pub struct Simplifier {
     runtime: Runtime,
-    /// Which nodes the GPU mirror holds as vertices.
-    pool: VertexPool,
+    mirror: GpuMirror,
     verify: bool,
 }
 
@@ -95,9 +103,13 @@ impl Simplifier {
     /// A simplifier over `runtime`; `verify` checks the cut after every adjust and
     /// fingerprints it (slow: for tests).
     pub fn new(runtime: Runtime, verify: bool) -> Simplifier {
+        let mirror = match runtime.cut().tracking() {
+            CornerTracking::Ranks => GpuMirror::Ranks(None),
+            _ => GpuMirror::Slots(VertexPool::new()),
+        };
         Simplifier {
             runtime,
-            pool: VertexPool::new(),
+            mirror,
             verify,
         }
     }
@@ -119,7 +131,12 @@ impl Simplifier {
         for error in self.runtime.take_page_errors() {
             eprintln!("vds-view: {error}");
         }
-        let update = self.pool.collect(self.runtime.cut_mut(), &frame.changes);
+        let cut = self.runtime.cut_mut();
+        let update = match &mut self.mirror {
+            GpuMirror::Slots(pool) => pool.collect(cut, &frame.changes),
+            GpuMirror::Ranks(Some(mirror)) => mirror.collect(cut, &frame.changes),
+            GpuMirror::Ranks(started @ None) => started.insert(RankMirror::new()).everything(cut),
+        };
         let adjust_ms = start.elapsed().as_secs_f64() * 1e3;
         let fingerprint = if self.verify {
             self.runtime
