@@ -89,7 +89,7 @@ enum GpuMirror {
     Slots(VertexPool),
     /// Slots of original ranks and a rank → vertex map (rank tracking); `None` until the
     /// first adjust uploads the whole cut.
-    Ranks(Option<RankMirror>),
+    Ranks(Option<Box<RankMirror>>),
 }
 
 /// The runtime and how to turn its adjusts into batches.
@@ -135,7 +135,9 @@ impl Simplifier {
         let update = match &mut self.mirror {
             GpuMirror::Slots(pool) => pool.collect(cut, &frame.changes),
             GpuMirror::Ranks(Some(mirror)) => mirror.collect(cut, &frame.changes),
-            GpuMirror::Ranks(started @ None) => started.insert(RankMirror::new()).everything(cut),
+            GpuMirror::Ranks(started @ None) => {
+                started.insert(Box::new(RankMirror::new())).everything(cut)
+            }
         };
         let adjust_ms = start.elapsed().as_secs_f64() * 1e3;
         let fingerprint = if self.verify {
