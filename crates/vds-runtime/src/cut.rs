@@ -228,6 +228,8 @@ pub struct Cut {
     repeats: Repeats,
     /// Scratch of `unfold_node`: its subtris' corners in its own cut, for grouping.
     own_corners: Vec<([u32; 3], u32)>,
+    /// Scratch of rank tracking's grouping: the first leaf ranks of the node's siblings.
+    sibling_starts: Vec<u32>,
     /// Rank tracking: the nodes whose state changed since the last `take_changes`, each
     /// with its state then (also in its label, which marks it listed), and the store's
     /// eviction count then: a node whose page was evicted and loaded again in between may
@@ -275,6 +277,7 @@ impl Cut {
             drawn_len: 0,
             repeats: Repeats::default(),
             own_corners: Vec::new(),
+            sibling_starts: Vec::new(),
             node_journal: Vec::new(),
             evictions_at_take: 0,
             watched: Default::default(),
@@ -955,22 +958,45 @@ impl Cut {
     fn group_by_ranks(&mut self, id: u32, node: &Node) -> bool {
         let mut starts = std::mem::take(&mut self.child_starts);
         starts.clear();
-        starts.extend(node.children().map(|c| self.store.leaf_begin(c)));
+        self.store
+            .children_leaf_begins(node.first_child, u32::from(node.child_count), &mut starts);
         let child_of =
             |rank: u32| node.first_child + starts.partition_point(|&b| b <= rank) as u32 - 1;
+        // A corner outside `id` but inside its parent is, in `id`'s own cut, the sibling
+        // holding it: found from the parent's children's ranks, read once.
+        let mut siblings = std::mem::take(&mut self.sibling_starts);
+        siblings.clear();
+        let (mut parent_ranks, mut parent_first) = (0..0, 0);
+        if node.parent != NIL {
+            let parent = self.store.node(node.parent);
+            parent_ranks = parent.leaf_begin..parent.leaf_end;
+            parent_first = parent.first_child;
+            self.store.children_leaf_begins(
+                parent.first_child,
+                u32::from(parent.child_count),
+                &mut siblings,
+            );
+        }
+        let sibling_of =
+            |rank: u32| parent_first + siblings.partition_point(|&b| b <= rank) as u32 - 1;
         let mut own = std::mem::take(&mut self.own_corners);
         own.clear();
         for (t, leaves) in (node.subtri_begin..).zip(self.store.subtri_corners(id)) {
-            let mut inside = leaves.map(|r| {
+            // Exact where cheap, NIL beyond the parent: a NIL corner (a node outside the
+            // parent) never equals an exact one, so equal own corners give equal signatures.
+            let mut signature = leaves.map(|r| {
                 if node.supports_rank(r) {
                     child_of(r)
+                } else if parent_ranks.contains(&r) {
+                    sibling_of(r)
                 } else {
                     NIL
                 }
             });
-            inside.sort_unstable();
-            own.push((inside, t));
+            signature.sort_unstable();
+            own.push((signature, t));
         }
+        self.sibling_starts = siblings;
         own.sort_unstable();
         let mut candidates = Vec::new();
         for shared in own.chunk_by(|a, b| a.0 == b.0).filter(|c| c.len() > 1) {

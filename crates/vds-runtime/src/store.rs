@@ -1760,6 +1760,18 @@ impl NodeStore {
         from
     }
 
+    /// Appends the first leaf ranks of the `count` resident nodes from `first` (a node's
+    /// children) to `out`, reading the page's run of them at once.
+    pub(crate) fn children_leaf_begins(&self, first: u32, count: u32, out: &mut Vec<u32>) {
+        let p = self.expect_place(first);
+        let page = self.resident(p.slot);
+        let local = p.local as usize;
+        let in_page = (count as usize).min(page.leaf_begin.len() - local);
+        out.extend_from_slice(&page.leaf_begin[local..local + in_page]);
+        // Children that straddle into the next page, looked up one by one.
+        out.extend((first + in_page as u32..first + count).map(|c| self.leaf_begin(c)));
+    }
+
     /// The child of resident inner node `id` that supports `rank` (which `id` must support);
     /// its children must be resident.
     #[inline]
