@@ -391,14 +391,21 @@ impl GpuCut {
         }
     }
 
-    /// Grows a word buffer of the rank map to hold `words` (by at least 1.5×, contents copied
-    /// on the GPU); true when it was reallocated.
-    fn reserve_words(gpu: &Gpu, buffer: &mut wgpu::Buffer, label: &str, words: u64) -> bool {
+    /// Grows a word buffer of the rank map to hold `words` (by 1.5× when the adapter binds
+    /// that much, contents copied on the GPU); true when it was reallocated. `limit`: the most
+    /// words one binding holds (at least `words`).
+    fn reserve_words(
+        gpu: &Gpu,
+        buffer: &mut wgpu::Buffer,
+        label: &str,
+        words: u64,
+        limit: u64,
+    ) -> bool {
         let have = buffer.size() / 4;
         if words <= have {
             return false;
         }
-        let grown = word_buffer(gpu, label, words.max(have * 3 / 2));
+        let grown = word_buffer(gpu, label, words.max(have * 3 / 2).min(limit));
         let mut encoder = gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -612,7 +619,11 @@ impl GpuCut {
         pipeline: &CutPipeline,
         update: &CutUpdate,
     ) -> Result<u64, RenderError> {
-        let limit = gpu.device.limits().max_storage_buffer_binding_size / 4;
+        let limits = gpu.device.limits();
+        let limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size)
+            / 4;
         let blocks = 1 + u64::from(update.rank_block_count);
         let words = u64::from(update.rank_word_count);
         if blocks > limit || words > limit {
@@ -621,8 +632,8 @@ impl GpuCut {
                  {limit} words"
             )));
         }
-        let grew = Self::reserve_words(gpu, &mut self.rank_blocks, "rank blocks", blocks)
-            | Self::reserve_words(gpu, &mut self.rank_words, "rank words", words);
+        let grew = Self::reserve_words(gpu, &mut self.rank_blocks, "rank blocks", blocks, limit)
+            | Self::reserve_words(gpu, &mut self.rank_words, "rank words", words, limit);
         if grew {
             self.rebind(gpu, pipeline);
         }
@@ -636,13 +647,13 @@ impl GpuCut {
             );
             bytes += 4;
         }
-        for (buffer, offset, runs) in [
-            (&self.rank_blocks, 1, &update.rank_blocks),
-            (&self.rank_words, 0, &update.rank_words),
+        for (buffer, offset, count, runs) in [
+            (&self.rank_blocks, 1, blocks, &update.rank_blocks),
+            (&self.rank_words, 0, words, &update.rank_words),
         ] {
             for (first, values) in runs {
                 let end = u64::from(*first) + offset + values.len() as u64;
-                if end * 4 > buffer.size() {
+                if end > count {
                     return Err(RenderError::TooLarge(format!(
                         "rank map word {end} is beyond the update's counts"
                     )));

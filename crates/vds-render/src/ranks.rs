@@ -15,14 +15,14 @@
 //!   when it folds; the shader maps each rank to its current vertex. A repeat the cut hides
 //!   has its slot cleared, and written again when shown. A folded node's run goes to a free
 //!   list by its length, for the next unfold of a node with as many subtris; when fewer
-//!   than half the slots are in runs, the runs are packed to the front and the array cut
-//!   short (every live slot is written again then: the cost of that is at most the slots
+//!   than half the slots are in runs (and there are more than 4096), the runs are packed to
+//!   the front and the array cut short (every live slot is written again then: the cost of that is at most the slots
 //!   freed since the last packing, so it stays proportional to the changes).
 //!
 //! Work per frame follows the nodes that change: a vertex, a range fill and a run of slots per
 //! node, never a pass over the active triangles.
 
-use rustc_hash::{FxHashMap, FxHashSet};
+use rustc_hash::FxHashMap;
 use vds_runtime::{Changes, Cut};
 
 use crate::update::{CutUpdate, EMPTY_SLOT, GpuNode, runs};
@@ -73,9 +73,9 @@ pub struct RankMirror {
     /// What each slot holds (ranks and part, or [`EMPTY_SLOT`]).
     slots: Vec<[u32; 4]>,
     dirty_slots: Vec<u32>,
-    /// Triangles the cut hides as repeats.
-    hidden: FxHashSet<u32>,
     max_depth: u32,
+    /// Leaf ranks of the model: the last block may be shorter than [`RANK_BLOCK`].
+    vertex_count: u32,
 }
 
 impl RankMirror {
@@ -132,6 +132,7 @@ impl RankMirror {
         if self.blocks.is_empty() {
             let blocks = store.vertex_count().div_ceil(RANK_BLOCK).max(1);
             self.blocks = vec![UNIFORM | NO_VERTEX; blocks as usize];
+            self.vertex_count = store.vertex_count();
         }
         for &id in &changes.folded {
             let Some(run) = self.runs.remove(&id) else {
@@ -140,11 +141,6 @@ impl RankMirror {
             for slot in run.start..run.start + run.count {
                 self.slots[slot as usize] = EMPTY_SLOT;
                 self.dirty_slots.push(slot);
-            }
-            if !self.hidden.is_empty() {
-                for t in run.subtri_begin..run.subtri_begin + run.count {
-                    self.hidden.remove(&t);
-                }
             }
             self.free_runs.entry(run.count).or_default().push(run.start);
             self.live_slots -= run.count as usize;
@@ -175,7 +171,18 @@ impl RankMirror {
                 continue;
             }
             let count = node.subtri_count;
-            let start = match self.free_runs.get_mut(&count).and_then(Vec::pop) {
+            let reused = match self.free_runs.entry(count) {
+                std::collections::hash_map::Entry::Occupied(mut free) => {
+                    let start = free.get_mut().pop();
+                    if free.get().is_empty() {
+                        // No key stays behind for a length no longer free.
+                        free.remove();
+                    }
+                    start
+                }
+                std::collections::hash_map::Entry::Vacant(_) => None,
+            };
+            let start = match reused {
                 Some(start) => start,
                 None => {
                     let start = self.slots.len() as u32;
@@ -202,13 +209,11 @@ impl RankMirror {
         }
         for &(t, owner) in &changes.hidden {
             let slot = self.slot_of(t, owner);
-            self.hidden.insert(t);
             self.slots[slot as usize] = EMPTY_SLOT;
             self.dirty_slots.push(slot);
         }
         for &(t, owner) in &changes.shown {
             let slot = self.slot_of(t, owner);
-            self.hidden.remove(&t);
             let [a, b, c] = store.triangle_corners(t);
             self.slots[slot as usize] = [a, b, c, store.triangle_part(t)];
             self.dirty_slots.push(slot);
@@ -249,7 +254,8 @@ impl RankMirror {
         while rank < end {
             let block = rank >> RANK_BLOCK_SHIFT;
             let block_start = block << RANK_BLOCK_SHIFT;
-            let block_end = block_start + RANK_BLOCK;
+            // The last block ends with the model's ranks.
+            let block_end = (block_start + RANK_BLOCK).min(self.vertex_count);
             let word = self.blocks[block as usize];
             if rank == block_start && end >= block_end {
                 if word & UNIFORM == 0 {

@@ -31,8 +31,8 @@
 //!   node (the nodes that unfolded, folded and joined the boundary: what a renderer needs to
 //!   edit a draw list of subtri ranges and a rank → vertex map with range fills), and corners
 //!   are resolved only when the cut is read. Work per frame is proportional to the nodes that
-//!   change, whatever their triangles. There are no slots: a renderer that mirrors slots
-//!   cannot draw this cut yet.
+//!   change, whatever their triangles. There are no slots; `vds_render::RankMirror` draws
+//!   the cut from its node changes.
 //!
 //! `vds-bench cut` measures them along the same camera paths.
 //!
@@ -158,7 +158,8 @@ pub struct Changes {
     /// [`CornerTracking::Ranks`], which keeps no per-triangle state).
     pub changed: u32,
     /// With [`CornerTracking::Ranks`]: the nodes active now that were not (their subtris
-    /// became active). These three lists are in the order the nodes first changed.
+    /// became active). The node lists are in the order the nodes first changed (after an
+    /// eviction, in no particular order).
     pub unfolded: Vec<u32>,
     /// With [`CornerTracking::Ranks`]: the nodes active before that are not now (their subtris
     /// stopped being active).
@@ -449,8 +450,9 @@ impl Cut {
     }
 
     /// With rank tracking: the active triangles hidden as repeats, each with the node it is a
-    /// subtri of, as of the last [`Cut::take_changes`] (for a renderer that starts from the
-    /// current cut). Empty with the other trackings.
+    /// subtri of (for a renderer that starts from the current cut). Exact right after
+    /// [`Cut::take_changes`], which compares the groups whose corners moved; a fold since has
+    /// dropped its own. Empty with the other trackings.
     pub fn hidden_repeats(&self) -> Vec<(u32, u32)> {
         let mut hidden = Vec::with_capacity(self.hidden_set.len());
         for (&owner, groups) in &self.repeats.groups {

@@ -674,6 +674,12 @@ impl NodeStore {
     /// are counted without them from now on.
     pub(crate) fn drop_triangle_slots(&mut self) {
         self.triangle_slots = false;
+        let pages = self.page_first_node.len().max(1);
+        self.typical_page_bytes = ResidentPage::bytes_for(
+            (self.node_count as usize).div_ceil(pages),
+            (self.triangle_count as usize).div_ceil(pages),
+            false,
+        );
         for page in self.pages.iter_mut().flatten() {
             page.triangle_slot = Vec::new();
             let freed = page.bytes - page.counted_bytes();

@@ -42,6 +42,9 @@ pub struct AdjustFigures {
     pub removed: u32,
     /// See `added`.
     pub changed: u32,
+    /// Nodes folded and unfolded (with rank tracking, which counts no triangle whose corners
+    /// moved, the only sign of a cut that changed without adding or removing triangles).
+    pub nodes_changed: u32,
     /// Pages resident.
     pub pages_resident: u32,
     /// Pages asked of the background loader and not yet arrived.
@@ -168,6 +171,7 @@ impl Simplifier {
                 added: frame.changes.added,
                 removed: frame.changes.removed,
                 changed: frame.changes.changed,
+                nodes_changed: frame.stats.unfolds + frame.stats.folds,
                 pages_resident: frame.memory.pages_resident,
                 pages_pending: frame.memory.pages_pending,
                 pages_loaded: frame.memory.pages_loaded,

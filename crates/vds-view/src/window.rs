@@ -249,7 +249,9 @@ impl App {
         };
         let a = &self.hud.adjust;
         let unchanged = self.last_view == Some((camera, settings, style));
-        let settled = unchanged && a.added + a.removed + a.changed == 0 && a.pages_pending == 0;
+        let settled = unchanged
+            && a.added + a.removed + a.changed + a.nodes_changed == 0
+            && a.pages_pending == 0;
         let flying = [
             KeyCode::KeyW,
             KeyCode::KeyA,
