@@ -866,7 +866,10 @@ impl Cut {
         for &(id, before) in &journal {
             // A node whose page was evicted is inactive; its label went with the page.
             let now = match self.store.label_if_resident_mut(id) {
-                Some(label) => label.state,
+                Some(label) => {
+                    label.journaled = None;
+                    label.state
+                }
                 None => NodeState::Inactive,
             };
             if before == now {
@@ -883,14 +886,7 @@ impl Cut {
                 NodeState::Inactive => {}
             }
         }
-        self.node_journal = journal;
         self.settle_rank_repeats();
-        let mut journal = std::mem::take(&mut self.node_journal);
-        for &(id, _) in &journal {
-            if let Some(label) = self.store.label_if_resident_mut(id) {
-                label.journaled = None;
-            }
-        }
         for (t, (was, owner)) in std::mem::take(&mut self.hidden_was) {
             let now = self.hidden_set.contains(&t);
             let owner_active = self
