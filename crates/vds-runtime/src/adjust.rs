@@ -392,11 +392,18 @@ impl Adjuster {
         self.stack.clear();
         self.stack.extend(cut.node(id).children());
         while let Some(n) = self.stack.pop() {
-            if cut.can_unfold(n)
-                && self.decision(cut, judge, t, n) == Decision::Unfold
+            // The label and the test data in one look-up: most new children stay folded.
+            let (label, tested) = cut.store().labelled(n);
+            let hot = *tested.hot;
+            if label.state != NodeState::Boundary || hot.child_count == 0 {
+                continue;
+            }
+            self.stats.visited += 1;
+            if judge.decide(tested, t) == Decision::Unfold
                 && self.unfold_if_loaded(cut, judge, n)?
             {
-                self.stack.extend(cut.node(n).children());
+                self.stack
+                    .extend(hot.first_child..hot.first_child + hot.child_count);
             }
         }
         Ok(())

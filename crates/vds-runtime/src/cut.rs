@@ -503,9 +503,7 @@ impl Cut {
         })?;
         let node = self.store.node(id);
         self.set_state(id, NodeState::Active);
-        for c in node.children() {
-            self.set_state(c, NodeState::Boundary);
-        }
+        self.set_children_state(&node, NodeState::Boundary);
         self.boundary_count += u32::from(node.child_count) - 1;
         self.count_active_child(node.parent, 1);
         self.active_node_count += 1;
@@ -615,8 +613,8 @@ impl Cut {
                 }
             }
         }
-        for c in node.children() {
-            if self.tracking == CornerTracking::Incidence {
+        if self.tracking == CornerTracking::Incidence {
+            for c in node.children() {
                 let mut entry = std::mem::replace(&mut self.store.label_mut(c).head, NIL);
                 while entry != NIL {
                     let following = self.next_of(entry);
@@ -628,8 +626,8 @@ impl Cut {
                     entry = following;
                 }
             }
-            self.set_state(c, NodeState::Inactive);
         }
+        self.set_children_state(&node, NodeState::Inactive);
         self.boundary_count -= u32::from(node.child_count) - 1;
         if self.tracking == CornerTracking::Lazy {
             self.lazy_dirty = true;
@@ -1429,6 +1427,24 @@ impl Cut {
             entry.active_children = u32::from(count);
             entry.reuse = Reuse::NONE;
         }
+    }
+
+    /// [`Cut::set_state`] for the children of `node`, which are not active and do not become
+    /// active (a fold or unfold of `node`): their labels are reached with a page look-up per
+    /// page, not per child.
+    fn set_children_state(&mut self, node: &Node, state: NodeState) {
+        debug_assert!(state != NodeState::Active);
+        let journal = self.tracking == CornerTracking::Ranks;
+        let node_journal = &mut self.node_journal;
+        let (first, count) = (node.first_child, u32::from(node.child_count));
+        self.store
+            .set_run_state(first, count, state, |id, was, label| {
+                debug_assert!(was != NodeState::Active, "node {id} was active");
+                if journal && label.journaled.is_none() {
+                    label.journaled = Some(was);
+                    node_journal.push((id, was));
+                }
+            });
     }
 
     fn set_state(&mut self, id: u32, state: NodeState) {

@@ -1054,6 +1054,62 @@ impl NodeStore {
         was
     }
 
+    /// [`NodeStore::set_state`] for the `count` resident nodes from `first` (a node's
+    /// children), to a state other than active, with one page look-up per page they span
+    /// instead of one per node. `changed` sees each node's id, its state before and its label
+    /// after.
+    pub(crate) fn set_run_state(
+        &mut self,
+        first: u32,
+        count: u32,
+        state: crate::cut::NodeState,
+        mut changed: impl FnMut(u32, crate::cut::NodeState, &mut NodeLabel),
+    ) {
+        use crate::cut::NodeState::Inactive;
+        let end = first + count;
+        let mut id = first;
+        while id < end {
+            let p = self.expect_place(id);
+            let Self {
+                pages,
+                evictable,
+                evictable_bytes,
+                tick,
+                ..
+            } = self;
+            let page = pages[p.slot as usize]
+                .as_mut()
+                .expect("a placed slot is resident");
+            let local = p.local as usize;
+            let in_page = ((end - id) as usize).min(page.labels.len() - local);
+            for (k, label) in page.labels[local..local + in_page].iter_mut().enumerate() {
+                let was = std::mem::replace(&mut label.state, state);
+                // The pins as `set_state` keeps them, node by node.
+                match (was == Inactive, state == Inactive) {
+                    (true, false) => {
+                        page.pins += 1;
+                        if page.pins == 1 {
+                            evictable.remove(&(page.stamp, page.index));
+                            *evictable_bytes -= page.bytes;
+                        }
+                    }
+                    (false, true) => {
+                        page.pins -= 1;
+                        if page.pins == 0 {
+                            page.stamp = *tick;
+                            *tick += 1;
+                            evictable.insert((page.stamp, page.index));
+                            *evictable_bytes += page.bytes;
+                        }
+                    }
+                    _ => {}
+                }
+                changed(id + k as u32, was, label);
+            }
+            id += in_page as u32;
+        }
+    }
+
     /// Numbers of boundary and active nodes over the resident pages (for [`crate::Cut::check`]).
     pub(crate) fn label_counts(&self) -> [usize; 2] {
         use crate::cut::NodeState::{Active, Boundary};
@@ -1198,6 +1254,20 @@ impl NodeStore {
     /// Whether `id`'s children's pages are resident, without reading any. With synchronous
     /// loading an unfold reads them itself, so this is about residency alone.
     pub fn children_resident(&self, id: u32) -> bool {
+        // Usually every child is in one page: two look-ups by block say so, without the
+        // searches of the page directory below.
+        if let Some(p) = self.place(id) {
+            let hot = &self.resident(p.slot).hot[p.local as usize];
+            if hot.child_count == 0 {
+                return true;
+            }
+            let last = hot.first_child + hot.child_count - 1;
+            if let (Some(a), Some(b)) = (self.place(hot.first_child), self.place(last))
+                && a.slot == b.slot
+            {
+                return true;
+            }
+        }
         self.children_pages(id).is_none_or(|mut pages| {
             pages.all(|p| self.page_state[p as usize] == PageState::Resident)
         })

@@ -68,6 +68,7 @@ fn play(
     let (mut ms, mut visited, mut added, mut removed, mut changed, mut active) =
         (vec![], vec![], vec![], vec![], vec![], vec![]);
     let (mut groups, mut failed, mut reused) = (vec![], vec![], vec![]);
+    let mut active_nodes = vec![];
     // What a frame costs per active triangle, and per node folded or unfolded (frames with
     // changes only): the two costs the per-frame-work issue sets out to separate.
     let (mut ns_per_active, mut ns_per_change) = (vec![], vec![]);
@@ -101,6 +102,7 @@ fn play(
         removed.push(f64::from(frame.changes.removed) / n * 100.0);
         changed.push(f64::from(frame.changes.changed) / n * 100.0);
         active.push(n);
+        active_nodes.push(f64::from(runtime.cut().active_node_count()));
     }
     let median = |v: &[f64]| percentile(v, 0.5);
     let t = match goal {
@@ -123,7 +125,7 @@ fn play(
     }
     println!(
         "  {t:<8} {:<9} {:<8} adjust median {:6.3} ms  p99 {:6.3} ms  (first {:7.1} ms) | \
-         visited {:>7.0} (groups {:.0}, failed {:.0}, reused {:.0}) | active {:>8.0} | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
+         visited {:>7.0} (groups {:.0}, failed {:.0}, reused {:.0}) | active {:>8.0} (nodes {:.0}) | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
         format!("{tracking:?}"),
         if resident { "resident" } else { "cold" },
         median(&ms),
@@ -134,6 +136,7 @@ fn play(
         median(&failed),
         median(&reused),
         median(&active),
+        median(&active_nodes),
         median(&added),
         median(&removed),
         median(&changed),
@@ -163,21 +166,28 @@ fn play(
     Ok(())
 }
 
-/// Runtime figures for one mesh along `path`, at t = 1 and 5 px: both corner strategies with
-/// resident pages and incidence lists with cold pages, or only the first (`resident_only`).
-pub fn paths(name: &str, file: &Path, frames: u32, fly: bool, resident_only: bool) -> Result<()> {
+/// Which runs [`paths`] makes.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Runs {
+    /// Only resident pages (no cold run, no lazy corners): quicker A/B runs.
+    pub resident_only: bool,
+    /// Only rank tracking, resident (implies `resident_only`).
+    pub ranks_only: bool,
+    /// Also time settled checks (a second adjust for each frame's camera) of the resident
+    /// runs, which full runs do for incidence lists only.
+    pub settled: bool,
+}
+
+/// Runtime figures for one mesh along `path`, at t = 1 and 5 px: every corner strategy with
+/// resident pages and incidence lists with cold pages, or fewer as `runs` says.
+pub fn paths(name: &str, file: &Path, frames: u32, fly: bool, runs: Runs) -> Result<()> {
     let (bytes, _) = vdt_bytes(file, Builder::default())?;
-    paths_of_vdt(name, &bytes, frames, fly, resident_only)
+    paths_of_vdt(name, &bytes, frames, fly, runs)
 }
 
 /// [`paths`] for the `.vdt` file `bytes`, built elsewhere.
-pub fn paths_of_vdt(
-    name: &str,
-    bytes: &[u8],
-    frames: u32,
-    fly: bool,
-    resident_only: bool,
-) -> Result<()> {
+pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs) -> Result<()> {
+    let resident_only = runs.resident_only || runs.ranks_only;
     let probe = Runtime::new(
         Box::new(VdtFile::from_bytes(bytes.to_vec())?),
         CornerTracking::Incidence,
@@ -207,7 +217,9 @@ pub fn paths_of_vdt(
         frames,
         if fly { "flying through" } else { "orbiting" },
     );
-    let resident_trackings: &[CornerTracking] = if resident_only {
+    let resident_trackings: &[CornerTracking] = if runs.ranks_only {
+        &[CornerTracking::Ranks]
+    } else if resident_only {
         &[CornerTracking::Incidence, CornerTracking::Ranks]
     } else {
         &[
@@ -226,6 +238,10 @@ pub fn paths_of_vdt(
                 true,
                 Timed::Adjusts,
             )?;
+            if runs.settled {
+                let settled = Timed::SettledChecks;
+                play(bytes, &path, Goal::Threshold(t), tracking, true, settled)?;
+            }
         }
         if resident_only {
             continue;

@@ -128,6 +128,13 @@ enum Commands {
         /// Only resident pages, incidence lists and rank tracking: quicker A/B runs.
         #[arg(long)]
         resident_only: bool,
+        /// Only rank tracking with resident pages.
+        #[arg(long)]
+        ranks_only: bool,
+        /// Also time a settled check (a second adjust for the same camera) after each
+        /// resident run.
+        #[arg(long)]
+        settled: bool,
         /// Fly through this `.vdt` file instead of the bunny and the generated scenes: nothing
         /// is built in the process (quicker runs, and instruction counts of the runtime alone).
         #[arg(long)]
@@ -273,17 +280,24 @@ fn main() -> Result<()> {
             no_fidelity,
             no_bunny,
             resident_only,
+            ranks_only,
+            settled,
             vdt,
         }) => {
+            let runs = cut::Runs {
+                resident_only,
+                ranks_only,
+                settled,
+            };
             let bunny = args.shared.join("bunny.obj");
             if let Some(vdt) = vdt {
                 let bytes =
                     std::fs::read(&vdt).with_context(|| format!("reading {}", vdt.display()))?;
                 let name = vdt.display().to_string();
-                cut::paths_of_vdt(&name, &bytes, frames, true, resident_only)?;
+                cut::paths_of_vdt(&name, &bytes, frames, true, runs)?;
             } else {
                 if !no_bunny {
-                    cut::paths("bunny", &bunny, frames, false, resident_only)?;
+                    cut::paths("bunny", &bunny, frames, false, runs)?;
                 }
                 for size in &sizes {
                     let file = generated_scene(parse_count(size)?, &args.dir)?;
@@ -292,7 +306,7 @@ fn main() -> Result<()> {
                         &file,
                         frames,
                         true,
-                        resident_only,
+                        runs,
                     )?;
                 }
             }
