@@ -16,8 +16,9 @@
 //!   has its slot cleared, and written again when shown. A folded node's run goes to a free
 //!   list by its length, for the next unfold of a node with as many subtris; when fewer
 //!   than half the slots are in runs (and there are more than 4096), the runs are packed to
-//!   the front and the array cut short (every live slot is written again then: the cost of that is at most the slots
-//!   freed since the last packing, so it stays proportional to the changes).
+//!   the front and the array cut short (every live slot is written again then: the cost of
+//!   that is at most the slots freed since the last packing, so it stays proportional to the
+//!   changes).
 //!
 //! Work per frame follows the nodes that change: a vertex, a range fill and a run of slots per
 //! node, never a pass over the active triangles.

@@ -377,6 +377,39 @@ impl ResidentPage {
         resident
     }
 
+    /// Counts a node of this page going from `was` to `state` in its pins: the page is
+    /// pinned while any of its nodes is on or above the boundary, and joins the eviction order
+    /// (`evictable`, stamped `tick`) when the last one leaves.
+    fn repin(
+        &mut self,
+        was: crate::cut::NodeState,
+        state: crate::cut::NodeState,
+        evictable: &mut std::collections::BTreeSet<(u64, u32)>,
+        evictable_bytes: &mut u64,
+        tick: &mut u64,
+    ) {
+        use crate::cut::NodeState::Inactive;
+        match (was == Inactive, state == Inactive) {
+            (true, false) => {
+                self.pins += 1;
+                if self.pins == 1 {
+                    evictable.remove(&(self.stamp, self.index));
+                    *evictable_bytes -= self.bytes;
+                }
+            }
+            (false, true) => {
+                self.pins -= 1;
+                if self.pins == 0 {
+                    self.stamp = *tick;
+                    *tick += 1;
+                    evictable.insert((self.stamp, self.index));
+                    *evictable_bytes += self.bytes;
+                }
+            }
+            _ => {}
+        }
+    }
+
     /// The bytes of the record and of every array it owns, by capacity.
     fn counted_bytes(&self) -> u64 {
         fn held<T>(v: &Vec<T>) -> usize {
@@ -1026,31 +1059,19 @@ impl NodeStore {
         id: u32,
         state: crate::cut::NodeState,
     ) -> crate::cut::NodeState {
-        use crate::cut::NodeState::Inactive;
         let p = self.expect_place(id);
-        let tick = self.tick;
-        let page = self.resident_mut(p.slot);
+        let Self {
+            pages,
+            evictable,
+            evictable_bytes,
+            tick,
+            ..
+        } = self;
+        let page = pages[p.slot as usize]
+            .as_mut()
+            .expect("a placed slot is resident");
         let was = std::mem::replace(&mut page.labels[p.local as usize].state, state);
-        let (index, stamp, bytes) = (page.index, page.stamp, page.bytes);
-        match (was == Inactive, state == Inactive) {
-            (true, false) => {
-                page.pins += 1;
-                if page.pins == 1 {
-                    self.evictable.remove(&(stamp, index));
-                    self.evictable_bytes -= bytes;
-                }
-            }
-            (false, true) => {
-                page.pins -= 1;
-                if page.pins == 0 {
-                    page.stamp = tick;
-                    self.tick += 1;
-                    self.evictable.insert((tick, index));
-                    self.evictable_bytes += bytes;
-                }
-            }
-            _ => {}
-        }
+        page.repin(was, state, evictable, evictable_bytes, tick);
         was
     }
 
@@ -1065,7 +1086,6 @@ impl NodeStore {
         state: crate::cut::NodeState,
         mut changed: impl FnMut(u32, crate::cut::NodeState, &mut NodeLabel),
     ) {
-        use crate::cut::NodeState::Inactive;
         let end = first + count;
         let mut id = first;
         while id < end {
@@ -1082,29 +1102,11 @@ impl NodeStore {
                 .expect("a placed slot is resident");
             let local = p.local as usize;
             let in_page = ((end - id) as usize).min(page.labels.len() - local);
-            for (k, label) in page.labels[local..local + in_page].iter_mut().enumerate() {
+            for k in 0..in_page {
+                let label = &mut page.labels[local + k];
                 let was = std::mem::replace(&mut label.state, state);
-                // The pins as `set_state` keeps them, node by node.
-                match (was == Inactive, state == Inactive) {
-                    (true, false) => {
-                        page.pins += 1;
-                        if page.pins == 1 {
-                            evictable.remove(&(page.stamp, page.index));
-                            *evictable_bytes -= page.bytes;
-                        }
-                    }
-                    (false, true) => {
-                        page.pins -= 1;
-                        if page.pins == 0 {
-                            page.stamp = *tick;
-                            *tick += 1;
-                            evictable.insert((page.stamp, page.index));
-                            *evictable_bytes += page.bytes;
-                        }
-                    }
-                    _ => {}
-                }
                 changed(id + k as u32, was, label);
+                page.repin(was, state, evictable, evictable_bytes, tick);
             }
             id += in_page as u32;
         }
