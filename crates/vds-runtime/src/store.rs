@@ -1059,26 +1059,15 @@ impl NodeStore {
         id: u32,
         state: crate::cut::NodeState,
     ) -> crate::cut::NodeState {
-        let p = self.expect_place(id);
-        let Self {
-            pages,
-            evictable,
-            evictable_bytes,
-            tick,
-            ..
-        } = self;
-        let page = pages[p.slot as usize]
-            .as_mut()
-            .expect("a placed slot is resident");
-        let was = std::mem::replace(&mut page.labels[p.local as usize].state, state);
-        page.repin(was, state, evictable, evictable_bytes, tick);
-        was
+        let mut before = state;
+        self.set_run_state(id, 1, state, |_, was, _| before = was);
+        before
     }
 
     /// [`NodeStore::set_state`] for the `count` resident nodes from `first` (a node's
-    /// children), to a state other than active, with one page look-up per page they span
-    /// instead of one per node. `changed` sees each node's id, its state before and its label
+    /// children, say), with one page look-up per page they span instead of one per node. `changed` sees each node's id, its state before and its label
     /// after.
+    #[track_caller]
     pub(crate) fn set_run_state(
         &mut self,
         first: u32,
