@@ -88,6 +88,9 @@ const STEP_UP: (f64, f64) = (1.05, 1.5);
 const STEP_DOWN: (f64, f64) = (1.02, 1.2);
 /// Frames in a row with refusals after which the threshold rises whatever their kind.
 const REFUSING_FRAMES: u32 = 8;
+/// How much larger each step up is than the one before while the threshold rises frame
+/// after frame.
+const STEP_GROWTH: f64 = 1.1;
 /// The largest factor the threshold is raised by.
 const MAX_THRESHOLD_SCALE: f32 = 1e6;
 
@@ -100,6 +103,8 @@ pub struct Runtime {
     /// Frames in a row in which the budget refused something, and the refusal count then.
     refusing_frames: u32,
     refusals_seen: u64,
+    /// Frames in a row in which the threshold rose.
+    rising_frames: u32,
 }
 
 impl Runtime {
@@ -125,6 +130,7 @@ impl Runtime {
             threshold_scale: 1.0,
             refusing_frames: 0,
             refusals_seen: 0,
+            rising_frames: 0,
         })
     }
 
@@ -192,18 +198,22 @@ impl Runtime {
         let (stats, effective_threshold) = match goal {
             Goal::Threshold(t) => {
                 let effective = self.effective_threshold(t);
+                self.cut.store.foresee(Some((&judge, effective)));
                 let stats =
                     self.adjuster
                         .adjust_threshold(&mut self.cut, &judge, effective, prevent)?;
                 (stats, Some(effective))
             }
-            Goal::Budget(n) => (
-                self.adjuster
-                    .adjust_budget(&mut self.cut, &judge, n, prevent)?,
-                None,
-            ),
+            Goal::Budget(n) => {
+                self.cut.store.foresee(None);
+                let stats = self
+                    .adjuster
+                    .adjust_budget(&mut self.cut, &judge, n, prevent)?;
+                (stats, None)
+            }
         };
         let changes = self.cut.take_changes();
+        self.cut.store.cancel_unasked();
         self.cut.store.evict_to_budget();
         self.respond_to_pressure();
         Ok(Frame {
@@ -226,7 +236,12 @@ impl Runtime {
     /// Each step is proportional: a threshold `s` times larger asks for about `1/s²` the
     /// triangles, so the step is the square root of how far the pinned bytes are from
     /// [`TARGET_SHARE`] of the budget, within [`STEP_UP`] or [`STEP_DOWN`], and the
-    /// threshold settles near the cut that fits instead of overshooting it.
+    /// threshold settles near the cut that fits instead of overshooting it. The pinned bytes
+    /// cannot show how far a cut that does not fit is from fitting (they stop at the budget,
+    /// and a page stays pinned until its last node leaves the cut), so while the threshold
+    /// rises frame after frame because the cut does not fit, each step up is [`STEP_GROWTH`]
+    /// times the one before: a threshold that must rise twentyfold gets there in about ten
+    /// frames, not sixty, and overshoots by at most one step.
     fn respond_to_pressure(&mut self) {
         let store = &mut self.cut.store;
         let refused = store.take_refused();
@@ -236,13 +251,25 @@ impl Runtime {
         } else {
             self.refusing_frames = 0;
         }
-        let pinned = store.pinned_total() as f64;
         let budget = store.memory_budget() as f64;
-        let off_target = (pinned / (TARGET_SHARE * budget)).sqrt();
-        if store.over_budget_pinned() || refused > 0 || self.refusing_frames >= REFUSING_FRAMES {
-            let step = off_target.clamp(STEP_UP.0, STEP_UP.1) as f32;
+        // What the cut holds and waits for: when that is past what arrivals are held to, the
+        // cut cannot fit, and the threshold rises before the budget fills with pages of a
+        // cut that will be coarsened anyway.
+        let demanded = store.demanded_bytes();
+        let off_target = (demanded as f64 / (TARGET_SHARE * budget)).sqrt();
+        let outgrown =
+            store.over_budget_pinned() || refused > 0 || demanded > store.arrival_limit();
+        if outgrown || self.refusing_frames >= REFUSING_FRAMES {
+            let least = STEP_UP.0 * STEP_GROWTH.powi(self.rising_frames.min(64) as i32);
+            let step = off_target.max(least).clamp(STEP_UP.0, STEP_UP.1) as f32;
             self.threshold_scale = (self.threshold_scale * step).min(MAX_THRESHOLD_SCALE);
-        } else if self.threshold_scale > 1.0 && pinned < RELIEF_SHARE * budget {
+            // Pages evicting each other near the budget is not a cut far too large: the
+            // steps grow only while the cut itself does not fit.
+            self.rising_frames = if outgrown { self.rising_frames + 1 } else { 0 };
+            return;
+        }
+        self.rising_frames = 0;
+        if self.threshold_scale > 1.0 && (demanded as f64) < RELIEF_SHARE * budget {
             let step = (1.0 / off_target.max(1e-9)).clamp(STEP_DOWN.0, STEP_DOWN.1) as f32;
             self.threshold_scale = (self.threshold_scale / step).max(1.0);
         }

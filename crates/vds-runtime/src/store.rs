@@ -183,6 +183,26 @@ impl Shape {
     }
 }
 
+/// The two records the criteria read of `node`, as a resident page keeps them (the group
+/// bound is zero: it is set when the children load).
+pub(crate) fn tested_parts(node: &Node) -> (Hot, Shape) {
+    let hot = Hot {
+        proxy: node.proxy,
+        error_radius: node.error_radius,
+        group_radius: 0.0,
+        group_error: 0.0,
+        first_child: node.first_child,
+        child_count: u32::from(node.child_count),
+    };
+    let shape = Shape {
+        center: node.sphere_center,
+        radius: node.sphere_radius,
+        cone_axis: node.cone_axis,
+        cone_cos: Shape::cone_test(node.cone_half_angle, node.cone_two_sided),
+    };
+    (hot, shape)
+}
+
 /// The two records the criteria read of one node.
 #[derive(Debug, Clone, Copy)]
 pub struct Tested<'a> {
@@ -271,6 +291,11 @@ const NIL: u32 = u32::MAX;
 /// Pages asked for ahead of need at most at once.
 const MAX_AHEAD: u32 = 16;
 
+/// Decoded pages that may wait for the store to take them in, in bytes (besides the budget;
+/// at least [`crate::loader::WAITING`] pages per loading thread): a frame's worth of pages
+/// at the rate a worker decodes them.
+const WAITING_BYTES: u64 = 16 << 20;
+
 /// Frames an unpinned page must go unused before a page fetched ahead of need may take its
 /// place (one second at 60 Hz).
 const STALE_FRAMES: usize = 60;
@@ -343,20 +368,9 @@ impl ResidentPage {
         };
         for record in &page.nodes {
             let node = Node::from_record(record);
-            resident.hot.push(Hot {
-                proxy: node.proxy,
-                error_radius: node.error_radius,
-                group_radius: 0.0,
-                group_error: 0.0,
-                first_child: node.first_child,
-                child_count: u32::from(node.child_count),
-            });
-            resident.shape.push(Shape {
-                center: node.sphere_center,
-                radius: node.sphere_radius,
-                cone_axis: node.cone_axis,
-                cone_cos: Shape::cone_test(node.cone_half_angle, node.cone_two_sided),
-            });
+            let (hot, shape) = tested_parts(&node);
+            resident.hot.push(hot);
+            resident.shape.push(shape);
             resident.leaf_begin.push(node.leaf_begin);
             resident.topology.push(Topology {
                 parent: node.parent,
@@ -576,6 +590,13 @@ pub struct NodeStore {
     awaited: Vec<f32>,
     /// Pages asked of the loader for waiting nodes and not yet delivered.
     pending_pages: u32,
+    /// The pages counted in `pending_pages`, in the order asked (a page delivered or
+    /// cancelled since may still be listed, and is skipped).
+    pending_list: Vec<u32>,
+    /// Per page: the frame ([`NodeStore::frames`]) in which a node last asked for it.
+    asked_in: Vec<u32>,
+    /// Frames begun ([`NodeStore::begin_frame`]).
+    frames: u32,
     /// Pages asked of the loader ahead of need and not yet delivered.
     pending_ahead: u32,
     /// Errors of pages the background loader could not read, not yet taken.
@@ -633,19 +654,32 @@ impl NodeStore {
         // given only through `partition_point`, which stays in bounds whatever the order.
         let shift = block_shift(node_count, page_count);
         let blocks = (node_count >> shift) as usize + 1;
+        let typical_page_bytes = ResidentPage::bytes_for(
+            (node_count as usize).div_ceil(page_count),
+            (triangle_count as usize).div_ceil(page_count),
+            true,
+        );
         let loader = match loading {
             Loading::Synchronous => None,
             Loading::Background { threads } => Some(crate::loader::Loader::start(
                 std::sync::Arc::clone(&source),
                 threads,
+                // Decoded pages waiting for the store are held outside its budget: as many
+                // as fit in WAITING_BYTES.
+                (WAITING_BYTES / typical_page_bytes.max(1)) as usize,
             )?),
         };
+        let background = loader.is_some();
         let table_bytes = (page_count
             * (2 * size_of::<u32>()
                 + size_of::<PageState>()
                 + size_of::<u32>()
                 + size_of::<f32>()
-                + if loader.is_some() { 1 } else { 0 })
+                + if loader.is_some() {
+                    1 + size_of::<u32>()
+                } else {
+                    0
+                })
             + blocks * size_of::<u32>()) as u64;
         let mut store = NodeStore {
             source,
@@ -669,11 +703,7 @@ impl NodeStore {
             tick: 1,
             recent_frames: Default::default(),
             stale_before: 0,
-            typical_page_bytes: ResidentPage::bytes_for(
-                (node_count as usize).div_ceil(page_count),
-                (triangle_count as usize).div_ceil(page_count),
-                true,
-            ),
+            typical_page_bytes,
             triangle_slots: true,
             protect_from: 0,
             frame_start: 0,
@@ -684,6 +714,9 @@ impl NodeStore {
             loader,
             awaited: vec![NOT_AWAITED; page_count],
             pending_pages: 0,
+            pending_list: Vec::new(),
+            asked_in: vec![0; if background { page_count } else { 0 }],
+            frames: 0,
             pending_ahead: 0,
             page_errors: Vec::new(),
             loaded: Vec::new(),
@@ -782,6 +815,7 @@ impl NodeStore {
     pub fn begin_frame(&mut self) {
         // Whoever wanted the last frame's arrivals has taken them by now.
         self.loaded.clear();
+        self.frames = self.frames.wrapping_add(1);
         self.protect_from = self.frame_start;
         self.frame_start = self.tick;
         if self.recent_frames.len() == STALE_FRAMES {
@@ -1292,6 +1326,7 @@ impl NodeStore {
                 }
                 PageState::Absent => {}
             }
+            self.asked_in[p] = self.frames;
             let awaited = self.awaited[p];
             if awaited >= 0.0 && priority < 2.0 * awaited.max(f32::MIN_POSITIVE) {
                 continue;
@@ -1301,6 +1336,7 @@ impl NodeStore {
                 // Asked for afresh, or fetched ahead and needed now.
                 self.pending_pages += 1;
                 self.pending_ahead -= u32::from(!fresh);
+                self.pending_list.push(page);
             }
             self.awaited[p] = priority;
             if let Some(loader) = &self.loader {
@@ -1357,21 +1393,95 @@ impl NodeStore {
             delivered.extend(std::iter::from_fn(|| loader.try_next()));
         }
         let count = delivered.len() as u32;
+        let mut received = Vec::with_capacity(delivered.len());
         for (index, result) in delivered {
             self.deliver(index, result);
+            received.push(index);
+        }
+        if let Some(loader) = &self.loader {
+            loader.received(&received);
         }
         count
     }
 
-    /// Waits until every page asked of the background loader (ahead of need too) has been
-    /// delivered and takes them in (what a test or a batch replay does to let loading
-    /// settle).
+    /// Cancels the pages asked for by waiting nodes that no node asked for again in this
+    /// frame: the nodes that wanted them unfolded, folded away or stopped needing them (the
+    /// camera moved, the effective threshold rose), and loading them would only delay the
+    /// pages the cut needs now. A node still waiting asks again every frame, so its page
+    /// stays asked for.
+    pub(crate) fn cancel_unasked(&mut self) {
+        let Some(loader) = &self.loader else {
+            return;
+        };
+        let mut cancelled = Vec::new();
+        let frame = self.frames;
+        let (awaited, asked_in) = (&mut self.awaited, &self.asked_in);
+        let mut pending = self.pending_pages;
+        self.pending_list.retain(|&page| {
+            let p = page as usize;
+            if awaited[p] < 0.0 {
+                return false; // Delivered, or listed twice and cancelled already.
+            }
+            if asked_in[p] == frame {
+                return true;
+            }
+            awaited[p] = NOT_AWAITED;
+            pending -= 1;
+            cancelled.push(page);
+            false
+        });
+        self.pending_pages = pending;
+        loader.cancel(&cancelled);
+    }
+
+    /// The bytes the cut would hold with every page it waits for: the pinned pages and
+    /// the pages asked for by waiting nodes, at the file's average page size (a lower bound
+    /// of what it needs: the waiting nodes' children may need further pages below).
+    pub fn demanded_bytes(&self) -> u64 {
+        self.pinned_total() + u64::from(self.pending_pages) * self.typical_page_bytes
+    }
+
+    /// What arrivals and the cut's growth are held to ([`NodeStore::limit`]).
+    pub fn arrival_limit(&self) -> u64 {
+        self.limit()
+    }
+
+    /// Hands the background loader the view and threshold of this frame's adjust (`None`:
+    /// none, as for a triangle budget) so that it asks for the pages below each page it
+    /// decodes that the cut will reach, within the room the budget has for pages nobody
+    /// awaits (the `loader` module's "Looking ahead").
+    pub(crate) fn foresee(&self, sight: Option<(&crate::criteria::Judge, f32)>) {
+        let Some(loader) = &self.loader else {
+            return;
+        };
+        let awaited = u64::from(self.pending_pages + self.pending_ahead);
+        let free = self.limit().saturating_sub(self.resident_bytes());
+        let room = (free / self.typical_page_bytes.max(1)).saturating_sub(awaited);
+        loader.foresee(sight.map(|(judge, t)| crate::loader::Foresight {
+            judge: *judge,
+            t,
+            room: u32::try_from(room).unwrap_or(u32::MAX),
+        }));
+    }
+
+    /// Waits until every page asked of the background loader (ahead of need, and by the
+    /// loader looking ahead, too) has been delivered and takes them in (what a test or a
+    /// batch replay does to let loading settle).
     pub fn wait_for_pages(&mut self) {
-        while self.pending_pages + self.pending_ahead > 0 {
-            let Some((index, result)) = self.loader.as_ref().and_then(|l| l.wait_next()) else {
+        loop {
+            let Some(loader) = &self.loader else {
+                return;
+            };
+            if self.pending_pages + self.pending_ahead == 0 && !loader.busy() {
+                return;
+            }
+            let Some((index, result)) = loader.wait_next() else {
                 return;
             };
             self.deliver(index, result);
+            if let Some(loader) = &self.loader {
+                loader.received(&[index]);
+            }
         }
     }
 

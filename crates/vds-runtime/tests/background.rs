@@ -36,6 +36,18 @@ impl PageSource for Recording {
     }
 }
 
+/// Opens the gate when dropped, so a failing assertion unwinds past the runtime's drop
+/// (which joins a worker waiting at the gate) instead of hanging the test.
+struct OpenOnDrop(Arc<(Mutex<bool>, std::sync::Condvar)>);
+
+impl Drop for OpenOnDrop {
+    fn drop(&mut self) {
+        let (open, opened) = &*self.0;
+        *open.lock().unwrap_or_else(|poisoned| poisoned.into_inner()) = true;
+        opened.notify_all();
+    }
+}
+
 fn background(bytes: &[u8], threads: usize) -> Runtime {
     Runtime::with_loading(
         Box::new(VdtFile::from_bytes(bytes.to_vec()).unwrap()),
@@ -282,4 +294,154 @@ fn a_page_the_loader_cannot_read_is_reported_once_and_its_nodes_stay_folded() {
     assert_eq!(errors.len(), 1, "{errors:?}");
     let message = errors[0].to_string();
     assert!(message.contains(&format!("page {bad}")), "{message}");
+}
+
+/// The most pages any boundary node's path from the root passes through: how many page
+/// levels the cut descends.
+fn page_depth(runtime: &Runtime) -> usize {
+    let cut = runtime.cut();
+    let source = cut.store().source();
+    let first_nodes: Vec<u32> = source
+        .directory()
+        .iter()
+        .map(|entry| entry.first_node.get())
+        .collect();
+    let page_of = |id: u32| first_nodes.partition_point(|&first| first <= id) - 1;
+    let mut deepest = 0;
+    for id in cut.boundary() {
+        let (mut n, mut pages, mut page) = (id, 1, page_of(id));
+        while n != vds_runtime::NIL {
+            if page_of(n) != page {
+                page = page_of(n);
+                pages += 1;
+            }
+            n = cut.node(n).parent;
+        }
+        deepest = deepest.max(pages);
+    }
+    deepest
+}
+
+/// The loader looks ahead: a page it decodes has the pages below it that the cut will reach
+/// asked for at once, so after the first adjust asks for the root's children the cut's whole
+/// descent arrives without waiting for adjusts, and the second adjust settles the cut
+/// however many page levels it descends (without looking ahead: one adjust per level).
+#[test]
+fn pages_below_arrive_without_an_adjust_per_level() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let mut rng = Rng(5);
+    let mut deepest = 0;
+    for step in 0..6 {
+        let viewpoint = Viewpoint::Camera(random_camera(&mut rng, center, radius));
+        let mut runtime = background(&bytes, 1);
+        let goal = Goal::Threshold(0.5);
+        let rounds = settle(&mut runtime, &viewpoint, &no_backface(), goal);
+        let depth = page_depth(&runtime);
+        assert!(
+            rounds <= 2,
+            "step {step}: {rounds} adjusts to settle a cut {depth} pages deep"
+        );
+        deepest = deepest.max(depth);
+    }
+    assert!(
+        deepest >= 4,
+        "the cuts descend at most {deepest} pages: the test shows nothing"
+    );
+}
+
+/// A page source whose reads wait while its gate is closed, counting them.
+struct Gated {
+    file: VdtFile<Vec<u8>>,
+    gate: Arc<(Mutex<bool>, std::sync::Condvar)>,
+    reads: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl PageSource for Gated {
+    fn header(&self) -> &Header {
+        self.file.header()
+    }
+    fn directory(&self) -> &[PageEntry] {
+        self.file.directory()
+    }
+    fn read_page_into(&self, index: u32, page: &mut Page) -> Result<(), VdtError> {
+        let (open, opened) = &*self.gate;
+        let mut guard = open.lock().unwrap();
+        while !*guard {
+            guard = opened.wait(guard).unwrap();
+        }
+        drop(guard);
+        self.reads.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        self.file.read_page_into(index, page)
+    }
+}
+
+/// A page asked for by a node that no longer asks for it (the camera turned away) is taken
+/// back before a worker reaches it: it is not pending any more, and it is never read.
+#[test]
+fn pages_no_node_asks_for_any_more_are_not_read() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let gate = Arc::new((Mutex::new(true), std::sync::Condvar::new()));
+    let reads = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let source = Gated {
+        file: VdtFile::from_bytes(bytes).unwrap(),
+        gate: Arc::clone(&gate),
+        reads: Arc::clone(&reads),
+    };
+    let mut runtime = Runtime::with_loading(
+        Box::new(source),
+        CornerTracking::Ranks,
+        Loading::Background { threads: 1 },
+    )
+    .unwrap();
+    let _open_on_drop = OpenOnDrop(Arc::clone(&gate));
+    let close = vds_runtime::Camera {
+        eye: [center[0], center[1], center[2] + 1.5 * radius],
+        target: center,
+        up: [0.0, 1.0, 0.0],
+        fov_y_degrees: 60.0,
+        width: 800,
+        height: 600,
+        near: 0.01 * radius,
+    };
+    let viewpoint = Viewpoint::Camera(close);
+    // A coarse cut first, spread over several pages, so that refining it asks for many.
+    settle(
+        &mut runtime,
+        &viewpoint,
+        &no_backface(),
+        Goal::Threshold(8.0),
+    );
+    *gate.0.lock().unwrap() = false;
+    let read_before = reads.load(std::sync::atomic::Ordering::SeqCst);
+    let goal = Goal::Threshold(0.5);
+    runtime.adjust(&viewpoint, &no_backface(), goal).unwrap();
+    let asked = runtime.pending_pages();
+    assert!(
+        asked > 1,
+        "only {asked} pages asked for: the test shows nothing"
+    );
+    let away = vds_runtime::Camera {
+        target: [center[0], center[1], center[2] + 3.0 * radius],
+        ..close
+    };
+    let frame = runtime
+        .adjust(&Viewpoint::Camera(away), &no_backface(), goal)
+        .unwrap();
+    assert_eq!(frame.stats.deferred_unfolds, 0, "a node still waits");
+    assert_eq!(
+        runtime.pending_pages(),
+        0,
+        "pages nobody waits for are pending"
+    );
+    *gate.0.lock().unwrap() = true;
+    gate.1.notify_all();
+    runtime.wait_for_pages();
+    // Only the page a worker had taken before the camera turned; nothing below it (the
+    // loader looks ahead with the turned view).
+    let read = reads.load(std::sync::atomic::Ordering::SeqCst) - read_before;
+    assert!(read <= 1, "{read} pages read of the {asked} taken back");
 }

@@ -109,6 +109,12 @@ enum Commands {
         /// Keep corners by rank tracking (no slots) instead of incidence lists.
         #[arg(long)]
         ranks: bool,
+        /// Print a line per frame while the start and the turn refine.
+        #[arg(long)]
+        trace: bool,
+        /// Skip the fly-through with every page resident (slow on large files).
+        #[arg(long)]
+        loading_only: bool,
     },
     /// The runtime: adjust time along camera paths (bunny orbit, generated CAD scene
     /// fly-through) at t = 1 and 5 px, and the bunny's fidelity table (`vds-bench fidelity`).
@@ -210,6 +216,8 @@ fn main() -> Result<()> {
             frames,
             memory_budget,
             ranks,
+            trace,
+            loading_only,
         }) => {
             let threads = threads
                 .unwrap_or_else(vds_runtime::default_loading_threads)
@@ -217,19 +225,21 @@ fn main() -> Result<()> {
             if !(0.0..=10_000.0).contains(&pace_ms) {
                 bail!("--pace-ms must be from 0 to 10000, got {pace_ms}");
             }
-            return refine::run(
-                &file,
-                threshold,
+            let options = refine::Options {
+                t: threshold,
                 threads,
                 pace_ms,
-                frames.max(2),
-                memory_budget,
-                if ranks {
+                frames: frames.max(2),
+                budget: memory_budget,
+                tracking: if ranks {
                     vds_runtime::CornerTracking::Ranks
                 } else {
                     vds_runtime::CornerTracking::Incidence
                 },
-            );
+                trace,
+                loading_only,
+            };
+            return refine::run(&file, &options);
         }
         Some(Commands::Fidelity { meshes }) => {
             let meshes = if meshes.is_empty() {

@@ -30,8 +30,15 @@ struct Settling {
     effective_threshold: f32,
 }
 
-/// Adjusts for `camera` at `pace` until a frame defers nothing and nothing is pending.
-fn settle(runtime: &mut Runtime, camera: &Camera, goal: Goal, pace: Duration) -> Result<Settling> {
+/// Adjusts for `camera` at `pace` until a frame defers nothing and nothing is pending. With
+/// `trace`, prints a line per frame: what the cut waited for and what the budget held.
+fn settle(
+    runtime: &mut Runtime,
+    camera: &Camera,
+    goal: Goal,
+    pace: Duration,
+    trace: bool,
+) -> Result<Settling> {
     let criteria = Criteria::default();
     let pages_before = runtime.memory().pages_loaded;
     let start = Instant::now();
@@ -45,6 +52,25 @@ fn settle(runtime: &mut Runtime, camera: &Camera, goal: Goal, pace: Duration) ->
         }
         if let Some(error) = runtime.take_page_errors().into_iter().next() {
             return Err(error.into());
+        }
+        if trace {
+            let m = &adjusted.memory;
+            println!(
+                "    frame {frame:4} at {:7.1} ms: adjust {:6.2} ms, t {:7.2} px, {:5} unfolds, \
+                 {:5} put off, {:5} pending, {:6} resident ({} of which pinned), {} loaded, \
+                 {} evicted, {} refusals",
+                start.elapsed().as_secs_f64() * 1e3,
+                adjust_start.elapsed().as_secs_f64() * 1e3,
+                adjusted.effective_threshold.unwrap_or(f32::NAN),
+                stats.unfolds,
+                stats.deferred_unfolds,
+                m.pages_pending,
+                m.pages_resident,
+                vds_runtime::size::format_size(m.pinned_bytes),
+                m.pages_loaded,
+                m.pages_evicted,
+                m.refusals,
+            );
         }
         if stats.deferred_unfolds == 0 && runtime.pending_pages() == 0 {
             return Ok(Settling {
@@ -67,9 +93,12 @@ fn settle(runtime: &mut Runtime, camera: &Camera, goal: Goal, pace: Duration) ->
 /// threshold, pages evicted.
 struct Played {
     times: Vec<f64>,
+    /// The effective threshold of each frame.
+    thresholds: Vec<f64>,
     most_bytes: u64,
     highest_threshold: f32,
     evicted: u64,
+    loaded: u64,
     /// Unfolds put off for pages not yet resident, over all frames.
     deferred: u64,
     /// Frames that put off at least one unfold.
@@ -79,9 +108,11 @@ struct Played {
 fn play(runtime: &mut Runtime, path: &CameraPath, goal: Goal, pace: Duration) -> Result<Played> {
     let criteria = Criteria::default();
     let mut times = Vec::with_capacity(path.cameras.len());
+    let mut thresholds = Vec::with_capacity(path.cameras.len());
     let (mut most_bytes, mut highest_threshold) = (0u64, 0.0f32);
     let (mut deferred, mut lagging_frames) = (0u64, 0u32);
     let evicted_before = runtime.memory().pages_evicted;
+    let loaded_before = runtime.memory().pages_loaded;
     let start = Instant::now();
     for (i, camera) in path.cameras.iter().enumerate() {
         if let Some(wait) = (pace * i as u32).checked_sub(start.elapsed()) {
@@ -92,14 +123,17 @@ fn play(runtime: &mut Runtime, path: &CameraPath, goal: Goal, pace: Duration) ->
         times.push(t.elapsed().as_secs_f64() * 1e3);
         most_bytes = most_bytes.max(frame.memory.resident_bytes);
         highest_threshold = highest_threshold.max(frame.effective_threshold.unwrap_or(0.0));
+        thresholds.push(f64::from(frame.effective_threshold.unwrap_or(f32::NAN)));
         deferred += u64::from(frame.stats.deferred_unfolds);
         lagging_frames += u32::from(frame.stats.deferred_unfolds > 0);
     }
     Ok(Played {
         times,
+        thresholds,
         most_bytes,
         highest_threshold,
         evicted: runtime.memory().pages_evicted - evicted_before,
+        loaded: runtime.memory().pages_loaded - loaded_before,
         deferred,
         lagging_frames,
     })
@@ -125,16 +159,38 @@ fn evict(file: &Path) -> bool {
     }
 }
 
-/// Runs the measurements on `file` at threshold `t` with `threads` loading threads.
-pub fn run(
-    file: &Path,
-    t: f32,
-    threads: usize,
-    pace_ms: f64,
-    frames: u32,
-    budget: u64,
-    tracking: CornerTracking,
-) -> Result<()> {
+/// How `vds-bench refine` measures.
+pub struct Options {
+    /// The screen-space error threshold in pixels.
+    pub t: f32,
+    /// Background loading threads.
+    pub threads: usize,
+    /// The time between frames, in milliseconds.
+    pub pace_ms: f64,
+    /// Frames of the fly-through.
+    pub frames: u32,
+    /// The runtime's memory budget in bytes.
+    pub budget: u64,
+    /// How the runtime tracks triangle corners.
+    pub tracking: CornerTracking,
+    /// Print one line per frame while a cut settles.
+    pub trace: bool,
+    /// Skip the fly-through with every page resident.
+    pub loading_only: bool,
+}
+
+/// Runs the measurements on `file` as `options` say.
+pub fn run(file: &Path, options: &Options) -> Result<()> {
+    let &Options {
+        t,
+        threads,
+        pace_ms,
+        frames,
+        budget,
+        tracking,
+        trace,
+        loading_only,
+    } = options;
     let pace = Duration::from_secs_f64(pace_ms / 1e3);
     let goal = Goal::Threshold(t);
     let cold = evict(file);
@@ -150,13 +206,13 @@ pub fn run(
     let path = CameraPath::fly_through(center, radius, frames, 1920, 1080);
     let start_camera = path.cameras[0];
     let opened = open_start.elapsed();
-    let refined = settle(&mut runtime, &start_camera, goal, pace)?;
+    let refined = settle(&mut runtime, &start_camera, goal, pace, trace)?;
     let first_frame_ms = (opened + refined.first_adjust).as_secs_f64() * 1e3;
     let first_adjust_ms = refined.first_adjust.as_secs_f64() * 1e3;
     // The same eye, looking the other way.
     let mut turned = start_camera;
     turned.target = [0, 1, 2].map(|k| 2.0 * start_camera.eye[k] - start_camera.target[k]);
-    let turn = settle(&mut runtime, &turned, goal, pace)?;
+    let turn = settle(&mut runtime, &turned, goal, pace, trace)?;
 
     println!(
         "{}: {pages} pages, t = {t} px, {threads} loading thread(s), frames every {pace_ms:.1} ms, \
@@ -192,27 +248,32 @@ pub fn run(
         Runtime::with_loading(Box::new(vdt), tracking, Loading::Background { threads })?;
     loading.set_memory_budget(budget);
     let background = play(&mut loading, &path, goal, pace)?;
+    let mut runs = vec![("background loading within the budget", background)];
     // ...and the same path with every page decoded first.
-    let vdt = vds_format::VdtFile::open(file)?;
-    let mut resident = Runtime::new(Box::new(vdt), tracking)?;
-    resident.set_memory_budget(u64::MAX);
-    resident.load_every_page()?;
-    let synchronous = play(&mut resident, &path, goal, pace)?;
-    for (what, played) in [
-        ("background loading within the budget", &background),
-        ("every page resident", &synchronous),
-    ] {
+    if !loading_only {
+        let vdt = vds_format::VdtFile::open(file)?;
+        let mut resident = Runtime::new(Box::new(vdt), tracking)?;
+        resident.set_memory_budget(u64::MAX);
+        resident.load_every_page()?;
+        runs.push((
+            "every page resident",
+            play(&mut resident, &path, goal, pace)?,
+        ));
+    }
+    for (what, played) in &runs {
         let times = &played.times;
         println!(
             "  fly-through, {} frames, {what}: adjust median {:.3} ms, p99 {:.3} ms, max {:.3} ms; \
-             at most {} held, effective threshold at most {} px, {} pages evicted; {} frames \
-             coarser than asked for, waiting on pages ({} unfolds put off in all)",
+             at most {} held, effective threshold median {} px, at most {} px, {} pages loaded, {} evicted; \
+             {} frames coarser than asked for, waiting on pages ({} unfolds put off in all)",
             times.len(),
             percentile(times, 0.5),
             percentile(times, 0.99),
             percentile(times, 1.0),
             vds_runtime::size::format_size(played.most_bytes),
+            percentile(&played.thresholds, 0.5),
             played.highest_threshold,
+            played.loaded,
             played.evicted,
             played.lagging_frames,
             played.deferred,
