@@ -225,7 +225,9 @@ impl Runtime {
     }
 
     /// Raises the effective threshold while the cut does not fit (Cesium's memory-adjusted
-    /// screen-space error): while the pinned bytes alone are over the budget, or a page or
+    /// screen-space error): while the cut's demand ([`NodeStore::demanded_bytes`]: what it
+    /// pins and the pages its waiting nodes asked for) is over what arrivals are held to, or
+    /// the pinned bytes alone are over the budget, or a page or
     /// growth step the cut needed was refused that would not have fitted even with every
     /// unpinned page evicted, or refusals of any kind went on for [`REFUSING_FRAMES`] frames
     /// in a row. (A refusal that would have fitted is, at first, the budget waiting a frame
@@ -234,11 +236,11 @@ impl Runtime {
     /// threshold comes back down.
     ///
     /// Each step is proportional: a threshold `s` times larger asks for about `1/s²` the
-    /// triangles, so the step is the square root of how far the pinned bytes are from
+    /// triangles, so the step is the square root of how far the demand is from
     /// [`TARGET_SHARE`] of the budget, within [`STEP_UP`] or [`STEP_DOWN`], and the
-    /// threshold settles near the cut that fits instead of overshooting it. The pinned bytes
-    /// cannot show how far a cut that does not fit is from fitting (they stop at the budget,
-    /// and a page stays pinned until its last node leaves the cut), so while the threshold
+    /// threshold settles near the cut that fits instead of overshooting it. The demand
+    /// cannot show how far a cut that does not fit is from fitting (the pinned bytes stop at
+    /// the budget, and a page stays pinned until its last node leaves the cut), so while the threshold
     /// rises frame after frame because the cut does not fit, each step up is [`STEP_GROWTH`]
     /// times the one before: a threshold that must rise twentyfold gets there in about ten
     /// frames, not sixty, and overshoots by at most one step.

@@ -1441,7 +1441,8 @@ impl NodeStore {
         self.pinned_total() + u64::from(self.pending_pages) * self.typical_page_bytes
     }
 
-    /// What arrivals and the cut's growth are held to ([`NodeStore::limit`]).
+    /// What arrivals and the cut's growth are held to: the budget less a sixteenth kept free
+    /// for what a frame's changes add to the cut's journal before the frame ends.
     pub fn arrival_limit(&self) -> u64 {
         self.limit()
     }
