@@ -229,7 +229,7 @@ pub fn run(file: &Path, options: &Options) -> Result<()> {
         let seconds = s.elapsed.as_secs_f64();
         println!(
             "  fully refined {what}: {:.0} ms, {} frames, {} pages ({:.0} pages/s while \
-             refining at this pace, {:.0} per loading thread), at {} px",
+             refining at this pace, {:.0} per loading thread), at {:.1} px",
             seconds * 1e3,
             s.frames,
             s.pages,
@@ -264,7 +264,7 @@ pub fn run(file: &Path, options: &Options) -> Result<()> {
         let times = &played.times;
         println!(
             "  fly-through, {} frames, {what}: adjust median {:.3} ms, p99 {:.3} ms, max {:.3} ms; \
-             at most {} held, effective threshold median {} px, at most {} px, {} pages loaded, {} evicted; \
+             at most {} held, effective threshold median {:.1} px, at most {:.1} px, {} pages loaded, {} evicted; \
              {} frames coarser than asked for, waiting on pages ({} unfolds put off in all)",
             times.len(),
             percentile(times, 0.5),
