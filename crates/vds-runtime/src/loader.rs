@@ -28,10 +28,14 @@ use std::thread::JoinHandle;
 use vds_format::{Page, VdtError};
 
 use crate::criteria::{Decision, Judge};
-use crate::store::{Node, PageSource, Tested, tested_parts};
+use crate::store::{Node, PageSource, Tested, page_holding, tested_parts};
 
 /// Decoded pages that may wait per worker for the store to take them in, at least.
 pub(crate) const WAITING: usize = 32;
+
+/// The loader's bytes per page of the file (`taken`, `in_flight`, `foreseen`), counted in
+/// the store's table bytes.
+pub(crate) const PER_PAGE_BYTES: usize = 3 * size_of::<bool>();
 
 /// What the workers look ahead with ([module documentation](self)): the view and threshold
 /// of the last adjust, and how many more pages the store has room for.
@@ -101,11 +105,13 @@ impl Ord for Request {
 }
 
 impl Loader {
-    /// Starts `threads` workers (at least one) reading pages of `source`, with at most
+    /// Starts `threads` workers (at least one) reading pages of `source`, whose pages start
+    /// at the nodes `first_nodes` (the store's, for looking ahead), with at most
     /// `waiting` decoded pages (at least [`WAITING`] per worker) waiting for the store; fails
     /// when the system cannot start a thread.
     pub(crate) fn start(
         source: Arc<dyn PageSource>,
+        first_nodes: Arc<[u32]>,
         threads: usize,
         waiting: usize,
     ) -> Result<Loader, VdtError> {
@@ -123,12 +129,6 @@ impl Loader {
             }),
             wake: Condvar::new(),
         });
-        // Per page, its first node: where a worker looking ahead finds a child's page.
-        let first_nodes: Arc<[u32]> = source
-            .directory()
-            .iter()
-            .map(|entry| entry.first_node.get())
-            .collect();
         // Decoded pages wait here until the store takes them in, a bounded number: a store
         // that does not poll (a viewer waiting for input) stops the workers instead of
         // letting decoded pages pile up outside its memory budget, and one that polls once a
@@ -377,12 +377,8 @@ fn foresee(
             continue;
         }
         let priority = foresight.judge.screen_error(tested);
-        let page_of = |id: u32| {
-            first_nodes
-                .partition_point(|&first| first <= id)
-                .saturating_sub(1)
-        };
-        for child_page in page_of(node.first_child)..=page_of(last) {
+        let pages = page_holding(first_nodes, node.first_child)..=page_holding(first_nodes, last);
+        for child_page in pages {
             below.push(Request {
                 priority,
                 page: child_page as u32,

@@ -183,6 +183,15 @@ impl Shape {
     }
 }
 
+/// The page holding node `id`, given each page's first node (`first_nodes[0]` is 0,
+/// checked at open, so some page starts at or before any id).
+#[inline]
+pub(crate) fn page_holding(first_nodes: &[u32], id: u32) -> usize {
+    first_nodes
+        .partition_point(|&first| first <= id)
+        .saturating_sub(1)
+}
+
 /// The two records the criteria read of `node`, as a resident page keeps them (the group
 /// bound is zero: it is set when the children load).
 pub(crate) fn tested_parts(node: &Node) -> (Hot, Shape) {
@@ -544,7 +553,8 @@ pub struct NodeStore {
     node_count: u32,
     triangle_count: u32,
     vertex_count: u32,
-    page_first_node: Vec<u32>,
+    /// Per page, its first node id (shared with the background loader).
+    page_first_node: std::sync::Arc<[u32]>,
     page_first_triangle: Vec<u32>,
     /// Node ids per block of `block_slot`, as a shift.
     block_shift: u32,
@@ -640,7 +650,8 @@ impl NodeStore {
             return Err(VdtError::invalid("tree", "the file holds no nodes"));
         }
         let directory = source.directory();
-        let page_first_node: Vec<u32> = directory.iter().map(|p| p.first_node.get()).collect();
+        let page_first_node: std::sync::Arc<[u32]> =
+            directory.iter().map(|p| p.first_node.get()).collect();
         let page_first_triangle: Vec<u32> =
             directory.iter().map(|p| p.first_triangle.get()).collect();
         if page_first_node.first() != Some(&0) {
@@ -663,6 +674,7 @@ impl NodeStore {
             Loading::Synchronous => None,
             Loading::Background { threads } => Some(crate::loader::Loader::start(
                 std::sync::Arc::clone(&source),
+                std::sync::Arc::clone(&page_first_node),
                 threads,
                 // Decoded pages waiting for the store are held outside its budget: as many
                 // as fit in WAITING_BYTES.
@@ -676,7 +688,7 @@ impl NodeStore {
                 + size_of::<u32>()
                 + size_of::<f32>()
                 + if loader.is_some() {
-                    1 + size_of::<u32>()
+                    crate::loader::PER_PAGE_BYTES + size_of::<u32>()
                 } else {
                     0
                 })
@@ -987,8 +999,7 @@ impl NodeStore {
         if id >= self.node_count {
             return None;
         }
-        // Page 0 starts at node 0 (checked at open), so some page starts at or before `id`.
-        Some((self.page_first_node.partition_point(|&f| f <= id) - 1) as u32)
+        Some(page_holding(&self.page_first_node, id) as u32)
     }
 
     /// The page holding triangle `index`, if any.
