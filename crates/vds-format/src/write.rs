@@ -1,12 +1,13 @@
 //! Writing `.vdt` files: page layout, parallel compression, and an atomic, deterministic
 //! write (a temporary file beside the target, renamed into place).
 //!
-//! Page layout: the tree is cut into *treelets*. A page starts from a group of siblings and
-//! takes child groups breadth-first until its byte budget is reached; the groups that did
-//! not fit start later pages, taken depth-first (last in, first out), so a root-to-leaf path
-//! crosses about `depth / treelet depth` pages and neighbouring treelets sit next to each other
-//! in the file. A treelet that ends before its page is full (near the leaves) leaves the rest
-//! of the page to the next pending treelet, which is its nearest neighbour in the tree.
+//! Page layout: pages hold the tree *level by level*. Within what is laid out together (the
+//! top, or one region below), sibling groups are taken breadth-first, each level in leaf order,
+//! and cut into pages at the byte budget. A page is then a slice of one or two levels over a
+//! spatially compact stretch of the tree, not a treelet several levels deep: a boundary that
+//! passes through a page leaves few of its nodes far below the cut, so a memory budget holds
+//! a finer cut (pages are the runtime's unit of residency; `docs/benchmarks.md`, "Page shape
+//! under a budget"). A root-to-leaf path crosses about one page per level.
 //!
 //! The tree is laid out in *regions* ([`region_leaves`]): first its top (the nodes with more
 //! leaves than a region holds, and their children), then, in leaf order, the subtree below
@@ -28,11 +29,13 @@ use zerocopy::little_endian::{U32, U64};
 use crate::layout::*;
 use crate::{Grid, Metadata, VdtError};
 
-/// Default bytes of decoded records per page: large enough to compress well, small enough to
-/// page in fast. 128 KiB, the size of Nanite's streaming pages, compresses to about 14 KiB on
-/// the bunny and 5 KiB on CAD scenes; 64 KiB pages cost the bunny 3.5 % more bytes (zstd's
-/// per-frame tables weigh more on small frames).
-pub const DEFAULT_PAGE_BYTES: u32 = 128 * 1024;
+/// Default bytes of decoded records per page. Pages are the runtime's unit of residency, so
+/// smaller pages let a memory budget hold a finer cut, and larger ones compress better and
+/// cost fewer per-page tables. 32 KiB compresses to about 1.3 KiB on generated CAD scenes;
+/// against 128 KiB pages the files are 12–24 % larger and a 256 MiB budget holds a cut of the
+/// 50 M scene about five times finer in screen error (`docs/benchmarks.md`, "Page shape under
+/// a budget").
+pub const DEFAULT_PAGE_BYTES: u32 = 32 * 1024;
 /// Default zstd level: on generated CAD scenes level 6 gave smaller files than 9 (17.5 vs
 /// 17.7 B/triangle) in half the time; 15 saves 15 % more at 10× the time.
 pub const DEFAULT_ZSTD_LEVEL: i32 = 6;
@@ -243,9 +246,10 @@ fn region_roots(nodes: &impl NodeSource, page_bytes: u32) -> Vec<u32> {
 }
 
 /// Plans pages from `start`: the sibling groups of each page, its triangle and node counts
-/// (read here once, where each group's size is measured anyway). A node's children are laid
-/// out only where `expand` says so. With `quarter_first`, the first page has a quarter of the
-/// budget and holds the start's treelet alone.
+/// (read here once, where each group's size is measured anyway). Groups are taken
+/// breadth-first, so each level follows the one above it in leaf order, and a page ends where
+/// the next group would pass the budget. A node's children are laid out only where `expand`
+/// says so. With `quarter_first`, the first page has a quarter of the budget.
 fn plan_pages<N: NodeSource>(
     nodes: &N,
     start: Group,
@@ -253,68 +257,54 @@ fn plan_pages<N: NodeSource>(
     quarter_first: bool,
     expand: impl Fn(&NodeRecord) -> bool,
 ) -> Vec<PagePlan> {
-    let page_bytes = page_bytes.max(NODE_BYTES as u32);
-    // A group's subtris, with its nodes' child groups put in `children`: one record of each
-    // node (records are made on demand, and planning runs on one thread).
-    let measure = |g: &Group, children: &mut Vec<Group>| -> u64 {
-        children.clear();
+    let page_bytes = u64::from(page_bytes.max(NODE_BYTES as u32));
+    let mut pages: Vec<PagePlan> = Vec::new();
+    let mut page = PagePlan {
+        groups: Vec::new(),
+        triangles: 0,
+        nodes: 0,
+    };
+    let mut page_budget = if quarter_first {
+        page_bytes / 4
+    } else {
+        page_bytes
+    };
+    let mut bytes = 0u64;
+    let mut queue = VecDeque::from([start]);
+    while let Some(group) = queue.pop_front() {
+        // One record of each node: records are made on demand, and planning runs on one
+        // thread.
         let mut triangles = 0u64;
-        for id in g.first..g.first + g.count {
+        for id in group.first..group.first + group.count {
             let n = nodes.node_record(id);
             triangles += u64::from(n.subtri_count.get());
             if n.child_count > 0 && expand(&n) {
-                children.push(Group {
+                queue.push_back(Group {
                     first: n.first_child.get(),
                     count: u32::from(n.child_count),
                 });
             }
         }
-        triangles
-    };
-    let mut children = Vec::new();
-    let mut pages: Vec<PagePlan> = Vec::new();
-    let mut stack = vec![start];
-    while let Some(start) = stack.pop() {
-        let first = quarter_first && pages.is_empty();
-        let budget = if first { page_bytes / 4 } else { page_bytes };
-        let mut page = Vec::new();
-        let mut page_triangles = 0u64;
-        let mut page_nodes = 0usize;
-        let mut bytes = 0u64;
-        let mut queue = VecDeque::from([start]);
-        loop {
-            // When this treelet is exhausted, keep filling the page with the next pending
-            // treelet: the stack's top is the nearest unfinished part of the tree.
-            if queue.is_empty() {
-                match stack.pop() {
-                    Some(next) if !first => queue.push_back(next),
-                    Some(next) => {
-                        stack.push(next);
-                        break;
-                    }
-                    None => break,
-                }
-            }
-            let group = queue[0];
-            let triangles = measure(&group, &mut children);
-            let size =
-                NODE_BYTES as u64 * u64::from(group.count) + TRIANGLE_BYTES as u64 * triangles;
-            if !page.is_empty() && bytes + size > u64::from(budget) {
-                break;
-            }
-            queue.pop_front();
-            page.push(group);
-            page_triangles += triangles;
-            page_nodes += group.count as usize;
-            bytes += size;
-            queue.extend(children.iter().copied());
+        let size = NODE_BYTES as u64 * u64::from(group.count) + TRIANGLE_BYTES as u64 * triangles;
+        if !page.groups.is_empty() && bytes + size > page_budget {
+            pages.push(std::mem::replace(
+                &mut page,
+                PagePlan {
+                    groups: Vec::new(),
+                    triangles: 0,
+                    nodes: 0,
+                },
+            ));
+            page_budget = page_bytes;
+            bytes = 0;
         }
-        stack.extend(queue.into_iter().rev());
-        pages.push(PagePlan {
-            groups: page,
-            triangles: page_triangles as usize,
-            nodes: page_nodes,
-        });
+        page.groups.push(group);
+        page.triangles += triangles as usize;
+        page.nodes += group.count as usize;
+        bytes += size;
+    }
+    if !page.groups.is_empty() {
+        pages.push(page);
     }
     pages
 }

@@ -91,7 +91,7 @@ const STREAM_AHEAD: usize = 32;
 
 /// How many levels below a folded node pages are fetched ahead of need when the node is
 /// about to unfold: a camera closing in fast unfolds several levels in one frame, and each
-/// level's treelet may be another page.
+/// level may be another page.
 const PREFETCH_LEVELS: u32 = 3;
 
 /// How many folded nodes a frame looks below for pages to fetch ([`PREFETCH_LEVELS`]), the

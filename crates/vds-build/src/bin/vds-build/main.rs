@@ -140,7 +140,7 @@ struct PageOptions {
     /// Decoded bytes of tree records per page (4KiB to 1MiB; suffixes as for sizes). Smaller
     /// pages let a runtime under a memory budget hold less below its cut, at some cost in
     /// file size.
-    #[arg(long, value_name = "SIZE", default_value = "128KiB", value_parser = page_size)]
+    #[arg(long, value_name = "SIZE", default_value_t = vds_format::DEFAULT_PAGE_BYTES, value_parser = page_size)]
     page_bytes: u32,
 }
 
