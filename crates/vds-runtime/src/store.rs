@@ -321,7 +321,6 @@ const NOT_AWAITED: f32 = f32::NEG_INFINITY;
 struct ResidentPage {
     /// The page's index in the file.
     index: u32,
-    first_node: u32,
     first_triangle: u32,
     hot: Vec<Hot>,
     shape: Vec<Shape>,
@@ -355,7 +354,6 @@ impl ResidentPage {
         let t = page.triangles.len();
         let mut resident = ResidentPage {
             index,
-            first_node: page.first_node,
             first_triangle: page.first_triangle,
             hot: Vec::with_capacity(n),
             shape: Vec::with_capacity(n),
@@ -475,15 +473,53 @@ struct Place {
     local: u32,
 }
 
-/// The node → slot table's blocks: `2^shift` node ids each, the largest power of two at most
-/// a sixteenth of a page's average node count (4 to 65536 ids). A block that straddles two
-/// pages has no entry (the look-up then searches the page directory), so the blocks must be
-/// small against pages for most look-ups to take the table: with sixteen or more blocks a
-/// page, at most about one id in eight falls in a straddling block. The table costs 4 B a
-/// block, about 64 B a page of the file.
+/// The node → page table's blocks: `2^shift` node ids each, the largest power of two at most
+/// a page's average node count (1 to 65536 ids), so that one or two blocks start in a page
+/// of average size and the table costs 4 to 8 B a page of the file.
 fn block_shift(node_count: u32, page_count: usize) -> u32 {
-    let per_block = (u64::from(node_count) / page_count.max(1) as u64 / 16).max(1);
-    (63 - per_block.leading_zeros()).clamp(2, 16)
+    let per_block = (u64::from(node_count) / page_count.max(1) as u64).max(1);
+    (63 - per_block.leading_zeros()).min(16)
+}
+
+/// Steps of the look-up's walk along the page directory before it searches instead: a block
+/// is no longer than an average page, so a walk of one step or none finds nearly every node.
+const WALK_STEPS: usize = 4;
+
+/// The page holding node `id` (what [`page_holding`] finds), from the page its block starts
+/// in (`block_page`, made by [`block_pages`]): a short walk along the directory, or a search
+/// past [`WALK_STEPS`] pages, since a hostile file's pages may be of any size.
+#[inline]
+fn page_from_block(first_nodes: &[u32], block_page: &[u32], shift: u32, id: u32) -> usize {
+    let block = (id >> shift) as usize;
+    let mut page = block_page[block] as usize;
+    for _ in 0..WALK_STEPS {
+        match first_nodes.get(page + 1) {
+            Some(&next) if next <= id => page += 1,
+            _ => return page,
+        }
+    }
+    // The page holding the next block's first node is the last that can hold `id`.
+    let end = block_page
+        .get(block + 1)
+        .map_or(first_nodes.len(), |&p| p as usize + 1)
+        .clamp(page + 1, first_nodes.len());
+    page + page_holding(&first_nodes[page..end], id)
+}
+
+/// Per block of `2^shift` node ids, the page holding the block's first node (the directory is
+/// `first_nodes`, ascending from 0).
+fn block_pages(first_nodes: &[u32], node_count: u32, shift: u32) -> Vec<u32> {
+    let blocks = (node_count >> shift) as usize + 1;
+    let mut page = 0usize;
+    (0..blocks)
+        .map(|block| {
+            let id = (block as u32) << shift;
+            while first_nodes.get(page + 1).is_some_and(|&next| next <= id) {
+                page += 1;
+            }
+            page as u32
+        })
+        .collect()
 }
 
 /// Memory figures of a store ([`NodeStore::memory`]).
@@ -529,7 +565,7 @@ fn physical_memory() -> Option<u64> {
 ///
 /// Nothing here is sized by the model but a few tables with an entry per page of the file
 /// (where a page starts, its slot, its state) and the node → page table of one entry per
-/// block of node ids (`block_shift`). Every per-node and per-triangle record lives in the resident
+/// block of node ids (`block_shift`, `block_pages`). Every per-node and per-triangle record lives in the resident
 /// page that holds it (`ResidentPage`), found through those tables.
 ///
 /// ## Memory budget and eviction
@@ -556,11 +592,11 @@ pub struct NodeStore {
     /// Per page, its first node id (shared with the background loader).
     page_first_node: std::sync::Arc<[u32]>,
     page_first_triangle: Vec<u32>,
-    /// Node ids per block of `block_slot`, as a shift.
+    /// Node ids per block of `block_page`, as a shift.
     block_shift: u32,
-    /// Per block of node ids: the slot of the resident page that holds the whole block, or
-    /// [`NIL`] (not resident, or the block spans pages): the look-up's fast path.
-    block_slot: Vec<u32>,
+    /// Per block of node ids: the page holding its first node, where the look-up of any node
+    /// of the block starts its walk along the page directory.
+    block_page: Vec<u32>,
     page_state: Vec<PageState>,
     /// Per page: its slot in `pages`, or [`NIL`].
     page_slot: Vec<u32>,
@@ -664,7 +700,7 @@ impl NodeStore {
         // The reader checked that pages start in ascending order; the table takes that as
         // given only through `partition_point`, which stays in bounds whatever the order.
         let shift = block_shift(node_count, page_count);
-        let blocks = (node_count >> shift) as usize + 1;
+        let block_page = block_pages(&page_first_node, node_count, shift);
         let typical_page_bytes = ResidentPage::bytes_for(
             (node_count as usize).div_ceil(page_count),
             (triangle_count as usize).div_ceil(page_count),
@@ -692,7 +728,7 @@ impl NodeStore {
                 } else {
                     0
                 })
-            + blocks * size_of::<u32>()) as u64;
+            + block_page.len() * size_of::<u32>()) as u64;
         let mut store = NodeStore {
             source,
             node_count,
@@ -700,7 +736,7 @@ impl NodeStore {
             vertex_count,
             page_first_node,
             page_first_triangle,
-            block_slot: vec![NIL; blocks],
+            block_page,
             block_shift: shift,
             page_state: vec![PageState::Absent; page_count],
             page_slot: vec![NIL; page_count],
@@ -927,30 +963,8 @@ impl NodeStore {
         self.evictable_bytes -= page.bytes;
         self.page_bytes -= page.bytes;
         self.free_page_slots.push(slot);
-        for block in self.blocks_inside(index) {
-            self.block_slot[block] = NIL;
-        }
         self.page_state[index as usize] = PageState::Absent;
         self.pages_evicted += 1;
-    }
-
-    /// The blocks of node ids that lie wholly inside page `index`.
-    fn blocks_inside(&self, index: u32) -> std::ops::Range<usize> {
-        let first = self.page_first_node[index as usize];
-        let end = self
-            .page_first_node
-            .get(index as usize + 1)
-            .copied()
-            .unwrap_or(self.node_count)
-            .min(self.node_count);
-        let shift = self.block_shift;
-        let begin = first.div_ceil(1 << shift) as usize;
-        // A block ends at the next multiple of its size, or at the last node.
-        let mut stop = (end >> shift) as usize;
-        if end == self.node_count && end & ((1 << shift) - 1) != 0 {
-            stop += 1;
-        }
-        begin..stop.max(begin)
     }
 
     /// Number of nodes in the tree.
@@ -993,13 +1007,18 @@ impl NodeStore {
         std::mem::take(&mut self.page_errors)
     }
 
-    /// The page holding node `id`, if any.
+    /// The page holding node `id`, if any ([`page_from_block`]).
     #[inline]
     fn page_of(&self, id: u32) -> Option<u32> {
         if id >= self.node_count {
             return None;
         }
-        Some(page_holding(&self.page_first_node, id) as u32)
+        Some(page_from_block(
+            &self.page_first_node,
+            &self.block_page,
+            self.block_shift,
+            id,
+        ) as u32)
     }
 
     /// The page holding triangle `index`, if any.
@@ -1018,14 +1037,6 @@ impl NodeStore {
     fn place(&self, id: u32) -> Option<Place> {
         if id >= self.node_count {
             return None;
-        }
-        let fast = *self.block_slot.get((id >> self.block_shift) as usize)?;
-        if fast != NIL {
-            let first = self.resident(fast).first_node;
-            return Some(Place {
-                slot: fast,
-                local: id - first,
-            });
         }
         let page = self.page_of(id)?;
         let slot = self.page_slot[page as usize];
@@ -1195,16 +1206,6 @@ impl NodeStore {
             if listed {
                 evictable_bytes += page.bytes;
                 evictable += 1;
-            }
-        }
-        for (block, &slot) in self.block_slot.iter().enumerate() {
-            let page = self.pages.get(slot as usize).and_then(Option::as_ref);
-            let expected = self
-                .page_of((block as u32) << self.block_shift)
-                .filter(|&p| self.blocks_inside(p).contains(&block))
-                .map_or(NIL, |p| self.page_slot[p as usize]);
-            if slot != expected || (slot != NIL && page.is_none()) {
-                return Err(format!("block {block} of node ids points at slot {slot}"));
             }
         }
         if bytes != self.page_bytes
@@ -1897,9 +1898,6 @@ impl NodeStore {
             }
         };
         self.page_slot[index as usize] = slot;
-        for block in self.blocks_inside(index) {
-            self.block_slot[block] = slot;
-        }
         self.page_state[index as usize] = PageState::Resident;
         self.pages_loaded += 1;
         self.loaded
@@ -2011,4 +2009,36 @@ pub enum LoadError {
     /// The pages do not fit in the memory budget with what the cut pins.
     #[error("the children's pages do not fit in the memory budget")]
     OverBudget,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The block table's walk finds the page the directory search finds, for pages of any
+        /// size (one node, or far more than the average).
+        #[test]
+        fn block_walk_finds_the_page_the_search_finds(
+            sizes in proptest::collection::vec(
+                prop_oneof![1u32..4, 1u32..200, 1000u32..5000], 1..60),
+        ) {
+            let mut first_nodes = Vec::with_capacity(sizes.len());
+            let mut next = 0u32;
+            for size in &sizes {
+                first_nodes.push(next);
+                next += size;
+            }
+            let node_count = next;
+            let shift = block_shift(node_count, first_nodes.len());
+            let block_page = block_pages(&first_nodes, node_count, shift);
+            for id in 0..node_count {
+                prop_assert_eq!(
+                    page_from_block(&first_nodes, &block_page, shift, id),
+                    page_holding(&first_nodes, id)
+                );
+            }
+        }
+    }
 }
