@@ -162,6 +162,49 @@ fn pages_never_mix_regions_and_regions_follow_the_top_in_leaf_order() {
     }
 }
 
+/// Within the top and within each region, nodes follow breadth-first: depth never decreases
+/// along the ids, and each level is in leaf order. So a page holds a slice of one or two
+/// levels, not a treelet reaching far below a boundary that passes through it (what lets a
+/// memory budget hold a fine cut; `docs/benchmarks.md`, "Page shape under a budget").
+#[test]
+fn pages_hold_the_tree_level_by_level_in_leaf_order() {
+    for page_bytes in [vds_format::DEFAULT_PAGE_BYTES, 4096, 1024] {
+        let options = WriteOptions {
+            zstd_level: 3,
+            page_bytes,
+        };
+        let file = VdtFile::from_bytes(encoded("bunny.obj", &options)).unwrap();
+        let limit = vds_format::region_leaves(page_bytes);
+        const TOP: u32 = u32::MAX;
+        let mut region: Vec<u32> = Vec::new();
+        let mut leaves: Vec<u32> = Vec::new();
+        // Per region, the (depth, first leaf) of its last node so far.
+        let mut last = std::collections::HashMap::new();
+        for index in 0..file.directory().len() as u32 {
+            let page = file.read_page(index).unwrap();
+            for n in &page.nodes {
+                let parent = n.parent.get();
+                let r = if parent == u32::MAX || leaves[parent as usize] > limit {
+                    TOP
+                } else if region[parent as usize] == TOP {
+                    parent
+                } else {
+                    region[parent as usize]
+                };
+                region.push(r);
+                leaves.push(n.leaf_end.get() - n.leaf_begin.get());
+                let key = (n.depth.get(), n.leaf_begin.get());
+                if let Some(before) = last.insert(r, key) {
+                    assert!(
+                        before < key,
+                        "{page_bytes} B pages, page {index}: (depth, first leaf) {key:?} after {before:?}"
+                    );
+                }
+            }
+        }
+    }
+}
+
 fn leaf_begin_of(file: &VdtFile<Vec<u8>>, id: u32) -> u32 {
     let page = file.page_of_node(id).unwrap();
     file.read_page(page)
