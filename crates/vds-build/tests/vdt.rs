@@ -109,40 +109,54 @@ fn pages_hold_contiguous_nodes_and_root_page_is_small() {
     assert!(file.page_of_node(u32::MAX).is_err());
 }
 
+/// The region of a node laid out in the top of the file.
+const TOP: u32 = u32::MAX;
+
+/// The bunny's file with pages of `page_bytes`, each page decoded with its nodes' regions:
+/// the region root's id, or [`TOP`] for the top's nodes (parents come before children, so one
+/// pass in page order finds them).
+fn pages_with_regions(page_bytes: u32) -> (VdtFile<Vec<u8>>, Vec<(vds_format::Page, Vec<u32>)>) {
+    let options = WriteOptions {
+        zstd_level: 3,
+        page_bytes,
+    };
+    let file = VdtFile::from_bytes(encoded("bunny.obj", &options)).unwrap();
+    let limit = vds_format::region_leaves(page_bytes);
+    let mut region: Vec<u32> = Vec::new();
+    let mut leaves: Vec<u32> = Vec::new();
+    let mut pages = Vec::new();
+    for index in 0..file.directory().len() as u32 {
+        let page = file.read_page(index).unwrap();
+        let mut regions = Vec::with_capacity(page.nodes.len());
+        for n in &page.nodes {
+            let parent = n.parent.get();
+            let r = if parent == u32::MAX || leaves[parent as usize] > limit {
+                TOP
+            } else if region[parent as usize] == TOP {
+                parent
+            } else {
+                region[parent as usize]
+            };
+            region.push(r);
+            leaves.push(n.leaf_end.get() - n.leaf_begin.get());
+            regions.push(r);
+        }
+        pages.push((page, regions));
+    }
+    (file, pages)
+}
+
 /// The file is laid out in regions: top pages first, holding the nodes with more than a
 /// region's leaves and their children, then each region root's subtree in leaf order, no page
 /// mixing two regions (what lets the sharded merge encode one region at a time).
 #[test]
 fn pages_never_mix_regions_and_regions_follow_the_top_in_leaf_order() {
     for page_bytes in [4096, 1024] {
-        let options = WriteOptions {
-            zstd_level: 3,
-            page_bytes,
-        };
-        let file = VdtFile::from_bytes(encoded("bunny.obj", &options)).unwrap();
-        let limit = vds_format::region_leaves(page_bytes);
-        const TOP: u32 = u32::MAX;
-        // Each node's region: its region root, or TOP for the top's nodes. Parents come first.
-        let mut region: Vec<u32> = Vec::new();
-        let mut leaves: Vec<u32> = Vec::new();
+        let (file, pages) = pages_with_regions(page_bytes);
         let mut last_region_start = None;
         let mut regions_seen = 0;
-        for index in 0..file.directory().len() as u32 {
-            let page = file.read_page(index).unwrap();
-            let mut in_page = std::collections::BTreeSet::new();
-            for n in &page.nodes {
-                let parent = n.parent.get();
-                let r = if parent == u32::MAX || leaves[parent as usize] > limit {
-                    TOP
-                } else if region[parent as usize] == TOP {
-                    parent
-                } else {
-                    region[parent as usize]
-                };
-                region.push(r);
-                leaves.push(n.leaf_end.get() - n.leaf_begin.get());
-                in_page.insert(r);
-            }
+        for (index, (page, regions)) in pages.iter().enumerate() {
+            let in_page: std::collections::BTreeSet<u32> = regions.iter().copied().collect();
             assert_eq!(in_page.len(), 1, "page {index} mixes regions {in_page:?}");
             let r = *in_page.first().unwrap();
             if r == TOP {
@@ -169,30 +183,11 @@ fn pages_never_mix_regions_and_regions_follow_the_top_in_leaf_order() {
 #[test]
 fn pages_hold_the_tree_level_by_level_in_leaf_order() {
     for page_bytes in [vds_format::DEFAULT_PAGE_BYTES, 4096, 1024] {
-        let options = WriteOptions {
-            zstd_level: 3,
-            page_bytes,
-        };
-        let file = VdtFile::from_bytes(encoded("bunny.obj", &options)).unwrap();
-        let limit = vds_format::region_leaves(page_bytes);
-        const TOP: u32 = u32::MAX;
-        let mut region: Vec<u32> = Vec::new();
-        let mut leaves: Vec<u32> = Vec::new();
+        let (_, pages) = pages_with_regions(page_bytes);
         // Per region, the (depth, first leaf) of its last node so far.
         let mut last = std::collections::HashMap::new();
-        for index in 0..file.directory().len() as u32 {
-            let page = file.read_page(index).unwrap();
-            for n in &page.nodes {
-                let parent = n.parent.get();
-                let r = if parent == u32::MAX || leaves[parent as usize] > limit {
-                    TOP
-                } else if region[parent as usize] == TOP {
-                    parent
-                } else {
-                    region[parent as usize]
-                };
-                region.push(r);
-                leaves.push(n.leaf_end.get() - n.leaf_begin.get());
+        for (index, (page, regions)) in pages.iter().enumerate() {
+            for (n, &r) in page.nodes.iter().zip(regions) {
                 let key = (n.depth.get(), n.leaf_begin.get());
                 if let Some(before) = last.insert(r, key) {
                     assert!(
