@@ -112,10 +112,13 @@ fn pages_hold_contiguous_nodes_and_root_page_is_small() {
 /// The region of a node laid out in the top of the file.
 const TOP: u32 = u32::MAX;
 
+/// A decoded page and each of its nodes' regions.
+type PageWithRegions = (vds_format::Page, Vec<u32>);
+
 /// The bunny's file with pages of `page_bytes`, each page decoded with its nodes' regions:
 /// the region root's id, or [`TOP`] for the top's nodes (parents come before children, so one
 /// pass in page order finds them).
-fn pages_with_regions(page_bytes: u32) -> (VdtFile<Vec<u8>>, Vec<(vds_format::Page, Vec<u32>)>) {
+fn pages_with_regions(page_bytes: u32) -> (VdtFile<Vec<u8>>, Vec<PageWithRegions>) {
     let options = WriteOptions {
         zstd_level: 3,
         page_bytes,
