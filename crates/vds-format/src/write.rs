@@ -3,11 +3,12 @@
 //!
 //! Page layout: pages hold the tree *level by level*. Within what is laid out together (the
 //! top, or one region below), sibling groups are taken breadth-first, each level in leaf order,
-//! and cut into pages at the byte budget. A page is then a slice of one or two levels over a
-//! spatially compact stretch of the tree, not a treelet several levels deep: a boundary that
-//! passes through a page leaves few of its nodes far below the cut, so a memory budget holds
-//! a finer cut (pages are the runtime's unit of residency; `docs/benchmarks.md`, "Page shape
-//! under a budget"). A root-to-leaf path crosses about one page per level.
+//! and cut into pages at the byte budget. Below a region's first few narrow levels, a page is
+//! a slice of one or two levels over a spatially compact stretch of the tree, not a treelet
+//! several levels deep: a boundary that passes through a page leaves few of its nodes far
+//! below the cut, so a memory budget holds a finer cut (pages are the runtime's unit of
+//! residency; `docs/benchmarks.md`, "Page shape under a budget"). A root-to-leaf path crosses
+//! about one page per level below the region's first page.
 //!
 //! The tree is laid out in *regions* ([`region_leaves`]): first its top (the nodes with more
 //! leaves than a region holds, and their children), then, in leaf order, the subtree below
@@ -31,7 +32,7 @@ use crate::{Grid, Metadata, VdtError};
 
 /// Default bytes of decoded records per page. Pages are the runtime's unit of residency, so
 /// smaller pages let a memory budget hold a finer cut, and larger ones compress better and
-/// cost fewer per-page tables. 32 KiB compresses to about 1.3 KiB on generated CAD scenes;
+/// cost fewer per-page tables. 32 KiB compresses to about 1.6 KiB on generated CAD scenes;
 /// against 128 KiB pages the files are 12–24 % larger and a 256 MiB budget holds a cut of the
 /// 50 M scene about five times finer in screen error (`docs/benchmarks.md`, "Page shape under
 /// a budget").
@@ -110,14 +111,14 @@ pub struct WriteReport {
     pub pages: u32,
 }
 
-/// The most leaves a *region* holds for pages of `page_bytes` decoded bytes (32,768 for the
+/// The most leaves a *region* holds for pages of `page_bytes` decoded bytes (8,192 for the
 /// default pages): about 50 pages' worth of the nodes and triangles above those leaves (a
 /// leaf brings about two nodes and two triangles, some 200 decoded bytes), so that the partly
 /// filled page a region ends with is one in 50 in the largest regions (most are smaller: a
 /// region root is any child of a larger node that holds at most this many leaves). Measured
-/// against one layout of the whole tree: files 1.9–2.5 % smaller on the generated 1 M and
-/// 10 M scenes and 0.1 % on the dragon, 6–8 % more pages; a quarter of this limit cost the
-/// dragon 1.3 % and the bunny 1.9 %, since the bunny then no longer fits one region.
+/// with treelet pages of 128 KiB, against one layout of the whole tree: files 1.9–2.5 %
+/// smaller on the generated 1 M and 10 M scenes and 0.1 % on the dragon, 6–8 % more pages; a
+/// quarter of this limit cost the dragon 1.3 % and the bunny 1.9 %.
 ///
 /// A *region root* is a node with at most this many leaves whose parent has more. Pages never
 /// mix the subtrees of two region roots, so each subtree's pages depend on that subtree alone
@@ -598,7 +599,7 @@ pub fn encode<N: NodeSource>(
 /// What a writing task keeps from page to page: a zstd context, the encoder's working
 /// arrays, and the page's gathered records and encoding. Rayon's `map_init` makes one per
 /// task it splits off (a handful per thread), where a context per page cost a table setup
-/// for every 20 KiB page and streams that grew from empty each time.
+/// for every page and streams that grew from empty each time.
 struct PageWork {
     compressor: zstd::bulk::Compressor<'static>,
     scratch: crate::codec::EncodeScratch,

@@ -184,7 +184,8 @@ impl Shape {
 }
 
 /// The page holding node `id`, given each page's first node (`first_nodes[0]` is 0,
-/// checked at open, so some page starts at or before any id).
+/// checked at open, or at most `id` for a part of the directory, so some page starts at or
+/// before any id).
 #[inline]
 pub(crate) fn page_holding(first_nodes: &[u32], id: u32) -> usize {
     first_nodes
@@ -565,8 +566,8 @@ fn physical_memory() -> Option<u64> {
 ///
 /// Nothing here is sized by the model but a few tables with an entry per page of the file
 /// (where a page starts, its slot, its state) and the node → page table of one entry per
-/// block of node ids (`block_shift`, `block_pages`). Every per-node and per-triangle record lives in the resident
-/// page that holds it (`ResidentPage`), found through those tables.
+/// block of node ids (`block_shift`, `block_pages`). Every per-node and per-triangle record
+/// lives in the resident page that holds it (`ResidentPage`), found through those tables.
 ///
 /// ## Memory budget and eviction
 /// The store holds at most its budget in bytes ([`NodeStore::set_memory_budget`]): resident
@@ -697,8 +698,8 @@ impl NodeStore {
             ));
         }
         let page_count = page_first_node.len();
-        // The reader checked that pages start in ascending order; the table takes that as
-        // given only through `partition_point`, which stays in bounds whatever the order.
+        // The reader checked that pages start in ascending order; the block table's walk
+        // and `partition_point` take that as given, and stay in bounds whatever the order.
         let shift = block_shift(node_count, page_count);
         let block_page = block_pages(&page_first_node, node_count, shift);
         let typical_page_bytes = ResidentPage::bytes_for(
