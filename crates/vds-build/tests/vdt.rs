@@ -180,9 +180,10 @@ fn pages_never_mix_regions_and_regions_follow_the_top_in_leaf_order() {
 }
 
 /// Within the top and within each region, nodes follow breadth-first: depth never decreases
-/// along the ids, and each level is in leaf order. So below a region's first pages a page holds a slice of one or two
-/// levels, not a treelet reaching far below a boundary that passes through it (what lets a
-/// memory budget hold a fine cut; `docs/benchmarks.md`, "Page shape under a budget").
+/// along the ids, and each level is in leaf order. So below a region's first pages a page
+/// holds a slice of one or two levels, not a treelet reaching far below a boundary that
+/// passes through it (what lets a memory budget hold a fine cut; `docs/benchmarks.md`, "Page
+/// shape under a budget").
 #[test]
 fn nodes_run_breadth_first_within_the_top_and_each_region() {
     for page_bytes in [vds_format::DEFAULT_PAGE_BYTES, 4096, 1024] {
