@@ -145,7 +145,7 @@ struct Group {
 }
 
 /// One planned page: its sibling groups, in order, and how many subtris they own.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 struct PagePlan {
     groups: Vec<Group>,
     triangles: usize,
@@ -260,11 +260,7 @@ fn plan_pages<N: NodeSource>(
 ) -> Vec<PagePlan> {
     let page_bytes = u64::from(page_bytes.max(NODE_BYTES as u32));
     let mut pages: Vec<PagePlan> = Vec::new();
-    let mut page = PagePlan {
-        groups: Vec::new(),
-        triangles: 0,
-        nodes: 0,
-    };
+    let mut page = PagePlan::default();
     let mut page_budget = if quarter_first {
         page_bytes / 4
     } else {
@@ -288,14 +284,7 @@ fn plan_pages<N: NodeSource>(
         }
         let size = NODE_BYTES as u64 * u64::from(group.count) + TRIANGLE_BYTES as u64 * triangles;
         if !page.groups.is_empty() && bytes + size > page_budget {
-            pages.push(std::mem::replace(
-                &mut page,
-                PagePlan {
-                    groups: Vec::new(),
-                    triangles: 0,
-                    nodes: 0,
-                },
-            ));
+            pages.push(std::mem::take(&mut page));
             page_budget = page_bytes;
             bytes = 0;
         }

@@ -1036,9 +1036,6 @@ impl NodeStore {
     /// Where resident node `id` lives, or `None` if its page is not resident.
     #[inline]
     fn place(&self, id: u32) -> Option<Place> {
-        if id >= self.node_count {
-            return None;
-        }
         let page = self.page_of(id)?;
         let slot = self.page_slot[page as usize];
         (slot != NIL).then(|| Place {
