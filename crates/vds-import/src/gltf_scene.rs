@@ -725,7 +725,7 @@ fn read_primitive(
     }
     let (bytes, stride) = accessor_bytes(&positions, 12, buffers, &at)?;
     let vertex_count = positions.count();
-    let base = soup.positions.len() as u32;
+    let base = soup.vertex_count() as u32;
     soup.positions.reserve(vertex_count);
     for i in 0..vertex_count {
         let record = &bytes[i * stride..i * stride + 12];

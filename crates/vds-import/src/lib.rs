@@ -18,6 +18,7 @@ mod obj;
 mod ply;
 mod soup;
 mod source;
+mod spill;
 mod stl;
 mod texture;
 mod uri;
@@ -26,8 +27,9 @@ mod weld;
 use std::path::Path;
 
 pub use error::{FormatError, ImportError, Location, Problem};
-pub use soup::MeshSoup;
+pub use soup::{MeshSoup, SPILL_ROWS};
 pub use source::{Format, format_of};
+pub use spill::{SoupFiles, SpilledScene};
 pub use weld::{Weld, weld};
 
 /// An indexed triangle scene: what the vertex-tree builder consumes.
@@ -138,14 +140,32 @@ pub fn read_file(
     options: &ImportOptions,
     soup: &mut MeshSoup,
 ) -> Result<(), ImportError> {
-    let (format, gz) = format_of(path).ok_or_else(|| ImportError::UnknownFormat {
-        path: path.to_path_buf(),
-    })?;
-    let name = source::part_name_of(path);
     let mut file_soup = MeshSoup::default();
     let budget = options
         .max_triangles
         .saturating_sub(soup.triangles.len() as u64);
+    read_into(path, options, budget, &mut file_soup)?;
+    check_file(path, options, budget, soup.positions.len(), &mut file_soup)?;
+    if soup.positions.is_empty() && soup.part_names.is_empty() {
+        *soup = file_soup; // The common single-file case: no copy.
+    } else {
+        soup.append(file_soup);
+    }
+    Ok(())
+}
+
+/// Reads the file at `path` into `file_soup`, a fresh soup (which may spill), with at most
+/// `budget` triangles for glTF instance trees.
+fn read_into(
+    path: &Path,
+    options: &ImportOptions,
+    budget: u64,
+    file_soup: &mut MeshSoup,
+) -> Result<(), ImportError> {
+    let (format, gz) = format_of(path).ok_or_else(|| ImportError::UnknownFormat {
+        path: path.to_path_buf(),
+    })?;
+    let name = source::part_name_of(path);
     let folder = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -156,12 +176,18 @@ pub fn read_file(
     };
     if format == Format::Obj && gz {
         // Streamed: the decompressed text is never in memory whole.
-        source::read_obj_gz(path, &name, &materials, options, &mut file_soup)?;
-        return finish_file(path, options, budget, soup, file_soup);
+        return source::read_obj_gz(path, &name, &materials, options, file_soup);
     }
-    let bytes = source::read_bytes(path, gz, options.max_decompressed_bytes)?;
+    let bytes = std::sync::Arc::new(source::read_bytes(
+        path,
+        gz,
+        options.max_decompressed_bytes,
+    )?);
+    if let Some(spill) = file_soup.spill.0.as_mut() {
+        spill.input = Some(bytes.clone());
+    }
     let result = match format {
-        Format::Obj => obj::read_obj(&bytes, &name, Some(&materials), &mut file_soup),
+        Format::Obj => obj::read_obj(&bytes, &name, Some(&materials), file_soup),
         Format::Gltf => {
             let gltf_options = gltf_scene::GltfOptions {
                 folder: Some(folder),
@@ -169,37 +195,41 @@ pub fn read_file(
                 max_triangles: budget,
                 max_buffer_bytes: options.max_decompressed_bytes,
             };
-            gltf_scene::read_gltf(&bytes, &gltf_options, &mut file_soup)
+            gltf_scene::read_gltf(&bytes, &gltf_options, file_soup)
         }
-        Format::Ply => ply::read_ply(&bytes, &name, &mut file_soup),
-        Format::Stl => stl::read_stl(&bytes, &name, &mut file_soup),
+        Format::Ply => ply::read_ply(&bytes, &name, file_soup),
+        Format::Stl => stl::read_stl(&bytes, &name, file_soup),
     };
-    result.map_err(|e| e.in_file(path))?;
-    finish_file(path, options, budget, soup, file_soup)
+    if let Some(spill) = file_soup.spill.0.as_mut() {
+        spill.input = None;
+    }
+    result.map_err(|e| e.in_file(path))
 }
 
-/// Checks one file's soup (triangles, the limit) and adds it to `soup`.
-fn finish_file(
+/// Checks one file's soup (triangles, the limit, `vertices_before` more vertices) and names
+/// the file in its warnings.
+fn check_file(
     path: &Path,
     options: &ImportOptions,
     budget: u64,
-    soup: &mut MeshSoup,
-    mut file_soup: MeshSoup,
+    vertices_before: usize,
+    file_soup: &mut MeshSoup,
 ) -> Result<(), ImportError> {
     for warning in &mut file_soup.warnings {
         *warning = format!("{}: {warning}", path.display());
     }
-    if file_soup.triangles.is_empty() {
+    let triangles = file_soup.triangle_count() as u64;
+    if triangles == 0 {
         return Err(ImportError::NoTriangles {
             path: path.to_path_buf(),
         });
     }
-    if file_soup.triangles.len() as u64 > budget {
+    if triangles > budget {
         return Err(FormatError::new(
             Location::File,
             Problem::LimitExceeded {
                 what: "the inputs so far hold".into(),
-                amount: soup.triangles.len() as u64 + file_soup.triangles.len() as u64,
+                amount: options.max_triangles - budget + triangles,
                 limit: options.max_triangles,
                 option: "--max-triangles",
             },
@@ -207,17 +237,12 @@ fn finish_file(
         .in_file(path));
     }
     // Vertex indices are `u32`: the inputs together may not hold more vertices than that.
-    if !soup::indices_fit(soup.positions.len(), file_soup.positions.len()) {
+    if !soup::indices_fit(vertices_before, file_soup.vertex_count()) {
         return Err(FormatError::new(
             Location::File,
             Problem::Unsupported("more than 2^32 vertices in the inputs together".into()),
         )
         .in_file(path));
-    }
-    if soup.positions.is_empty() && soup.part_names.is_empty() {
-        *soup = file_soup; // The common single-file case: no copy.
-    } else {
-        soup.append(file_soup);
     }
     Ok(())
 }
@@ -260,6 +285,63 @@ pub fn load_files<P: AsRef<Path>>(
     }
     let scene = weld(soup, options.weld);
     if scene.triangles.is_empty() {
+        return Err(ImportError::NoUsableTriangles {
+            paths: paths.iter().map(|p| p.as_ref().to_path_buf()).collect(),
+        });
+    }
+    Ok(scene)
+}
+
+/// Reads several files into a welded scene whose triangles stay on disk, in unnamed temporary
+/// files in `folder`: the same scene [`load_files`] makes with [`Weld::Exact`], read with
+/// memory that does not grow with the model's triangles. Binary PLY and STL files are
+/// streamed (their soup spills every [`SPILL_ROWS`] rows and their mapped pages are let go
+/// as they are read); an OBJ, ASCII PLY or glTF file's soup is held while that file is read.
+/// What stays in memory is about 12 bytes per welded vertex and 4 per input vertex
+/// ([`SpilledScene`]).
+pub fn spill_files<P: AsRef<Path>>(
+    paths: &[P],
+    options: &ImportOptions,
+    folder: &Path,
+) -> Result<SpilledScene, ImportError> {
+    spill_files_in_pieces(paths, options, folder, SPILL_ROWS)
+}
+
+/// [`spill_files`], with streaming readers spilling every `rows` rows.
+pub(crate) fn spill_files_in_pieces<P: AsRef<Path>>(
+    paths: &[P],
+    options: &ImportOptions,
+    folder: &Path,
+    rows: usize,
+) -> Result<SpilledScene, ImportError> {
+    let mut files = SoupFiles::create(folder)?;
+    for path in paths {
+        let path = path.as_ref();
+        let budget = options.max_triangles.saturating_sub(files.triangle_count());
+        let vertices_before = files.vertex_count();
+        let mut file_soup = MeshSoup::default();
+        file_soup.spill.0 = Some(Box::new(files.for_file(rows)));
+        let read = read_into(path, options, budget, &mut file_soup).and_then(|()| {
+            check_file(
+                path,
+                options,
+                budget,
+                vertices_before as usize,
+                &mut file_soup,
+            )
+        });
+        file_soup.spill_now();
+        let spill = file_soup.spill.0.take().expect("the soup's spill");
+        read?;
+        files = spill
+            .finish(file_soup)
+            .map_err(|(_, cause)| ImportError::Io {
+                path: folder.to_path_buf(),
+                cause,
+            })?;
+    }
+    let scene = files.weld()?;
+    if scene.triangle_count == 0 {
         return Err(ImportError::NoUsableTriangles {
             paths: paths.iter().map(|p| p.as_ref().to_path_buf()).collect(),
         });

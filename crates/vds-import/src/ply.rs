@@ -281,6 +281,8 @@ trait Values {
     }
     /// Skips `n` bytes that a fast path consumed.
     fn skip_bytes(&mut self, _n: usize) {}
+    /// The bytes read so far.
+    fn consumed(&self) -> &[u8];
 }
 
 struct Binary<'a> {
@@ -353,6 +355,10 @@ impl Values for Binary<'_> {
     fn location(&self) -> Location {
         Location::Byte(self.position as u64)
     }
+
+    fn consumed(&self) -> &[u8] {
+        &self.data[..self.position]
+    }
 }
 
 struct Ascii<'a> {
@@ -416,6 +422,10 @@ impl Values for Ascii<'_> {
     fn location(&self) -> Location {
         Location::Line(self.line)
     }
+
+    fn consumed(&self) -> &[u8] {
+        &self.data[..self.position]
+    }
 }
 
 /// Reads a PLY file's bytes into `soup` as one part named `name`.
@@ -460,9 +470,9 @@ fn read_body(
         .iter()
         .find(|e| e.name == "vertex")
         .map_or(0, |e| e.count);
-    let base = soup.positions.len();
+    let base = soup.vertex_count();
     let part = soup.begin_part(name);
-    let first_triangle = soup.triangles.len();
+    let mut colors = PartColors::new(part);
     let mut saw_faces = false;
     // This file's vertex colours, and one colour per triangle when the faces have them.
     let mut vertex_colors: Vec<[f32; 4]> = Vec::new();
@@ -489,25 +499,21 @@ fn read_body(
         }
         match element.name.as_str() {
             "vertex" => {
-                if !fast::read_vertices(element, values, soup, &mut vertex_colors)? {
-                    read_vertices(element, values, soup, &mut vertex_colors)?;
+                for (piece, first_row) in pieces(element, soup) {
+                    if !fast::read_vertices(&piece, first_row, values, soup, &mut vertex_colors)? {
+                        read_vertices(&piece, first_row, values, soup, &mut vertex_colors)?;
+                    }
+                    soup.spill_now();
+                    soup.done_with_input(values.consumed());
                 }
             }
             "face" => {
                 saw_faces = true;
                 let mut parts = PartMap::new(name, part);
-                let faces = fast::read_faces(
-                    element,
-                    values,
-                    vertex_count,
-                    base,
-                    &mut parts,
-                    soup,
-                    &mut triangle_colors,
-                )?;
-                if !faces {
-                    read_faces(
-                        element,
+                for (piece, first_row) in pieces(element, soup) {
+                    let first_triangle = soup.triangles.len();
+                    let faces = fast::read_faces(
+                        &piece,
                         values,
                         vertex_count,
                         base,
@@ -515,6 +521,31 @@ fn read_body(
                         soup,
                         &mut triangle_colors,
                     )?;
+                    if !faces {
+                        read_faces(
+                            &piece,
+                            first_row,
+                            values,
+                            vertex_count,
+                            base,
+                            &mut parts,
+                            soup,
+                            &mut triangle_colors,
+                        )?;
+                    }
+                    // The file's vertices are all read when its faces are (PLY puts the
+                    // vertex element first in practice); faces before them get no colour.
+                    let file_vertices = soup.vertex_count() - base;
+                    colors.add(
+                        soup,
+                        first_triangle,
+                        base,
+                        (vertex_colors.len() == file_vertices).then_some(&vertex_colors[..]),
+                        &triangle_colors,
+                    );
+                    triangle_colors.clear();
+                    soup.spill_now();
+                    soup.done_with_input(values.consumed());
                 }
             }
             _ => skip_rows(element, values)?,
@@ -526,57 +557,95 @@ fn read_body(
             Problem::Unsupported("PLY 'tristrips' element without 'face'".into()),
         ));
     }
-    set_part_colors(
-        soup,
-        part,
-        first_triangle,
-        base,
-        &vertex_colors,
-        &triangle_colors,
-    );
+    colors.finish(soup);
     Ok(())
 }
 
-/// Averages the colours of this file's triangles (from `first_triangle` on) per part:
-/// `triangle_colors` when the faces had colours (one per triangle), else the mean of the
-/// corners' `vertex_colors` (indexed from `base`), else nothing.
-fn set_part_colors(
-    soup: &mut MeshSoup,
+/// An element read in pieces of at most [`crate::SPILL_ROWS`] rows, each with its first row, when the
+/// soup spills; else the element whole.
+fn pieces(element: &Element, soup: &MeshSoup) -> Vec<(Element, u64)> {
+    let rows = if soup.spills() {
+        soup.spill_rows() as u64
+    } else {
+        element.count.max(1)
+    };
+    (0..element.count.div_ceil(rows).max(1))
+        .map(|k| {
+            let first = k * rows;
+            let piece = Element {
+                count: (element.count - first).min(rows),
+                ..element.clone()
+            };
+            (piece, first)
+        })
+        .collect()
+}
+
+/// The colours of a file's parts: each triangle's colour is its face's when the faces have
+/// colours, else the mean of its corners' when the vertices have, averaged per part over its
+/// triangles. Triangles are added a piece at a time, as they are read.
+struct PartColors {
     first_part: u32,
-    first_triangle: usize,
-    base: usize,
-    vertex_colors: &[[f32; 4]],
-    triangle_colors: &[[f32; 4]],
-) {
-    let triangles = soup.triangles.len() - first_triangle;
-    let by_face = triangle_colors.len() == triangles;
-    if !by_face && vertex_colors.len() + base != soup.positions.len() {
-        return; // No colours, or not one per vertex and per triangle.
+    sums: Vec<crate::soup::ColorSum>,
+}
+
+impl PartColors {
+    fn new(first_part: u32) -> PartColors {
+        PartColors {
+            first_part,
+            sums: Vec::new(),
+        }
     }
-    let mut sums =
-        vec![crate::soup::ColorSum::default(); soup.part_names.len() - first_part as usize];
-    for t in 0..triangles {
-        let rgba = if by_face {
-            triangle_colors[t].map(f64::from)
-        } else {
-            let mut mean = [0f64; 4];
-            for &corner in &soup.triangles[first_triangle + t] {
-                let c = vertex_colors[corner as usize - base];
-                for k in 0..4 {
-                    mean[k] += f64::from(c[k]) / 3.0;
+
+    /// Adds the soup's triangles from `first_triangle` (in memory) with their faces' colours
+    /// (`triangle_colors`, one per triangle, or none) or their corners' (`vertex_colors`,
+    /// indexed from `base`, one per vertex of the file).
+    fn add(
+        &mut self,
+        soup: &MeshSoup,
+        first_triangle: usize,
+        base: usize,
+        vertex_colors: Option<&[[f32; 4]]>,
+        triangle_colors: &[[f32; 4]],
+    ) {
+        let triangles = &soup.triangles[first_triangle..];
+        let parts = &soup.triangle_parts[first_triangle..];
+        let by_face = !triangle_colors.is_empty() && triangle_colors.len() == triangles.len();
+        if !by_face && vertex_colors.is_none_or(|c| c.is_empty()) {
+            return; // No colours, or not one per vertex and per triangle.
+        }
+        let parts_now = soup.part_names.len() - self.first_part as usize;
+        self.sums.resize(parts_now, Default::default());
+        for (t, (corners, &part)) in triangles.iter().zip(parts).enumerate() {
+            let rgba = match vertex_colors {
+                _ if by_face => triangle_colors[t].map(f64::from),
+                Some(vertex_colors) => {
+                    let mut mean = [0f64; 4];
+                    for &corner in corners {
+                        let c = vertex_colors[corner as usize - base];
+                        for k in 0..4 {
+                            mean[k] += f64::from(c[k]) / 3.0;
+                        }
+                    }
+                    mean
                 }
-            }
-            mean
-        };
-        sums[(soup.triangle_parts[first_triangle + t] - first_part) as usize].add(rgba);
+                None => unreachable!("checked above"),
+            };
+            self.sums[(part - self.first_part) as usize].add(rgba);
+        }
     }
-    for (k, sum) in sums.iter().enumerate() {
-        soup.parts[first_part as usize + k].color = sum.mean();
+
+    /// Sets the parts' colours.
+    fn finish(self, soup: &mut MeshSoup) {
+        for (k, sum) in self.sums.iter().enumerate() {
+            soup.parts[self.first_part as usize + k].color = sum.mean();
+        }
     }
 }
 
 fn read_vertices(
     element: &Element,
+    first_row: u64,
     values: &mut impl Values,
     soup: &mut MeshSoup,
     colors: &mut Vec<[f32; 4]>,
@@ -595,7 +664,7 @@ fn read_vertices(
             })
     };
     let slots = [axis("x")?, axis("y")?, axis("z")?];
-    soup.positions.reserve(element.count as usize);
+    soup.reserve(element.count as usize, 0);
     if color_slots.is_some() {
         colors.reserve(element.count as usize);
     }
@@ -623,7 +692,7 @@ fn read_vertices(
         }
         soup.push_vertex(p, || Location::Element {
             kind: "vertex".into(),
-            index: row,
+            index: first_row + row,
         })?;
     }
     Ok(())
@@ -674,6 +743,7 @@ fn part_slot(element: &Element) -> Option<usize> {
 
 fn read_faces(
     element: &Element,
+    first_row: u64,
     values: &mut impl Values,
     vertex_count: u64,
     base: usize,
@@ -696,8 +766,7 @@ fn read_faces(
                 "face element has no list property 'vertex_indices'",
             )
         })?;
-    soup.triangles.reserve(element.count as usize);
-    soup.triangle_parts.reserve(element.count as usize);
+    soup.reserve(0, element.count as usize);
     let mut corners: Vec<u32> = Vec::new();
     for row in 0..element.count {
         let mut part_value = None;
@@ -711,7 +780,7 @@ fn read_faces(
                         return Err(FormatError::new(
                             at,
                             Problem::CountExceedsFile {
-                                what: format!("corner list of face {row}"),
+                                what: format!("corner list of face {}", first_row + row),
                                 count: n as u64,
                                 max_possible: values.remaining() as u64,
                             },
@@ -729,7 +798,7 @@ fn read_faces(
                         let vertex =
                             check_index(index, vertex_count as usize, || Location::Element {
                                 kind: "face".into(),
-                                index: row,
+                                index: first_row + row,
                             })?;
                         corners.push(base as u32 + vertex);
                     }
@@ -887,6 +956,7 @@ mod fast {
 
     pub(super) fn read_vertices(
         element: &Element,
+        first_row: u64,
         values: &mut impl Values,
         soup: &mut MeshSoup,
         colors: &mut Vec<[f32; 4]>,
@@ -928,9 +998,13 @@ mod fast {
             .enumerate()
             .find_map(|(i, &p)| check_position(p).err().map(|e| (i, e)))
         {
-            return Err(FormatError::at_element("vertex", bad as u64, problem));
+            return Err(FormatError::at_element(
+                "vertex",
+                first_row + bad as u64,
+                problem,
+            ));
         }
-        if u32::try_from(soup.positions.len() + positions.len()).is_err() {
+        if u32::try_from(soup.vertex_count() + positions.len()).is_err() {
             return Ok(false); // The general path reports the overflow.
         }
         if soup.positions.is_empty() {
@@ -939,7 +1013,7 @@ mod fast {
             soup.positions.extend(positions);
         }
         if let Some(found) = row_colors(element, raw, stride, big_endian) {
-            *colors = found;
+            colors.extend(found);
         }
         values.skip_bytes(bytes);
         Ok(true)

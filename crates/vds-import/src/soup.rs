@@ -9,12 +9,17 @@ use crate::error::{FormatError, Location, Problem};
 ///
 /// Readers append parts with [`MeshSoup::begin_part`], vertices with
 /// [`MeshSoup::push_vertex`] and faces with [`MeshSoup::push_polygon`]; every index is
-/// absolute (into `positions`).
+/// absolute (counted from the soup's first vertex).
+///
+/// A soup made by [`crate::spill_files`] *spills*: the readers that stream (binary PLY and
+/// STL) hand what they have read to files every [`SPILL_ROWS`] rows, and every reader does at
+/// the end of its file, so `positions`, `triangles` and `triangle_parts` then hold only what
+/// was read since the last spill ([`MeshSoup::vertex_count`] counts all).
 #[derive(Debug, Default, Clone, PartialEq)]
 pub struct MeshSoup {
-    /// Vertex positions.
+    /// Vertex positions (since the last spill).
     pub positions: Vec<[f32; 3]>,
-    /// Triangles as three indices into `positions`.
+    /// Triangles as three absolute vertex indices (since the last spill).
     pub triangles: Vec<[u32; 3]>,
     /// The part each triangle belongs to (index into `part_names`).
     pub triangle_parts: Vec<u32>,
@@ -27,6 +32,28 @@ pub struct MeshSoup {
     /// What was read without being needed for the geometry and could not be (a material
     /// library, a texture): each costs colours, not the import.
     pub warnings: Vec<String>,
+    /// Where a spilling soup's vertices and triangles went, and how many.
+    pub(crate) spill: SpillSlot,
+}
+
+/// Rows a streaming reader reads between spills: 12–16 MB of vertices or triangles.
+pub const SPILL_ROWS: usize = 1 << 20;
+
+/// A soup's spill, if it has one. A clone of a soup keeps what it holds in memory and spills
+/// nowhere; soups compare by what they hold in memory.
+#[derive(Debug, Default)]
+pub(crate) struct SpillSlot(pub(crate) Option<Box<crate::spill::FileSpill>>);
+
+impl Clone for SpillSlot {
+    fn clone(&self) -> Self {
+        SpillSlot(None)
+    }
+}
+
+impl PartialEq for SpillSlot {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 impl MeshSoup {
@@ -57,7 +84,7 @@ impl MeshSoup {
         if let Err(problem) = check_position(p) {
             return Err(FormatError::new(location(), problem));
         }
-        let index = u32::try_from(self.positions.len()).map_err(|_| {
+        let index = u32::try_from(self.vertex_count()).map_err(|_| {
             FormatError::new(
                 location(),
                 Problem::Unsupported("more than 2^32 vertices".into()),
@@ -78,6 +105,62 @@ impl MeshSoup {
         for pair in corners[1..].windows(2) {
             self.triangles.push([corners[0], pair[0], pair[1]]);
             self.triangle_parts.push(part);
+        }
+    }
+
+    /// Vertices pushed so far, spilled or not.
+    pub fn vertex_count(&self) -> usize {
+        self.spilled().0 + self.positions.len()
+    }
+
+    /// Triangles pushed so far, spilled or not.
+    pub fn triangle_count(&self) -> usize {
+        self.spilled().1 + self.triangles.len()
+    }
+
+    /// Vertices and triangles already spilled.
+    fn spilled(&self) -> (usize, usize) {
+        self.spill.0.as_ref().map_or((0, 0), |s| s.spilled())
+    }
+
+    /// Whether this soup spills (streaming readers then read in pieces).
+    pub(crate) fn spills(&self) -> bool {
+        self.spill.0.is_some()
+    }
+
+    /// Rows a streaming reader reads between spills: [`SPILL_ROWS`], or fewer in tests.
+    pub(crate) fn spill_rows(&self) -> usize {
+        self.spill.0.as_ref().map_or(SPILL_ROWS, |s| s.rows)
+    }
+
+    /// Reserves room for `vertices` more vertices and `triangles` more triangles: all of
+    /// them, or at most [`SPILL_ROWS`] in a soup that spills.
+    pub(crate) fn reserve(&mut self, vertices: usize, triangles: usize) {
+        let rows = self.spill_rows();
+        let cap = |n: usize| if self.spills() { n.min(rows) } else { n };
+        let (vertices, triangles) = (cap(vertices), cap(triangles));
+        self.positions.reserve(vertices);
+        self.triangles.reserve(triangles);
+        self.triangle_parts.reserve(triangles);
+    }
+
+    /// Hands what the soup holds in memory to its spill, if it has one (else does nothing).
+    /// A write error is kept by the spill and reported when the file has been read.
+    pub(crate) fn spill_now(&mut self) {
+        if let Some(spill) = self.spill.0.as_mut() {
+            spill.take(
+                &mut self.positions,
+                &mut self.triangles,
+                &mut self.triangle_parts,
+            );
+        }
+    }
+
+    /// Says that the reader will not look at `bytes` (a prefix of its input) again: a
+    /// spilling soup's input map may drop those pages from memory.
+    pub(crate) fn done_with_input(&self, bytes: &[u8]) {
+        if let Some(spill) = self.spill.0.as_ref() {
+            spill.done_with_input(bytes);
         }
     }
 

@@ -57,6 +57,45 @@ impl std::ops::Deref for Bytes {
     }
 }
 
+impl std::fmt::Debug for Bytes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let kind = match self {
+            Bytes::Mapped(_) => "mapped",
+            Bytes::Owned(_) => "owned",
+        };
+        write!(f, "Bytes({kind}, {} bytes)", self.len())
+    }
+}
+
+impl Bytes {
+    /// Lets the pages that hold `part` (bytes of this file the reader is done with) go from
+    /// this process's resident memory: a reader that streams through a large mapped file then
+    /// holds only the pages it is reading, not every page it has read. Does nothing for bytes
+    /// in memory or outside the map.
+    #[allow(unsafe_code)]
+    pub(crate) fn release(&self, part: &[u8]) {
+        let Bytes::Mapped(map) = self else {
+            return;
+        };
+        let base = map.as_ptr() as usize;
+        let start = part.as_ptr() as usize;
+        if part.is_empty() || start < base || start + part.len() > base + map.len() {
+            return;
+        }
+        // SAFETY: `unchecked_advise_range` is unsafe because some advice changes what memory
+        // reads (`MADV_DONTNEED` on private or anonymous memory zeroes it). This map is a
+        // read-only shared map of a file (`Mmap::map`): `MADV_DONTNEED` only drops its page
+        // table entries, and the next read of those bytes faults the same file pages in again
+        // from the page cache or the disk. Every `&[u8]` borrowed from the map therefore keeps
+        // reading the file's bytes; the only way they could change is the file being written,
+        // the contract `map` already accepts. The range is inside the map (checked above); a
+        // failure only leaves the pages resident.
+        let _ = unsafe {
+            map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, start - base, part.len())
+        };
+    }
+}
+
 /// Opens `path` for reading after making sure it is a regular file, itself or through
 /// symbolic links.
 ///

@@ -66,9 +66,7 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
     let part = soup.begin_part(name);
     let convention = ColorConvention::of_header(&data[..HEADER_BYTES]);
     let mut color = crate::soup::ColorSum::default();
-    soup.positions.reserve(count as usize * 3);
-    soup.triangles.reserve(count as usize);
-    soup.triangle_parts.reserve(count as usize);
+    soup.reserve(count as usize * 3, count as usize);
     for (index, record) in body
         .chunks_exact(RECORD_BYTES as usize)
         .take(count as usize)
@@ -94,6 +92,10 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
             })?;
         }
         soup.push_polygon(part, &corners);
+        if soup.spills() && (index + 1) % soup.spill_rows() == 0 {
+            soup.spill_now();
+            soup.done_with_input(&data[..HEADER_BYTES + 4 + (index + 1) * RECORD_BYTES as usize]);
+        }
     }
     soup.parts[part as usize].color = color.mean();
     Ok(())

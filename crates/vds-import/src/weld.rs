@@ -35,6 +35,7 @@ pub fn weld(soup: MeshSoup, weld: Weld) -> Scene {
         parts,
         short_faces_dropped,
         warnings,
+        spill: _,
     } = soup;
     let input_vertices = positions.len() as u64;
     let input_triangles = triangles.len() as u64;
@@ -167,6 +168,15 @@ fn weld_chunk(n: usize) -> usize {
     (n / 64).max(WELD_CHUNK)
 }
 
+/// A multiplicative hash of a position's 96 bits (`-0.0` hashed as `0.0`, so that positions
+/// the exact weld joins hash alike); its top bits pick a bucket.
+pub(crate) fn position_hash(p: &[f32; 3]) -> u64 {
+    let [x, y, z] = p.map(|c| u64::from((c + 0.0).to_bits()));
+    let h =
+        (x << 32 | y).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ z.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    h.wrapping_mul(0x1656_67B1_9E37_79F9)
+}
+
 /// For each vertex, the lowest index with bit-identical position.
 ///
 /// Each vertex becomes a 128-bit key: x, y and z bits and the index (`+ 0.0` turns -0.0 into
@@ -177,7 +187,7 @@ fn weld_chunk(n: usize) -> usize {
 /// scene's 0.25 s weld; sorting each bucket, 0.05 s; the tables do without the sorts' log
 /// factor.) Which bucket a key lands in does not change the groups or their lowest index, so
 /// the result does not depend on the thread count.
-fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
+pub(crate) fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
     let bits = |p: &[f32; 3]| p.map(|c| (c + 0.0).to_bits());
     let key = |i: usize, p: &[f32; 3]| {
         let [x, y, z] = bits(p).map(u128::from);
@@ -186,13 +196,7 @@ fn exact_representatives(positions: &[[f32; 3]]) -> Vec<u32> {
     // About 4096 keys per bucket, 2 to 2¹² buckets (at least one bit: the bucket is the
     // hash shifted right by 64 minus the bits).
     let bucket_bits = (positions.len() / 4096).max(2).ilog2().min(12);
-    let bucket = |p: &[f32; 3]| {
-        let [x, y, z] = bits(p).map(u64::from);
-        // A multiplicative hash of the 96 position bits; its top bits pick the bucket.
-        let h = (x << 32 | y).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            ^ z.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-        (h.wrapping_mul(0x1656_67B1_9E37_79F9) >> (64 - bucket_bits)) as usize
-    };
+    let bucket = |p: &[f32; 3]| (position_hash(p) >> (64 - bucket_bits)) as usize;
     let buckets = 1usize << bucket_bits;
     let chunk_size = weld_chunk(positions.len());
     // Counting sort into buckets: each chunk's count per bucket, then each chunk scatters in
@@ -466,6 +470,7 @@ mod tests {
             parts: vec![Default::default(); 7],
             short_faces_dropped: 0,
             warnings: Vec::new(),
+            spill: Default::default(),
         };
         let (positions, triangles, parts) = reference_weld(&soup);
         assert!(

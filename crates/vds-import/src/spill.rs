@@ -1,0 +1,732 @@
+//! Import without holding the model: the readers spill the soup to files as they read
+//! ([`FileSpill`]), and the exact weld runs over those files with one bucket of positions in
+//! memory at a time ([`SoupFiles::weld`]). The result, a [`SpilledScene`], keeps in memory only
+//! what a sharded build's plan looks up at random: the welded positions (12 bytes per welded
+//! vertex) and each input vertex's welded index (4 bytes per input vertex); the triangles stay
+//! on disk and are read in runs.
+//!
+//! The weld gives the scene [`crate::weld`] gives with [`crate::Weld::Exact`], vertex for
+//! vertex and triangle for triangle (tested): each input vertex's representative is the lowest
+//! index at its position, found per bucket of a position hash by the in-memory weld's own
+//! [`crate::weld::exact_representatives`] (equal positions share a bucket, and a bucket holds
+//! its vertices in input order, so the lowest index in a bucket is the lowest overall); then
+//! the same passes as in memory, over the files.
+//!
+//! Files are unnamed temporary files in the folder the caller names (not `TMPDIR`, which may
+//! be memory); they vanish with the scene, or with the process.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use crate::source::Bytes;
+use crate::{ImportError, ImportStats, PartInfo};
+
+/// Positions per bucket of the weld: a bucket's resolution holds about 50 bytes per vertex.
+const BUCKET_VERTICES: u64 = 1 << 21;
+/// The most buckets (each an open file with a buffer of [`BUCKET_BUFFER`] bytes while the
+/// positions are scattered): 2³² vertices make buckets of 8 M vertices, 0.4 GB to resolve.
+const MAX_BUCKETS: u64 = 512;
+const BUCKET_BUFFER: usize = 64 << 10;
+/// Triangles or vertices read from a spill file at a time (16 MB of triangles).
+const RUN: usize = 1 << 20;
+
+/// A soup's vertices and triangles on disk: positions (`[f32; 3]`) and triangles with their
+/// part (`[a, b, c, part]`), in native byte order (the files never leave the process).
+#[derive(Debug)]
+pub struct SoupFiles {
+    folder: PathBuf,
+    positions: BufWriter<File>,
+    triangles: BufWriter<File>,
+    vertex_count: u64,
+    triangle_count: u64,
+    part_names: Vec<String>,
+    parts: Vec<PartInfo>,
+    short_faces_dropped: u64,
+    warnings: Vec<String>,
+}
+
+impl SoupFiles {
+    /// Empty spill files in `folder`.
+    pub fn create(folder: &Path) -> Result<SoupFiles, ImportError> {
+        let file = || {
+            tempfile::tempfile_in(folder)
+                .map(|f| BufWriter::with_capacity(1 << 20, f))
+                .map_err(|cause| io_error(folder, cause))
+        };
+        Ok(SoupFiles {
+            folder: folder.to_path_buf(),
+            positions: file()?,
+            triangles: file()?,
+            vertex_count: 0,
+            triangle_count: 0,
+            part_names: Vec::new(),
+            parts: Vec::new(),
+            short_faces_dropped: 0,
+            warnings: Vec::new(),
+        })
+    }
+
+    /// Vertices spilled so far.
+    pub fn vertex_count(&self) -> u64 {
+        self.vertex_count
+    }
+
+    /// Triangles spilled so far.
+    pub fn triangle_count(&self) -> u64 {
+        self.triangle_count
+    }
+
+    /// A spill for the next input file, whose soup numbers its vertices and parts from 0.
+    pub(crate) fn for_file(self, rows: usize) -> FileSpill {
+        FileSpill {
+            rows,
+            vertex_base: self.vertex_count,
+            part_base: self.part_names.len() as u32,
+            spilled: (0, 0),
+            files: self,
+            error: None,
+            input: None,
+        }
+    }
+}
+
+/// One input file's spill: its soup's vertices and triangles go to the [`SoupFiles`] with
+/// their indices moved past the files read before.
+#[derive(Debug)]
+pub(crate) struct FileSpill {
+    /// Rows a streaming reader reads between spills.
+    pub(crate) rows: usize,
+    files: SoupFiles,
+    vertex_base: u64,
+    part_base: u32,
+    /// This file's vertices and triangles spilled so far.
+    spilled: (usize, usize),
+    /// The first write error; nothing is written after it.
+    error: Option<std::io::Error>,
+    /// The file's mapped bytes, whose pages the reader may let go of as it goes.
+    pub(crate) input: Option<Arc<Bytes>>,
+}
+
+impl FileSpill {
+    pub(crate) fn spilled(&self) -> (usize, usize) {
+        self.spilled
+    }
+
+    /// Writes out and clears the soup's arrays (keeping their memory for the next rows).
+    pub(crate) fn take(
+        &mut self,
+        positions: &mut Vec<[f32; 3]>,
+        triangles: &mut Vec<[u32; 3]>,
+        parts: &mut Vec<u32>,
+    ) {
+        self.spilled.0 += positions.len();
+        self.spilled.1 += triangles.len();
+        if self.error.is_none() {
+            let written = self.write(positions, triangles, parts);
+            self.error = written.err();
+        }
+        positions.clear();
+        triangles.clear();
+        parts.clear();
+    }
+
+    fn write(
+        &mut self,
+        positions: &[[f32; 3]],
+        triangles: &[[u32; 3]],
+        parts: &[u32],
+    ) -> std::io::Result<()> {
+        let files = &mut self.files;
+        files.positions.write_all(bytemuck::cast_slice(positions))?;
+        files.vertex_count += positions.len() as u64;
+        // The soup's indices and parts count from this file's first; the files' from the
+        // scene's (the importer has checked that every index fits `u32`).
+        let base = self.vertex_base as u32;
+        let records: Vec<[u32; 4]> = triangles
+            .par_iter()
+            .zip(parts)
+            .map(|(t, &part)| [t[0] + base, t[1] + base, t[2] + base, part + self.part_base])
+            .collect();
+        files.triangles.write_all(bytemuck::cast_slice(&records))?;
+        files.triangle_count += triangles.len() as u64;
+        Ok(())
+    }
+
+    /// Lets the input map drop the pages of `bytes` (a part of the input the reader is done
+    /// with) from this process's memory.
+    pub(crate) fn done_with_input(&self, bytes: &[u8]) {
+        if let Some(input) = &self.input {
+            input.release(bytes);
+        }
+    }
+
+    /// The spill files back, with this file's soup's parts and counts added (its vertices and
+    /// triangles spilled), or the first write error.
+    pub(crate) fn finish(
+        self,
+        soup: crate::MeshSoup,
+    ) -> Result<SoupFiles, (SoupFiles, std::io::Error)> {
+        let mut files = self.files;
+        if let Some(error) = self.error {
+            return Err((files, error));
+        }
+        let part_base = self.part_base;
+        files.part_names.extend(soup.part_names);
+        files.parts.extend(soup.parts.into_iter().map(|p| PartInfo {
+            parent: p.parent.map(|q| q + part_base),
+            color: p.color,
+        }));
+        files.short_faces_dropped += soup.short_faces_dropped;
+        files.warnings.extend(soup.warnings);
+        Ok(files)
+    }
+}
+
+/// A welded scene whose triangles stay on disk: what [`crate::spill_files`] returns.
+#[derive(Debug)]
+pub struct SpilledScene {
+    /// Welded positions, in input order of their first vertex, each used by a triangle (the
+    /// welded [`crate::Scene::positions`]).
+    pub positions: Vec<[f32; 3]>,
+    /// Part names.
+    pub part_names: Vec<String>,
+    /// Per part, its parent and colour.
+    pub parts: Vec<PartInfo>,
+    /// What import and welding did.
+    pub stats: ImportStats,
+    /// What could not be read but cost only colours.
+    pub warnings: Vec<String>,
+    /// Triangles after welding.
+    pub triangle_count: u64,
+    /// Each input vertex's welded index (`u32::MAX` for one no triangle keeps).
+    welded_index: Vec<u32>,
+    /// The soup's triangles and parts (input indices).
+    triangles: File,
+    /// Triangles in `triangles` (before dropping degenerate ones).
+    input_triangles: u64,
+    folder: PathBuf,
+}
+
+impl SpilledScene {
+    /// Calls `each(first, triangles, parts)` for runs of the welded scene's triangles in order
+    /// (`first` is the index of the run's first triangle): the welded
+    /// [`crate::Scene::triangles`] and [`crate::Scene::triangle_parts`], a run at a time.
+    pub fn for_each_triangle_run<E>(
+        &self,
+        mut each: impl FnMut(u64, &[[u32; 3]], &[u32]) -> Result<(), E>,
+        io: impl Fn(ImportError) -> E,
+    ) -> Result<(), E> {
+        let mut first = 0u64;
+        let mut triangles = Vec::with_capacity(RUN);
+        let mut parts = Vec::with_capacity(RUN);
+        let read = read_runs(
+            &self.triangles,
+            self.input_triangles,
+            |records: &[[u32; 4]]| {
+                triangles.clear();
+                parts.clear();
+                for r in records {
+                    let t = [r[0], r[1], r[2]].map(|v| self.welded_index[v as usize]);
+                    if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+                        triangles.push(t);
+                        parts.push(r[3]);
+                    }
+                }
+                each(first, &triangles, &parts).map_err(RunError::Caller)?;
+                first += triangles.len() as u64;
+                Ok(())
+            },
+        );
+        read.map_err(|e| match e {
+            RunError::Io(cause) => io(io_error(&self.folder, cause)),
+            RunError::Caller(e) => e,
+        })
+    }
+
+    /// Reads the whole scene into memory (for tests and small inputs).
+    pub fn to_scene(&self) -> Result<crate::Scene, ImportError> {
+        let mut triangles = Vec::new();
+        let mut triangle_parts = Vec::new();
+        self.for_each_triangle_run(
+            |_, t, p| {
+                triangles.extend_from_slice(t);
+                triangle_parts.extend_from_slice(p);
+                Ok(())
+            },
+            |e| e,
+        )?;
+        Ok(crate::Scene {
+            positions: self.positions.clone(),
+            triangles,
+            triangle_parts,
+            part_names: self.part_names.clone(),
+            parts: self.parts.clone(),
+            stats: self.stats,
+            warnings: self.warnings.clone(),
+        })
+    }
+}
+
+/// Why reading runs of a spill file stopped: the file, or the caller.
+enum RunError<E> {
+    Io(std::io::Error),
+    Caller(E),
+}
+
+impl<E> From<std::io::Error> for RunError<E> {
+    fn from(e: std::io::Error) -> Self {
+        RunError::Io(e)
+    }
+}
+
+/// Reads `count` records of `T` from the start of `file` and hands them to `each` in runs of
+/// at most [`RUN`].
+fn read_runs<T: bytemuck::Pod, E: From<std::io::Error>>(
+    file: &File,
+    count: u64,
+    mut each: impl FnMut(&[T]) -> Result<(), E>,
+) -> Result<(), E> {
+    let size = size_of::<T>() as u64;
+    let mut buffer = vec![T::zeroed(); RUN.min(count as usize)];
+    let mut done = 0u64;
+    while done < count {
+        let n = (count - done).min(RUN as u64) as usize;
+        let bytes = bytemuck::cast_slice_mut(&mut buffer[..n]);
+        file.read_exact_at(bytes, done * size)?;
+        each(&buffer[..n])?;
+        done += n as u64;
+    }
+    Ok(())
+}
+
+fn io_error(folder: &Path, cause: std::io::Error) -> ImportError {
+    ImportError::Io {
+        path: folder.to_path_buf(),
+        cause,
+    }
+}
+
+impl SoupFiles {
+    /// Welds the spilled soup exactly, as [`crate::weld`] with [`crate::Weld::Exact`] does.
+    pub fn weld(self) -> Result<SpilledScene, ImportError> {
+        self.weld_in_buckets_of(BUCKET_VERTICES)
+    }
+
+    /// [`SoupFiles::weld`] with buckets of about `bucket_vertices` positions.
+    fn weld_in_buckets_of(self, bucket_vertices: u64) -> Result<SpilledScene, ImportError> {
+        let folder = self.folder.clone();
+        let io = |cause| io_error(&folder, cause);
+        let positions = self
+            .positions
+            .into_inner()
+            .map_err(|e| io(e.into_error()))?;
+        let triangles = self
+            .triangles
+            .into_inner()
+            .map_err(|e| io(e.into_error()))?;
+        let vertices = self.vertex_count;
+        let input_triangles = self.triangle_count;
+
+        let representative = representatives(&positions, vertices, bucket_vertices, &folder)?;
+        let distinct = representative
+            .par_iter()
+            .enumerate()
+            .filter(|&(i, &r)| i as u32 == r)
+            .count() as u64;
+
+        // Which representatives a triangle that stays uses, and how many triangles go.
+        let mut used = vec![0u64; (vertices as usize).div_ceil(64)];
+        let mut degenerate = 0u64;
+        read_runs(&triangles, input_triangles, |records: &[[u32; 4]]| {
+            for r in records {
+                let [a, b, c] = [r[0], r[1], r[2]].map(|v| representative[v as usize]);
+                if a != b && b != c && a != c {
+                    for v in [a, b, c] {
+                        used[v as usize / 64] |= 1 << (v % 64);
+                    }
+                } else {
+                    degenerate += 1;
+                }
+            }
+            Ok::<(), std::io::Error>(())
+        })
+        .map_err(io)?;
+
+        // New indices for the used representatives in input order, and their positions; then
+        // every vertex's index through its representative, in place: a representative is
+        // the lowest index of its group, so it comes first and is already renumbered.
+        let mut welded_index = representative;
+        let mut welded = Vec::new();
+        let mut v = 0usize;
+        read_runs(&positions, vertices, |run: &[[f32; 3]]| {
+            for &p in run {
+                let r = welded_index[v] as usize;
+                welded_index[v] = if r == v {
+                    if used[v / 64] & (1 << (v % 64)) != 0 {
+                        welded.push(p);
+                        (welded.len() - 1) as u32
+                    } else {
+                        u32::MAX
+                    }
+                } else {
+                    welded_index[r]
+                };
+                v += 1;
+            }
+            Ok::<(), std::io::Error>(())
+        })
+        .map_err(io)?;
+        drop(used);
+        drop(positions);
+        welded.shrink_to_fit();
+        let kept = welded.len() as u64;
+        Ok(SpilledScene {
+            positions: welded,
+            part_names: self.part_names,
+            parts: self.parts,
+            stats: ImportStats {
+                input_vertices: vertices,
+                input_triangles,
+                welded_vertices: vertices - distinct,
+                degenerate_triangles_dropped: degenerate,
+                short_faces_dropped: self.short_faces_dropped,
+                unreferenced_vertices_dropped: distinct - kept,
+            },
+            warnings: self.warnings,
+            triangle_count: input_triangles - degenerate,
+            welded_index,
+            triangles,
+            input_triangles,
+            folder,
+        })
+    }
+}
+
+/// Each vertex's lowest-index vertex at the same position: the positions are scattered by a
+/// hash of their bits into bucket files (in input order within each), and each bucket is
+/// resolved in memory by the in-memory weld.
+fn representatives(
+    positions: &File,
+    vertices: u64,
+    bucket_vertices: u64,
+    folder: &Path,
+) -> Result<Vec<u32>, ImportError> {
+    let io = |cause| io_error(folder, cause);
+    let buckets = vertices.div_ceil(bucket_vertices).clamp(1, MAX_BUCKETS);
+    let mut representative = vec![0u32; vertices as usize];
+    if buckets == 1 {
+        let mut all = Vec::with_capacity(vertices as usize);
+        read_runs(positions, vertices, |run: &[[f32; 3]]| {
+            all.extend_from_slice(run);
+            Ok::<(), std::io::Error>(())
+        })
+        .map_err(io)?;
+        return Ok(crate::weld::exact_representatives(&all));
+    }
+    // Bucket files of `[x, y, z, index]` records.
+    let mut files = (0..buckets)
+        .map(|_| {
+            tempfile::tempfile_in(folder)
+                .map(|f| BufWriter::with_capacity(BUCKET_BUFFER, f))
+                .map_err(io)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut counts = vec![0u64; buckets as usize];
+    let mut index = 0u32;
+    read_runs(positions, vertices, |run: &[[f32; 3]]| {
+        for p in run {
+            let b = crate::weld::position_hash(p) as u128 * u128::from(buckets) >> 64;
+            let bits = p.map(f32::to_bits);
+            let record = [bits[0], bits[1], bits[2], index];
+            files[b as usize].write_all(bytemuck::cast_slice(&record))?;
+            counts[b as usize] += 1;
+            index += 1;
+        }
+        Ok::<(), std::io::Error>(())
+    })
+    .map_err(io)?;
+    for (file, count) in files.into_iter().zip(counts) {
+        let file = file.into_inner().map_err(|e| io(e.into_error()))?;
+        let mut bucket = Vec::with_capacity(count as usize);
+        let mut global = Vec::with_capacity(count as usize);
+        read_runs(&file, count, |run: &[[u32; 4]]| {
+            for r in run {
+                bucket.push([r[0], r[1], r[2]].map(f32::from_bits));
+                global.push(r[3]);
+            }
+            Ok::<(), std::io::Error>(())
+        })
+        .map_err(io)?;
+        drop(file);
+        let local = crate::weld::exact_representatives(&bucket);
+        for (i, &r) in local.iter().enumerate() {
+            representative[global[i] as usize] = global[r as usize];
+        }
+    }
+    Ok(representative)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{MeshSoup, SPILL_ROWS, Weld, weld};
+
+    /// `soup` spilled as one input file.
+    fn spilled(soup: MeshSoup, folder: &Path) -> SoupFiles {
+        let mut soup = soup;
+        soup.spill.0 = Some(Box::new(
+            SoupFiles::create(folder).unwrap().for_file(SPILL_ROWS),
+        ));
+        soup.spill_now();
+        let spill = soup.spill.0.take().unwrap();
+        spill.finish(soup).unwrap()
+    }
+
+    /// A soup with repeated positions (`-0.0` among them), triangles that welding makes
+    /// degenerate and vertices no triangle uses.
+    fn soup(seed: u64, vertices: u32, triangles: u32) -> MeshSoup {
+        let mut state = seed;
+        let mut next = |n: u32| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 33) % u64::from(n)) as u32
+        };
+        let values = [0.0, -0.0, 1.0, 2.5, -3.0, 7.0];
+        let used = vertices - vertices / 8;
+        // The last eighth, which no triangle uses, at positions of their own.
+        let positions: Vec<[f32; 3]> = (0..vertices)
+            .map(|v| match v < used {
+                true => [0; 3].map(|_| values[next(values.len() as u32) as usize]),
+                false => [v as f32, 0.5, 0.5],
+            })
+            .collect();
+        let triangles: Vec<[u32; 3]> = (0..triangles)
+            .map(|_| [next(used), next(used), next(used)])
+            .collect();
+        let triangle_parts = (0..triangles.len() as u32).map(|t| t % 3).collect();
+        MeshSoup {
+            positions,
+            triangles,
+            triangle_parts,
+            part_names: (0..3).map(|k| format!("part {k}")).collect(),
+            parts: vec![PartInfo::default(); 3],
+            ..MeshSoup::default()
+        }
+    }
+
+    #[test]
+    fn the_weld_on_disk_makes_the_scene_the_weld_in_memory_makes() {
+        let folder = tempfile::tempdir().unwrap();
+        for seed in 0..6 {
+            let soup = soup(seed, 3_000, 4_000);
+            let expected = weld(soup.clone(), Weld::Exact);
+            assert!(expected.stats.welded_vertices > 0);
+            assert!(expected.stats.degenerate_triangles_dropped > 0);
+            assert!(expected.stats.unreferenced_vertices_dropped > 0);
+            // One bucket, a few, and more than `MAX_BUCKETS` asked for.
+            for bucket_vertices in [1 << 20, 700, 1] {
+                let scene = spilled(soup.clone(), folder.path())
+                    .weld_in_buckets_of(bucket_vertices)
+                    .unwrap();
+                assert_eq!(scene.triangle_count, expected.triangles.len() as u64);
+                assert_eq!(scene.to_scene().unwrap(), expected, "seed {seed}");
+            }
+        }
+    }
+
+    #[test]
+    fn triangle_runs_number_the_welded_triangles_in_order() {
+        let folder = tempfile::tempdir().unwrap();
+        let soup = soup(9, (RUN as u32) / 2, RUN as u32 + 1000);
+        let expected = weld(soup.clone(), Weld::Exact);
+        let scene = spilled(soup, folder.path()).weld().unwrap();
+        let mut runs = Vec::new();
+        scene
+            .for_each_triangle_run(
+                |first, t, p| {
+                    assert_eq!(t.len(), p.len());
+                    runs.push((first, t.len()));
+                    Ok::<(), ImportError>(())
+                },
+                |e| e,
+            )
+            .unwrap();
+        assert_eq!(runs.len(), 2, "two runs of the file");
+        assert_eq!(runs[0].0, 0);
+        assert_eq!(runs[1].0, runs[0].1 as u64);
+        assert_eq!(
+            (runs[0].1 + runs[1].1) as u64,
+            expected.triangles.len() as u64
+        );
+    }
+}
+
+#[cfg(test)]
+mod file_tests {
+    use std::io::Write;
+    use std::path::{Path, PathBuf};
+
+    use crate::{ImportOptions, Weld, load_files};
+
+    /// A grid of `n × n` vertices (each written twice, so that welding joins them) and its
+    /// triangles; every `quad_every`-th face written as a quad when that is set.
+    fn grid(n: u32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+        let mut positions = Vec::new();
+        for copy in 0..2 {
+            for y in 0..n {
+                for x in 0..n {
+                    let _ = copy;
+                    positions.push([x as f32, y as f32, ((x * y) % 3) as f32 - 1.0]);
+                }
+            }
+        }
+        let mut triangles = Vec::new();
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = y * n + x + (x % 2) * n * n; // half the corners from the copy
+                triangles.push([v, v + 1, v + n]);
+                triangles.push([v + 1, v + n + 1, v + n]);
+            }
+        }
+        // One triangle that welding makes degenerate.
+        triangles.push([0, n * n, 1]);
+        (positions, triangles)
+    }
+
+    fn write(folder: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+        let path = folder.join(name);
+        std::fs::File::create(&path)
+            .unwrap()
+            .write_all(bytes)
+            .unwrap();
+        path
+    }
+
+    /// A binary little-endian PLY with vertex colours or face colours, a face `part`, and
+    /// one quad when `quad` (which sends that piece to the general reader).
+    fn binary_ply(vertex_colors: bool, quad: bool) -> Vec<u8> {
+        let (positions, triangles) = grid(9);
+        let mut header = format!(
+            "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n",
+            positions.len()
+        );
+        if vertex_colors {
+            header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+        }
+        header += &format!(
+            "element face {}\nproperty list uchar uint vertex_indices\nproperty uint part\n",
+            triangles.len() + usize::from(quad)
+        );
+        if !vertex_colors {
+            header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+        }
+        header += "end_header\n";
+        let mut out = header.into_bytes();
+        for (i, p) in positions.iter().enumerate() {
+            for c in p {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+            if vertex_colors {
+                out.extend_from_slice(&[(i * 7) as u8, (i * 13) as u8, 200]);
+            }
+        }
+        let mut faces: Vec<Vec<u32>> = triangles.iter().map(|t| t.to_vec()).collect();
+        if quad {
+            faces.insert(20, vec![0, 1, 10, 9]);
+        }
+        for (i, f) in faces.iter().enumerate() {
+            out.push(f.len() as u8);
+            for v in f {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+            out.extend_from_slice(&((i / 30) as u32 * 5).to_le_bytes());
+            if !vertex_colors {
+                out.extend_from_slice(&[(i * 3) as u8, 10, (i * 11) as u8]);
+            }
+        }
+        out
+    }
+
+    fn ascii_ply() -> Vec<u8> {
+        let (positions, triangles) = grid(6);
+        let mut out = format!(
+            "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+            positions.len(),
+            triangles.len()
+        );
+        for p in &positions {
+            out += &format!("{} {} {}\n", p[0], p[1], p[2]);
+        }
+        for t in &triangles {
+            out += &format!("3 {} {} {}\n", t[0], t[1], t[2]);
+        }
+        out.into_bytes()
+    }
+
+    fn binary_stl() -> Vec<u8> {
+        let (positions, triangles) = grid(7);
+        let mut out = vec![0u8; 80];
+        out.extend_from_slice(&(triangles.len() as u32).to_le_bytes());
+        for t in &triangles {
+            out.extend_from_slice(&[0u8; 12]);
+            for &v in t {
+                for c in positions[v as usize] {
+                    out.extend_from_slice(&(c + 20.0).to_le_bytes());
+                }
+            }
+            out.extend_from_slice(&[0, 0]);
+        }
+        out
+    }
+
+    const OBJ: &[u8] =
+        b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\ng left\nf 1 2 3\ng right\nf 2 4 3\nf 1 1 2\n";
+
+    #[test]
+    fn spilled_import_reads_every_format_as_the_import_in_memory_does() {
+        let folder = tempfile::tempdir().unwrap();
+        let f = folder.path();
+        let paths = vec![
+            write(f, "a.ply", &binary_ply(true, false)),
+            write(f, "b.ply", &binary_ply(false, true)),
+            write(f, "c.ply", &ascii_ply()),
+            write(f, "d.stl", &binary_stl()),
+            write(f, "e.obj", OBJ),
+        ];
+        let options = ImportOptions {
+            weld: Weld::Exact,
+            ..ImportOptions::default()
+        };
+        let expected = load_files(&paths, &options).unwrap();
+        assert!(expected.parts.iter().any(|p| p.color.is_some()));
+        // Pieces of a few rows, of more rows than any file has, and of one row.
+        for rows in [7, 1 << 20, 1] {
+            let scene = crate::spill_files_in_pieces(&paths, &options, f, rows).unwrap();
+            assert_eq!(scene.to_scene().unwrap(), expected, "pieces of {rows} rows");
+        }
+    }
+
+    #[test]
+    fn a_bad_row_in_a_later_piece_is_named_as_in_memory() {
+        let folder = tempfile::tempdir().unwrap();
+        let mut bytes = binary_ply(false, false);
+        // Corrupt the last face's first corner (its count byte, three `u32` corners, a part
+        // and three colour bytes end the file).
+        let at = bytes.len() - (3 + 4 + 12);
+        bytes[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        let path = write(folder.path(), "bad.ply", &bytes);
+        let options = ImportOptions::default();
+        let in_memory = load_files(&[&path], &options).unwrap_err().to_string();
+        let spilled = crate::spill_files_in_pieces(&[&path], &options, folder.path(), 7)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(spilled, in_memory);
+        assert!(in_memory.contains("face"), "{in_memory}");
+    }
+}
