@@ -25,7 +25,7 @@ mod verify;
 pub use build::{BuildTimings, Builder, build_tree, build_tree_by, build_tree_timed};
 pub use tree::{Node, NodeBounds, VertexTree};
 pub use vdt::{
-    TreeNodes, VerifyError, encode_scene, encode_scene_by, part_records, snap_to_grid,
-    tree_content, tree_from_file, verify_file,
+    TreeNodes, VerifyError, encode_scene, encode_scene_by, part_records, snap_positions,
+    snap_to_grid, tree_content, tree_from_file, verify_file,
 };
 pub use verify::{TreeError, verify_tree};

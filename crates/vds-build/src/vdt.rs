@@ -153,22 +153,24 @@ impl PartCounts {
 /// returns that grid. Build the tree after snapping, so every bound the builder computes is
 /// exact for the positions the file will hold.
 pub fn snap_to_grid(scene: &mut Scene) -> Grid {
+    snap_positions(&mut scene.positions)
+}
+
+/// [`snap_to_grid`] for positions alone (a scene whose triangles are elsewhere).
+pub fn snap_positions(positions: &mut [[f32; 3]]) -> Grid {
     let mut min = [f32::INFINITY; 3];
     let mut max = [f32::NEG_INFINITY; 3];
-    for p in &scene.positions {
+    for p in positions.iter() {
         for k in 0..3 {
             min[k] = min[k].min(p[k]);
             max[k] = max[k].max(p[k]);
         }
     }
-    if scene.positions.is_empty() {
+    if positions.is_empty() {
         (min, max) = ([0.0; 3], [1.0; 3]);
     }
     let grid = Grid::for_bounds(min, max);
-    scene
-        .positions
-        .par_iter_mut()
-        .for_each(|p| *p = grid.snap(*p));
+    positions.par_iter_mut().for_each(|p| *p = grid.snap(*p));
     grid
 }
 

@@ -6,12 +6,11 @@
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
-use vds_import::Scene;
 use zerocopy::{FromZeros, IntoBytes};
 
 use super::container::{BodyWriter, read_body_into, read_ends};
 use super::part::{InputTriangle, input_triangle};
-use super::{Plan, ShardError};
+use super::{Plan, PlanScene, ShardError};
 
 /// The first eight bytes of a `.vdtin` file.
 pub const INPUT_MAGIC: [u8; 8] = *b"VDTINPUT";
@@ -26,13 +25,20 @@ const TRIANGLES_PER_RUN: usize = 1 << 16;
 
 /// How many of `scene`'s triangles each shard of `plan` reads: those with a corner under
 /// one of its roots (`root_of`, from [`super::roots_of_vertices`]).
-pub fn shard_triangle_counts(scene: &Scene, plan: &Plan, root_of: &[u32]) -> Vec<u64> {
+pub fn shard_triangle_counts(
+    scene: &impl PlanScene,
+    plan: &Plan,
+    root_of: &[u32],
+) -> Result<Vec<u64>, ShardError> {
     let shard_of_root = shard_of_root(plan);
     let mut counts = vec![0u64; plan.shard_count() as usize];
-    for t in &scene.triangles {
-        for_each_shard(t, root_of, &shard_of_root, |k| counts[k] += 1);
-    }
-    counts
+    scene.for_each_triangle_run(&mut |_, triangles, _| {
+        for t in triangles {
+            for_each_shard(t, root_of, &shard_of_root, |k| counts[k] += 1);
+        }
+        Ok(())
+    })?;
+    Ok(counts)
 }
 
 fn shard_of_root(plan: &Plan) -> Vec<u32> {
@@ -56,7 +62,7 @@ fn for_each_shard(t: &[u32; 3], root_of: &[u32], shard_of_root: &[u32], mut f: i
 /// beside its target and renamed into place when complete. `on_progress(done, total)` is
 /// told how many triangles the passes over the scene have gone through.
 pub fn write_shard_inputs(
-    scene: &Scene,
+    scene: &impl PlanScene,
     plan: &Plan,
     root_of: &[u32],
     paths: &[PathBuf],
@@ -64,7 +70,8 @@ pub fn write_shard_inputs(
 ) -> Result<(), ShardError> {
     let shard_of_root = shard_of_root(plan);
     let passes = paths.len().div_ceil(FILES_PER_PASS) as u64;
-    let total = passes * scene.triangles.len() as u64;
+    let total = passes * scene.triangle_count();
+    let positions = scene.positions();
     let mut done = 0u64;
     for first in (0..paths.len()).step_by(FILES_PER_PASS) {
         let batch = first..(first + FILES_PER_PASS).min(paths.len());
@@ -76,26 +83,34 @@ pub fn write_shard_inputs(
         // compresses its share on its own task (the files are independent streams, each
         // still written in scene order).
         let mut gathered: Vec<Vec<u8>> = vec![Vec::new(); batch.len()];
-        for run in (0..scene.triangles.len()).step_by(TRIANGLES_PER_RUN) {
-            let end = (run + TRIANGLES_PER_RUN).min(scene.triangles.len());
-            for t in run..end {
-                for_each_shard(&scene.triangles[t], root_of, &shard_of_root, |k| {
-                    if batch.contains(&k) {
-                        gathered[k - first].extend_from_slice(input_triangle(scene, t).as_bytes());
-                    }
-                });
+        scene.for_each_triangle_run(&mut |run_first, triangles, parts| {
+            for (k, (triangles, parts)) in triangles
+                .chunks(TRIANGLES_PER_RUN)
+                .zip(parts.chunks(TRIANGLES_PER_RUN))
+                .enumerate()
+            {
+                let sub_first = run_first + (k * TRIANGLES_PER_RUN) as u64;
+                for (i, (&t, &part)) in triangles.iter().zip(parts).enumerate() {
+                    for_each_shard(&t, root_of, &shard_of_root, |k| {
+                        if batch.contains(&k) {
+                            let record = input_triangle(sub_first + i as u64, part, t, positions);
+                            gathered[k - first].extend_from_slice(record.as_bytes());
+                        }
+                    });
+                }
+                files
+                    .par_iter_mut()
+                    .zip(&mut gathered)
+                    .try_for_each(|(file, bytes)| {
+                        let written = file.put(bytes);
+                        bytes.clear();
+                        written
+                    })?;
+                done += triangles.len() as u64;
+                on_progress(done, total);
             }
-            files
-                .par_iter_mut()
-                .zip(&mut gathered)
-                .try_for_each(|(file, bytes)| {
-                    let written = file.put(bytes);
-                    bytes.clear();
-                    written
-                })?;
-            done += (end - run) as u64;
-            on_progress(done, total);
-        }
+            Ok(())
+        })?;
         for file in files {
             file.finish()?;
         }

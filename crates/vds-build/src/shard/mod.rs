@@ -32,6 +32,7 @@ mod merge;
 mod part;
 mod part_file;
 pub mod plan;
+mod source;
 
 pub use input_file::{INPUT_MAGIC, read_shard_input, shard_triangle_counts, write_shard_inputs};
 pub use merge::{merge, merge_to};
@@ -41,6 +42,7 @@ pub use part::{
 };
 pub use part_file::{PART_MAGIC, part_from_bytes, part_header, read_part, write_part, write_shard};
 pub use plan::{Plan, PlanMetadata, plan};
+pub use source::PlanScene;
 
 use std::path::PathBuf;
 
@@ -89,6 +91,9 @@ pub enum ShardError {
     /// Writing an output failed (it is left as it was).
     #[error(transparent)]
     Output(#[from] vds_format::OutputError),
+    /// Reading or spilling the input failed.
+    #[error(transparent)]
+    Import(#[from] vds_import::ImportError),
     /// Reading a file failed.
     #[error("{path}: {source}")]
     Io {

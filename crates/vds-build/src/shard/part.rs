@@ -15,7 +15,7 @@ use vds_import::Scene;
 use zerocopy::little_endian::{F32, U32, U64};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
-use super::{Plan, ShardError};
+use super::{Plan, PlanScene, ShardError};
 use crate::build::{Accumulator, Adjacency, Inputs, Sphere, compute_attributes, leaf_tables};
 use crate::isa::Isa;
 use crate::octree::cluster_with;
@@ -95,20 +95,18 @@ pub struct InputTriangle {
 
 /// The root of every vertex of `scene` (welded, snapped: the scene the plan was made from),
 /// checked against the plan's counts.
-pub fn roots_of_vertices(scene: &Scene, plan: &Plan) -> Result<Vec<u32>, ShardError> {
-    if scene.positions.len() != plan.vertices as usize
-        || scene.triangles.len() as u64 != plan.triangles
-    {
+pub fn roots_of_vertices(scene: &impl PlanScene, plan: &Plan) -> Result<Vec<u32>, ShardError> {
+    let positions = scene.positions();
+    if positions.len() != plan.vertices as usize || scene.triangle_count() != plan.triangles {
         return Err(ShardError::InputChanged(format!(
             "{} vertices and {} triangles, the plan has {} and {}",
-            scene.positions.len(),
-            scene.triangles.len(),
+            positions.len(),
+            scene.triangle_count(),
             plan.vertices,
             plan.triangles
         )));
     }
-    let root_of: Vec<u32> = scene
-        .positions
+    let root_of: Vec<u32> = positions
         .par_iter()
         .map(|&p| plan.locate(p).unwrap_or(ELSEWHERE))
         .collect();
@@ -161,19 +159,25 @@ pub fn shard_input_of(
             corners
                 .iter()
                 .any(|&v| mine.contains(&root_of[v as usize]))
-                .then(|| input_triangle(scene, t))
+                .then(|| {
+                    input_triangle(t as u64, scene.triangle_parts[t], corners, &scene.positions)
+                })
         })
         .collect()
 }
 
-/// Triangle `t` of `scene` as a shard reads it.
-pub fn input_triangle(scene: &Scene, t: usize) -> InputTriangle {
-    let corners = scene.triangles[t];
+/// Triangle `t` of a scene (in `part`, with `corners` into `positions`) as a shard reads it.
+pub fn input_triangle(
+    t: u64,
+    part: u32,
+    corners: [u32; 3],
+    positions: &[[f32; 3]],
+) -> InputTriangle {
     InputTriangle {
-        triangle: U64::new(t as u64),
-        part: U32::new(scene.triangle_parts[t]),
+        triangle: U64::new(t),
+        part: U32::new(part),
         vertices: corners.map(U32::new),
-        positions: corners.map(|v| scene.positions[v as usize].map(F32::new)),
+        positions: corners.map(|v| positions[v as usize].map(F32::new)),
     }
 }
 

@@ -87,19 +87,38 @@ impl PlanMetadata {
         options: &vds_format::WriteOptions,
         inputs: Vec<(String, u64, u64)>,
     ) -> PlanMetadata {
+        PlanMetadata::of_parts(
+            &scene.part_names,
+            &scene.parts,
+            &scene.stats,
+            tool,
+            options,
+            inputs,
+        )
+    }
+
+    /// [`PlanMetadata::of_scene`] from a scene's parts and import counts (a scene whose
+    /// triangles are elsewhere).
+    pub fn of_parts(
+        part_names: &[String],
+        parts: &[vds_import::PartInfo],
+        stats: &vds_import::ImportStats,
+        tool: String,
+        options: &vds_format::WriteOptions,
+        inputs: Vec<(String, u64, u64)>,
+    ) -> PlanMetadata {
         PlanMetadata {
             tool,
             zstd_level: options.zstd_level,
             page_bytes: options.page_bytes,
             inputs,
-            part_names: scene.part_names.clone(),
-            parts: scene
-                .parts
+            part_names: part_names.to_vec(),
+            parts: parts
                 .iter()
                 .map(|p| (p.parent, p.color.map(|c| c.map(f32::to_bits))))
                 .collect(),
-            input_vertices: scene.stats.input_vertices,
-            input_triangles: scene.stats.input_triangles,
+            input_vertices: stats.input_vertices,
+            input_triangles: stats.input_triangles,
         }
     }
 }

@@ -115,17 +115,17 @@ pub(crate) fn build_within(
     let progress = Progress::new(show);
     progress.phase("reading meshes");
     let options = args.limits.options(Weld::Exact);
-    let mut scene = vds_import::load_files(inputs, &options)?;
+    let work = tempfile::Builder::new()
+        .prefix(".vds-build-")
+        .tempdir_in(folder_of(output))
+        .with_context(|| format!("cannot make a temporary folder beside {}", output.display()))?;
+    let mut scene = vds_import::spill_files(inputs, &options, work.path())?;
     if !args.quiet {
         for warning in &scene.warnings {
             progress.print(&format!("vds-build: warning: {warning}"));
         }
     }
     progress.phase("planning the shards");
-    let work = tempfile::Builder::new()
-        .prefix(".vds-build-")
-        .tempdir_in(folder_of(output))
-        .with_context(|| format!("cannot make a temporary folder beside {}", output.display()))?;
     let plan_path = work.path().join("plan.json");
     let threads = rayon::current_num_threads();
     let basis = plan_basis(&mut scene, inputs, args.pages)?;
@@ -133,7 +133,7 @@ pub(crate) fn build_within(
     // by the measured figures; the plan's shares are only about equal, so its actual shard
     // sizes are checked, and the model cut finer while the merge or a single shard would not
     // fit. Fewer shards run side by side where the limit does not hold one per core.
-    let triangles = scene.triangles.len() as u64;
+    let triangles = scene.triangle_count;
     let per_triangle = MERGE_BYTES_PER_TRIANGLE.max(threads as u64 * SHARD_BYTES_PER_TRIANGLE);
     let mut shards = u32::try_from(
         (triangles * per_triangle)

@@ -16,7 +16,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use vds_build::shard::{self, Plan, PlanMetadata};
-use vds_import::Weld;
+use vds_import::{SpilledScene, Weld};
 
 use crate::{ImportLimits, MAX_THREADS, PageOptions, check_output, hash_file};
 
@@ -117,7 +117,7 @@ pub fn main() -> Result<()> {
             check_output(&output, &inputs)?;
             let options = limits.options(Weld::Exact);
             progress.phase("reading meshes");
-            let mut scene = vds_import::load_files(&inputs, &options)?;
+            let mut scene = vds_import::spill_files(&inputs, &options, &folder_of(&output))?;
             if !cli.quiet {
                 for warning in &scene.warnings {
                     progress.print(&format!("vds-build: warning: {warning}"));
@@ -217,24 +217,31 @@ pub(crate) struct PlanBasis {
 
 /// Snaps `scene` to its grid and reads what its plans record.
 pub(crate) fn plan_basis(
-    scene: &mut vds_import::Scene,
+    scene: &mut SpilledScene,
     inputs: &[PathBuf],
     pages: PageOptions,
 ) -> Result<PlanBasis> {
-    let grid = vds_build::snap_to_grid(scene);
+    let grid = vds_build::snap_positions(&mut scene.positions);
     let mut files = Vec::new();
     for input in inputs {
         let (content_hash, bytes) = hash_file(input)?;
         files.push((file_name(input), bytes, content_hash));
     }
-    let metadata = PlanMetadata::of_scene(scene, tool(), &pages.write_options(), files);
+    let metadata = PlanMetadata::of_parts(
+        &scene.part_names,
+        &scene.parts,
+        &scene.stats,
+        tool(),
+        &pages.write_options(),
+        files,
+    );
     Ok(PlanBasis { grid, metadata })
 }
 
 /// Plans the build of `scene` (snapped by [`plan_basis`]) in `shards` shards, the plan to be
 /// written to `plan_path`.
 pub(crate) fn plan_scene(
-    scene: &vds_import::Scene,
+    scene: &SpilledScene,
     basis: &PlanBasis,
     inputs: &[PathBuf],
     shards: u32,
@@ -242,7 +249,7 @@ pub(crate) fn plan_scene(
 ) -> Result<Planned> {
     let mut plan = shard::plan(
         &scene.positions,
-        scene.triangles.len() as u64,
+        scene.triangle_count,
         basis.grid,
         shards,
         basis.metadata.clone(),
@@ -254,7 +261,7 @@ pub(crate) fn plan_scene(
         .map(|k| format!("{stem}.shard-{k}.vdtin"))
         .collect();
     let root_of = shard::roots_of_vertices(scene, &plan)?;
-    plan.shard_triangles = shard::shard_triangle_counts(scene, &plan, &root_of);
+    plan.shard_triangles = shard::shard_triangle_counts(scene, &plan, &root_of)?;
     plan.seal();
     let folder = folder_of(plan_path);
     let input_paths: Vec<PathBuf> = plan
@@ -275,7 +282,7 @@ pub(crate) fn plan_scene(
 /// Writes the shards' inputs, frees the scene, and writes the plan, last, so that a plan on
 /// disk always has its shards' inputs.
 pub(crate) fn write_plan(
-    scene: vds_import::Scene,
+    scene: SpilledScene,
     planned: Planned,
     plan_path: &Path,
     progress: &Progress,
