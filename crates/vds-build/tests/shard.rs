@@ -171,16 +171,12 @@ fn sharded_builds_write_the_in_memory_file_on_generated_scenes() {
         ..Default::default()
     };
     // Through the importer's weld, as a file would go.
-    let (scene, grid) = snapped(vds_import::weld(
-        vds_import::MeshSoup {
-            positions: scene.positions,
-            triangles: scene.triangles,
-            triangle_parts: scene.triangle_parts,
-            part_names: scene.part_names,
-            ..Default::default()
-        },
-        vds_import::Weld::Exact,
-    ));
+    let mut soup = vds_import::MeshSoup::default();
+    soup.positions = scene.positions;
+    soup.triangles = scene.triangles;
+    soup.triangle_parts = scene.triangle_parts;
+    soup.part_names = scene.part_names;
+    let (scene, grid) = snapped(vds_import::weld(soup, vds_import::Weld::Exact));
     assert_same_file("generated 150 k", &scene, grid, &[2, 4, 7, 32]);
 }
 
@@ -448,14 +444,14 @@ fn shard_inputs_round_trip_through_files() {
         .collect();
     let root_of = roots_of_vertices(&scene, &plan).unwrap();
     // Without the shards' triangle counts in the plan, an input is not read.
-    write_shard_inputs(&scene, &plan, &root_of, &paths, |_, _| {}).unwrap();
+    write_shard_inputs(&scene, &plan, &root_of, &paths, 2, |_, _| {}).unwrap();
     assert!(matches!(
         read_shard_input(&paths[0], &plan, 0),
         Err(ShardError::BadFile { .. })
     ));
-    plan.shard_triangles = shard_triangle_counts(&scene, &plan, &root_of);
+    plan.shard_triangles = shard_triangle_counts(&scene, &plan, &root_of).unwrap();
     plan.seal();
-    write_shard_inputs(&scene, &plan, &root_of, &paths, |_, _| {}).unwrap();
+    write_shard_inputs(&scene, &plan, &root_of, &paths, 2, |_, _| {}).unwrap();
     for (k, path) in paths.iter().enumerate() {
         let input = read_shard_input(path, &plan, k as u32).unwrap();
         assert_eq!(

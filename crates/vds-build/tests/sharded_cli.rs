@@ -399,15 +399,16 @@ fn page_options_given_to_plan_shape_the_merged_file() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// `vds-build --memory-limit` on a generated million-triangle scene: the in-memory build's
-/// file, byte for byte, with a peak (the process's `VmHWM`, as the build reports it) within a
-/// limit that the in-memory build of the same scene goes over.
+/// `vds-build --memory-limit` on a generated 3 M-triangle scene: the in-memory build's file,
+/// byte for byte, with a peak (the process's `VmHWM`, as the build reports it, import and plan
+/// included) within a limit that the in-memory build of the same scene goes over, and that
+/// the input file alone (72 MB, mapped) and its soup in memory (55 MB) would together exceed.
 #[test]
 fn a_build_within_a_memory_limit_writes_the_same_file_within_the_limit() {
     let dir = temp_dir("memory-limit");
     let input = dir.join("scene.ply");
     vds_gen::write_ply_streamed(
-        1_000_000,
+        3_000_000,
         &mut std::io::BufWriter::new(std::fs::File::create(&input).unwrap()),
     )
     .unwrap();
@@ -438,6 +439,12 @@ fn a_build_within_a_memory_limit_writes_the_same_file_within_the_limit() {
     assert!(
         limited <= LIMIT,
         "peak {limited} B over the limit of {LIMIT} B: {report}"
+    );
+    let import = report["import_peak_rss_bytes"].as_u64().unwrap();
+    assert!(import <= LIMIT, "import and plan peak {import} B: {report}");
+    assert!(
+        std::fs::metadata(&input).unwrap().len() > LIMIT / 2,
+        "the test needs an input of a size near the limit"
     );
     assert!(std::fs::read(&expected).unwrap() == std::fs::read(&output).unwrap());
     // The temporary folder of shard inputs and parts is gone.

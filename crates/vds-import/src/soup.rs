@@ -36,8 +36,8 @@ pub struct MeshSoup {
     pub(crate) spill: SpillSlot,
 }
 
-/// Rows a streaming reader reads between spills: 12–16 MB of vertices or triangles.
-pub const SPILL_ROWS: usize = 1 << 20;
+/// Rows a streaming reader reads between spills: 3–4 MB of vertices or triangles.
+pub const SPILL_ROWS: usize = 1 << 18;
 
 /// A soup's spill, if it has one. A clone of a soup keeps what it holds in memory and spills
 /// nowhere; soups compare by what they hold in memory.

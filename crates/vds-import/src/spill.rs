@@ -27,13 +27,13 @@ use crate::source::Bytes;
 use crate::{ImportError, ImportStats, PartInfo};
 
 /// Positions per bucket of the weld: a bucket's resolution holds about 50 bytes per vertex.
-const BUCKET_VERTICES: u64 = 1 << 21;
+const BUCKET_VERTICES: u64 = 1 << 20;
 /// The most buckets (each an open file with a buffer of [`BUCKET_BUFFER`] bytes while the
 /// positions are scattered): 2³² vertices make buckets of 8 M vertices, 0.4 GB to resolve.
 const MAX_BUCKETS: u64 = 512;
 const BUCKET_BUFFER: usize = 64 << 10;
-/// Triangles or vertices read from a spill file at a time (16 MB of triangles).
-const RUN: usize = 1 << 20;
+/// Triangles or vertices read from a spill file at a time (4 MB of triangles).
+const RUN: usize = 1 << 18;
 
 /// A soup's vertices and triangles on disk: positions (`[f32; 3]`) and triangles with their
 /// part (`[a, b, c, part]`), in native byte order (the files never leave the process).

@@ -33,6 +33,8 @@ pub(crate) const HEADER_BYTES: u64 = 32;
 pub(crate) const TRAILER_BYTES: u64 = 24;
 /// zstd level of the files: each is read once.
 const ZSTD_LEVEL: i32 = 1;
+/// zstd window of the files, log 2 of its bytes.
+const WINDOW_LOG: u32 = 17;
 
 /// Which shard of which plan a file is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -77,7 +79,11 @@ impl BodyWriter {
         header.extend_from_slice(&plan_id.to_le_bytes());
         header.extend_from_slice(&xxh3_64(&header).to_le_bytes());
         file.write_all(&header).map_err(io)?;
-        let out = zstd::stream::write::Encoder::new(file, ZSTD_LEVEL).map_err(io)?;
+        let mut out = zstd::stream::write::Encoder::new(file, ZSTD_LEVEL).map_err(io)?;
+        // A window of 128 KiB instead of level 1's 512 KiB: a plan writes many files at once,
+        // and each encoder's tables and window are most of its memory (2.4 MB each with the
+        // default window, measured on a 24-shard plan).
+        out.window_log(WINDOW_LOG).map_err(io)?;
         Ok(BodyWriter {
             path: path.to_path_buf(),
             out,

@@ -34,7 +34,10 @@ mod part_file;
 pub mod plan;
 mod source;
 
-pub use input_file::{INPUT_MAGIC, read_shard_input, shard_triangle_counts, write_shard_inputs};
+pub use input_file::{
+    INPUT_MAGIC, INPUT_WRITER_BYTES, MAX_FILES_PER_PASS, read_shard_input, shard_triangle_counts,
+    write_shard_inputs,
+};
 pub use merge::{merge, merge_to};
 pub use part::{
     CrossCorner, InputTriangle, RootPart, ShardPart, build_shard, build_shard_from,

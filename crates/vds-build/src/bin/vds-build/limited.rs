@@ -6,10 +6,11 @@
 //! "Sharded build"): a shard about 105 bytes per triangle it reads, the merge about 175 bytes
 //! per triangle of the part it holds. Shards run side by side, as many as the cores and the
 //! limit allow. Their inputs and parts, and the merge's spilled pages, go beside the output
-//! (not `TMPDIR`, which may be memory) and are removed at the end. The import still reads the
-//! whole scene into memory, as an in-memory build's does (about 45 bytes per triangle): the
-//! build reports the import's peak and the shards' and merge's apart, and warns when either
-//! is over the limit.
+//! (not `TMPDIR`, which may be memory) and are removed at the end. The import spills the
+//! model to that folder as it reads it and welds it there ([`vds_import::spill_files`]); the
+//! plan then holds about 20 bytes per welded vertex (positions, each vertex's weld and root).
+//! The build reports the import's and plan's peak and the shards' and merge's apart, and warns
+//! when either is over the limit.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -18,7 +19,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
-use vds_build::shard::Plan;
+use vds_build::shard::{self, Plan};
 use vds_import::Weld;
 
 use crate::sharded::{
@@ -183,7 +184,12 @@ pub(crate) fn build_within(
         shards = shards.saturating_mul(2).min(MAX_SHARDS);
     };
     let vertices = planned.plan.vertices;
-    let plan = write_plan(scene, planned, &plan_path, &progress)?;
+    // What the plan holds while it writes the shards' inputs (positions, each input vertex's
+    // weld and each vertex's root, a run of triangles): the rest of the budget is for the
+    // files written at once.
+    let holding = u64::from(vertices) * 16 + scene.stats.input_vertices * 4 + (16 << 20);
+    let files_per_pass = (budget.saturating_sub(holding) / shard::INPUT_WRITER_BYTES) as usize;
+    let plan = write_plan(scene, planned, &plan_path, files_per_pass, &progress)?;
     let import_peak = peak_rss_bytes();
     let peak_reset = reset_peak_rss();
     let planned_at = start.elapsed().as_secs_f64();
@@ -191,8 +197,8 @@ pub(crate) fn build_within(
         && !args.quiet
     {
         progress.print(&format!(
-            "vds-build: warning: reading the model took {} MB, over the limit of {} MB: the \
-             import holds the whole scene (a streaming import is not built)",
+            "vds-build: warning: reading and planning the model took {} MB, over the limit of \
+             {} MB (the plan holds about 20 bytes per vertex)",
             peak >> 20,
             limit >> 20
         ));

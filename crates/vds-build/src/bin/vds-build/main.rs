@@ -125,8 +125,8 @@ struct Args {
     limits: ImportLimits,
     /// Build within this much memory (512MiB, 4GiB): the sharded build (plan, shards, merge)
     /// run by this process, with as many shards as keep them within it; the same file as
-    /// without. Takes exact welding and the octree builder. The import still reads the whole
-    /// scene (about 45 bytes per triangle); a warning says when that alone goes over.
+    /// without. Takes exact welding and the octree builder. The import spills the model to
+    /// disk as it reads it; the plan holds about 20 bytes per vertex.
     #[arg(long, value_name = "SIZE", value_parser = parse_size, conflicts_with = "batch", requires = "output")]
     memory_limit: Option<u64>,
 }

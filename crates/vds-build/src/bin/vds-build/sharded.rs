@@ -126,7 +126,13 @@ pub fn main() -> Result<()> {
             progress.phase("planning the top of the tree");
             let basis = plan_basis(&mut scene, &inputs, pages)?;
             let planned = plan_scene(&scene, &basis, &inputs, shards, &output)?;
-            let plan = write_plan(scene, planned, &output, &progress)?;
+            let plan = write_plan(
+                scene,
+                planned,
+                &output,
+                shard::MAX_FILES_PER_PASS,
+                &progress,
+            )?;
             say(format!(
                 "planned {} shards of {} roots ({} vertices, {} triangles)",
                 plan.shard_count(),
@@ -279,12 +285,13 @@ pub(crate) fn plan_scene(
     })
 }
 
-/// Writes the shards' inputs, frees the scene, and writes the plan, last, so that a plan on
-/// disk always has its shards' inputs.
+/// Writes the shards' inputs (`files_per_pass` at a time), frees the scene, and writes the
+/// plan, last, so that a plan on disk always has its shards' inputs.
 pub(crate) fn write_plan(
     scene: SpilledScene,
     planned: Planned,
     plan_path: &Path,
+    files_per_pass: usize,
     progress: &Progress,
 ) -> Result<Plan> {
     let Planned {
@@ -293,9 +300,15 @@ pub(crate) fn write_plan(
         root_of,
     } = planned;
     progress.counted("writing the shards' inputs (triangles)");
-    shard::write_shard_inputs(&scene, &plan, &root_of, &input_paths, |done, total| {
-        progress.set(done, total)
-    })?;
+    let files = files_per_pass;
+    shard::write_shard_inputs(
+        &scene,
+        &plan,
+        &root_of,
+        &input_paths,
+        files,
+        |done, total| progress.set(done, total),
+    )?;
     drop(scene);
     drop(root_of);
     plan.save(plan_path)?;
