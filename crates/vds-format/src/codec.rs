@@ -398,9 +398,16 @@ pub fn encode_page_into(
         // Bounds, widened by what quantising the proxy, centre and axis moved.
         let moved = distance(proxy, stored);
         let error_units = widened_error(base_error, unit);
-        debug_assert!(
-            error_units as f64 * f64::from(grid.step) >= f64::from(n.error_radius.get()) + moved
-        );
+        // Holds for every tree a build makes; a tree from damaged input (a radius past the
+        // grid's largest, a NaN) is refused rather than written with a bound that does not hold.
+        let bounded =
+            error_units as f64 * f64::from(grid.step) >= f64::from(n.error_radius.get()) + moved;
+        if !bounded {
+            return Err(VdtError::invalid(
+                format!("node {id}"),
+                "error radius that the file's grid cannot bound",
+            ));
+        }
         put_varint(&mut s[BOUNDS], base_error);
         let surface_level = surface_byte(
             n.surface_error.get(),

@@ -294,9 +294,10 @@ pub fn load_files<P: AsRef<Path>>(
 
 /// Reads several files into a welded scene whose triangles stay on disk, in unnamed temporary
 /// files in `folder`: the same scene [`load_files`] makes with [`Weld::Exact`], read with
-/// memory that does not grow with the model's triangles. Binary PLY and STL files are
-/// streamed (their soup spills every [`SPILL_ROWS`] rows and their mapped pages are let go
-/// as they are read); an OBJ, ASCII PLY or glTF file's soup is held while that file is read.
+/// memory that does not grow with the model's triangles. PLY, binary STL and OBJ files are
+/// streamed (their soup spills every [`SPILL_ROWS`] rows or megabyte of OBJ text, and their
+/// mapped pages are let go as they are read; the OBJ reader keeps a table of its `v` lines);
+/// an ASCII STL or glTF file's soup is held while that file is read.
 /// What stays in memory is about 12 bytes per welded vertex and 4 per input vertex
 /// ([`SpilledScene`]).
 pub fn spill_files<P: AsRef<Path>>(

@@ -11,9 +11,9 @@ use crate::error::{FormatError, Location, Problem};
 /// [`MeshSoup::push_vertex`] and faces with [`MeshSoup::push_polygon`]; every index is
 /// absolute (counted from the soup's first vertex).
 ///
-/// A soup made by [`crate::spill_files`] *spills*: the readers that stream (binary PLY and
-/// STL) hand what they have read to files every [`SPILL_ROWS`] rows, and every reader does at
-/// the end of its file, so `positions`, `triangles` and `triangle_parts` then hold only what
+/// A soup made by [`crate::spill_files`] *spills*: the readers that stream (PLY, binary STL,
+/// OBJ) hand what they have read to files every [`SPILL_ROWS`] rows (OBJ: every megabyte of
+/// text), and every reader does at the end of its file, so `positions`, `triangles` and `triangle_parts` then hold only what
 /// was read since the last spill ([`MeshSoup::vertex_count`] counts all).
 #[derive(Debug, Default, Clone, PartialEq)]
 pub struct MeshSoup {

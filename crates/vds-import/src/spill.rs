@@ -688,6 +688,29 @@ mod file_tests {
     const OBJ: &[u8] =
         b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\ng left\nf 1 2 3\ng right\nf 2 4 3\nf 1 1 2\n";
 
+    /// An OBJ file of more than one piece of text (over a megabyte), in two groups, with
+    /// relative indices in the second, lines ending in `ending`.
+    fn large_obj(ending: &str) -> Vec<u8> {
+        let (positions, triangles) = grid(220);
+        let mut out = String::new();
+        for p in &positions {
+            out += &format!("v {} {} {}{ending}", p[0], p[1], p[2] * 0.25);
+        }
+        let half = triangles.len() / 2;
+        out += &format!("g first{ending}");
+        for t in &triangles[..half] {
+            out += &format!("f {} {} {}{ending}", t[0] + 1, t[1] + 1, t[2] + 1);
+        }
+        out += &format!("g second{ending}");
+        let n = positions.len() as i64;
+        for t in &triangles[half..] {
+            let r = t.map(|v| i64::from(v) - n);
+            out += &format!("f {} {} {}{ending}", r[0], r[1], r[2]);
+        }
+        assert!(out.len() > 2 * crate::obj::CHUNK_BYTES);
+        out.into_bytes()
+    }
+
     #[test]
     fn spilled_import_reads_every_format_as_the_import_in_memory_does() {
         let folder = tempfile::tempdir().unwrap();
@@ -698,6 +721,8 @@ mod file_tests {
             write(f, "c.ply", &ascii_ply()),
             write(f, "d.stl", &binary_stl()),
             write(f, "e.obj", OBJ),
+            write(f, "f.obj", &large_obj("\n")),
+            write(f, "g.obj", &large_obj("\r")),
         ];
         let options = ImportOptions {
             weld: Weld::Exact,

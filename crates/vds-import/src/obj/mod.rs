@@ -80,7 +80,31 @@ pub fn read_obj(
     let data = data.strip_prefix(BYTE_ORDER_MARK).unwrap_or(data);
     let mut parser = Parser::new(default_name, materials);
     parser.endings = Endings::of(data).unwrap_or(Endings::Lf);
-    parser.feed(data, soup)?;
+    if !soup.spills() {
+        parser.feed(data, soup)?;
+        parser.finish(soup);
+        return Ok(());
+    }
+    // A soup that spills takes the text a piece of whole lines at a time (about
+    // `CHUNK_BYTES`), as the stream reader does, and spills after each.
+    let mut done = 0;
+    while done < data.len() {
+        let rest = &data[done..];
+        let window = &rest[..rest.len().min(CHUNK_BYTES)];
+        let end = match parser.endings.last_break(window) {
+            _ if window.len() == rest.len() => rest.len(),
+            Some(at) => at + 1,
+            // A line longer than the window: up to its end (the parser refuses one too long).
+            None => parser
+                .endings
+                .first_break(&rest[window.len()..])
+                .map_or(rest.len(), |at| window.len() + at + 1),
+        };
+        parser.feed(&rest[..end], soup)?;
+        done += end;
+        soup.spill_now();
+        soup.done_with_input(&data[..done]);
+    }
     parser.finish(soup);
     Ok(())
 }
@@ -136,6 +160,7 @@ pub fn read_obj_stream(
             return Err(line_too_long(parser.line + 1, text.len()).into());
         }
         parser.feed(&text[..complete], soup)?;
+        soup.spill_now();
         let consumed = buffer.len() - (text.len() - complete);
         buffer.drain(..consumed);
         if at_end {
@@ -202,6 +227,14 @@ impl Endings {
             (b'\n', _) | (b'\r', Some(b'\n')) => Some(Endings::Lf),
             (b'\r', Some(_)) => Some(Endings::Cr),
             _ => None,
+        }
+    }
+
+    /// Where the first line break of `text` is.
+    fn first_break(self, text: &[u8]) -> Option<usize> {
+        match self {
+            Endings::Lf => memchr::memchr(b'\n', text),
+            Endings::Cr => memchr::memchr2(b'\r', b'\n', text),
         }
     }
 
