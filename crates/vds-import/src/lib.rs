@@ -334,12 +334,10 @@ pub(crate) fn spill_files_in_pieces<P: AsRef<Path>>(
         file_soup.spill_now();
         let spill = file_soup.spill.0.take().expect("the soup's spill");
         read?;
-        files = spill
-            .finish(file_soup)
-            .map_err(|(_, cause)| ImportError::Io {
-                path: folder.to_path_buf(),
-                cause,
-            })?;
+        files = spill.finish(file_soup).map_err(|cause| ImportError::Io {
+            path: folder.to_path_buf(),
+            cause,
+        })?;
     }
     let scene = files.weld()?;
     if scene.triangle_count == 0 {

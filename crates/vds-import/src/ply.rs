@@ -499,9 +499,10 @@ fn read_body(
         }
         match element.name.as_str() {
             "vertex" => {
-                for (piece, first_row) in pieces(element, soup) {
-                    if !fast::read_vertices(&piece, first_row, values, soup, &mut vertex_colors)? {
-                        read_vertices(&piece, first_row, values, soup, &mut vertex_colors)?;
+                for piece in pieces(element, soup) {
+                    let (rows, first) = (&piece.element, piece.first_row);
+                    if !fast::read_vertices(rows, first, values, soup, &mut vertex_colors)? {
+                        read_vertices(rows, first, values, soup, &mut vertex_colors)?;
                     }
                     soup.spill_now();
                     soup.done_with_input(values.consumed());
@@ -510,10 +511,10 @@ fn read_body(
             "face" => {
                 saw_faces = true;
                 let mut parts = PartMap::new(name, part);
-                for (piece, first_row) in pieces(element, soup) {
+                for piece in pieces(element, soup) {
                     let first_triangle = soup.triangles.len();
                     let faces = fast::read_faces(
-                        &piece,
+                        &piece.element,
                         values,
                         vertex_count,
                         base,
@@ -524,7 +525,6 @@ fn read_body(
                     if !faces {
                         read_faces(
                             &piece,
-                            first_row,
                             values,
                             vertex_count,
                             base,
@@ -561,9 +561,15 @@ fn read_body(
     Ok(())
 }
 
-/// An element read in pieces of at most [`crate::SPILL_ROWS`] rows, each with its first row, when the
-/// soup spills; else the element whole.
-fn pieces(element: &Element, soup: &MeshSoup) -> Vec<(Element, u64)> {
+/// Rows of an element read at once: the element's first `element.count` rows from `first_row`.
+struct Piece {
+    element: Element,
+    first_row: u64,
+}
+
+/// An element read in pieces of at most [`crate::SPILL_ROWS`] rows when the soup spills; else
+/// the element whole.
+fn pieces(element: &Element, soup: &MeshSoup) -> Vec<Piece> {
     let rows = if soup.spills() {
         soup.spill_rows() as u64
     } else {
@@ -572,11 +578,13 @@ fn pieces(element: &Element, soup: &MeshSoup) -> Vec<(Element, u64)> {
     (0..element.count.div_ceil(rows).max(1))
         .map(|k| {
             let first = k * rows;
-            let piece = Element {
-                count: (element.count - first).min(rows),
-                ..element.clone()
-            };
-            (piece, first)
+            Piece {
+                element: Element {
+                    count: (element.count - first).min(rows),
+                    ..element.clone()
+                },
+                first_row: first,
+            }
         })
         .collect()
 }
@@ -742,8 +750,7 @@ fn part_slot(element: &Element) -> Option<usize> {
 }
 
 fn read_faces(
-    element: &Element,
-    first_row: u64,
+    piece: &Piece,
     values: &mut impl Values,
     vertex_count: u64,
     base: usize,
@@ -751,6 +758,7 @@ fn read_faces(
     soup: &mut MeshSoup,
     triangle_colors: &mut Vec<[f32; 4]>,
 ) -> Result<(), FormatError> {
+    let (element, first_row) = (&piece.element, piece.first_row);
     let part_slot = part_slot(element);
     let color_slots = color_slots(element);
     let corners_slot = element

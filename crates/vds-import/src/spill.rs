@@ -167,13 +167,10 @@ impl FileSpill {
 
     /// The spill files back, with this file's soup's parts and counts added (its vertices and
     /// triangles spilled), or the first write error.
-    pub(crate) fn finish(
-        self,
-        soup: crate::MeshSoup,
-    ) -> Result<SoupFiles, (SoupFiles, std::io::Error)> {
+    pub(crate) fn finish(self, soup: crate::MeshSoup) -> Result<SoupFiles, std::io::Error> {
         let mut files = self.files;
         if let Some(error) = self.error {
-            return Err((files, error));
+            return Err(error);
         }
         let part_base = self.part_base;
         files.part_names.extend(soup.part_names);
@@ -440,7 +437,7 @@ fn representatives(
     let mut index = 0u32;
     read_runs(positions, vertices, |run: &[[f32; 3]]| {
         for p in run {
-            let b = crate::weld::position_hash(p) as u128 * u128::from(buckets) >> 64;
+            let b = (crate::weld::position_hash(p) as u128 * u128::from(buckets)) >> 64;
             let bits = p.map(f32::to_bits);
             let record = [bits[0], bits[1], bits[2], index];
             files[b as usize].write_all(bytemuck::cast_slice(&record))?;

@@ -45,7 +45,7 @@ pub use part::{
 };
 pub use part_file::{PART_MAGIC, part_from_bytes, part_header, read_part, write_part, write_shard};
 pub use plan::{Plan, PlanMetadata, plan};
-pub use source::PlanScene;
+pub use source::{PlanScene, TriangleRun};
 
 use std::path::PathBuf;
 

@@ -10,6 +10,10 @@ use super::ShardError;
 /// Triangles per run of an in-memory scene.
 const RUN: usize = 1 << 16;
 
+/// What [`PlanScene::for_each_triangle_run`] calls for each run: the index of the run's
+/// first triangle, its triangles and their parts.
+pub type TriangleRun<'a> = dyn FnMut(u64, &[[u32; 3]], &[u32]) -> Result<(), ShardError> + 'a;
+
 /// A welded scene snapped to the plan's grid, as the plan and the shards' inputs read it.
 pub trait PlanScene: Sync {
     /// Welded positions.
@@ -18,10 +22,7 @@ pub trait PlanScene: Sync {
     fn triangle_count(&self) -> u64;
     /// Calls `each(first, triangles, parts)` for runs of the triangles in order, `first`
     /// being the index of the run's first triangle.
-    fn for_each_triangle_run(
-        &self,
-        each: &mut dyn FnMut(u64, &[[u32; 3]], &[u32]) -> Result<(), ShardError>,
-    ) -> Result<(), ShardError>;
+    fn for_each_triangle_run(&self, each: &mut TriangleRun<'_>) -> Result<(), ShardError>;
 }
 
 impl PlanScene for Scene {
@@ -33,10 +34,7 @@ impl PlanScene for Scene {
         self.triangles.len() as u64
     }
 
-    fn for_each_triangle_run(
-        &self,
-        each: &mut dyn FnMut(u64, &[[u32; 3]], &[u32]) -> Result<(), ShardError>,
-    ) -> Result<(), ShardError> {
+    fn for_each_triangle_run(&self, each: &mut TriangleRun<'_>) -> Result<(), ShardError> {
         for (k, (triangles, parts)) in self
             .triangles
             .chunks(RUN)
@@ -58,10 +56,7 @@ impl PlanScene for SpilledScene {
         self.triangle_count
     }
 
-    fn for_each_triangle_run(
-        &self,
-        each: &mut dyn FnMut(u64, &[[u32; 3]], &[u32]) -> Result<(), ShardError>,
-    ) -> Result<(), ShardError> {
+    fn for_each_triangle_run(&self, each: &mut TriangleRun<'_>) -> Result<(), ShardError> {
         SpilledScene::for_each_triangle_run(self, each, ShardError::Import)
     }
 }
