@@ -145,12 +145,16 @@ impl FileSpill {
         files.positions.write_all(bytemuck::cast_slice(positions))?;
         files.vertex_count += positions.len() as u64;
         // The soup's indices and parts count from this file's first; the files' from the
-        // scene's (the importer has checked that every index fits `u32`).
+        // scene's. Inputs of more than 2³² vertices together wrap here, and the importer
+        // refuses them once the file is read (`check_file`), before the records are used.
         let base = self.vertex_base as u32;
         let records: Vec<[u32; 4]> = triangles
             .par_iter()
             .zip(parts)
-            .map(|(t, &part)| [t[0] + base, t[1] + base, t[2] + base, part + self.part_base])
+            .map(|(t, &part)| {
+                let [a, b, c] = t.map(|v| v.wrapping_add(base));
+                [a, b, c, part + self.part_base]
+            })
             .collect();
         files.triangles.write_all(bytemuck::cast_slice(&records))?;
         files.triangle_count += triangles.len() as u64;
