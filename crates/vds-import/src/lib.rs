@@ -299,7 +299,8 @@ pub fn load_files<P: AsRef<Path>>(
 /// mapped pages are let go as they are read; the OBJ reader keeps a table of its `v` lines);
 /// an ASCII STL or glTF file's soup is held while that file is read.
 /// What stays in memory is about 12 bytes per welded vertex and 4 per input vertex
-/// ([`SpilledScene`]).
+/// ([`SpilledScene`]), and a PLY file's vertex colours (16 bytes per vertex) while it is read.
+/// `options.weld` is not read: the weld is exact.
 pub fn spill_files<P: AsRef<Path>>(
     paths: &[P],
     options: &ImportOptions,

@@ -158,8 +158,8 @@ impl MeshSoup {
 
     /// Says that the reader will not look at `bytes` (a prefix of its input) again: a
     /// spilling soup's input map may drop those pages from memory.
-    pub(crate) fn done_with_input(&self, bytes: &[u8]) {
-        if let Some(spill) = self.spill.0.as_ref() {
+    pub(crate) fn done_with_input(&mut self, bytes: &[u8]) {
+        if let Some(spill) = self.spill.0.as_mut() {
             spill.done_with_input(bytes);
         }
     }

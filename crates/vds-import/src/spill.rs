@@ -91,6 +91,7 @@ impl SoupFiles {
             files: self,
             error: None,
             input: None,
+            released_to: 0,
         }
     }
 }
@@ -110,6 +111,8 @@ pub(crate) struct FileSpill {
     error: Option<std::io::Error>,
     /// The file's mapped bytes, whose pages the reader may let go of as it goes.
     pub(crate) input: Option<Arc<Bytes>>,
+    /// The address up to which the input has been released.
+    released_to: usize,
 }
 
 impl FileSpill {
@@ -148,24 +151,31 @@ impl FileSpill {
         // scene's. Inputs of more than 2³² vertices together wrap here, and the importer
         // refuses them once the file is read (`check_file`), before the records are used.
         let base = self.vertex_base as u32;
-        let records: Vec<[u32; 4]> = triangles
-            .par_iter()
-            .zip(parts)
-            .map(|(t, &part)| {
+        // A run at a time: a reader that spills only at the end of its file hands it whole.
+        let mut records: Vec<[u32; 4]> = Vec::new();
+        for (triangles, parts) in triangles.chunks(RUN).zip(parts.chunks(RUN)) {
+            records.clear();
+            records.par_extend(triangles.par_iter().zip(parts).map(|(t, &part)| {
                 let [a, b, c] = t.map(|v| v.wrapping_add(base));
                 [a, b, c, part + self.part_base]
-            })
-            .collect();
-        files.triangles.write_all(bytemuck::cast_slice(&records))?;
+            }));
+            files.triangles.write_all(bytemuck::cast_slice(&records))?;
+        }
         files.triangle_count += triangles.len() as u64;
         Ok(())
     }
 
-    /// Lets the input map drop the pages of `bytes` (a part of the input the reader is done
-    /// with) from this process's memory.
-    pub(crate) fn done_with_input(&self, bytes: &[u8]) {
+    /// Lets the input map drop the pages of `bytes` (the input up to where the reader is)
+    /// from this process's memory; only what follows the last call's end is released again.
+    pub(crate) fn done_with_input(&mut self, bytes: &[u8]) {
         if let Some(input) = &self.input {
-            input.release(bytes);
+            let end = bytes.as_ptr() as usize + bytes.len();
+            let start = (bytes.as_ptr() as usize).max(self.released_to);
+            if start < end {
+                let skip = start - bytes.as_ptr() as usize;
+                input.release(&bytes[skip..]);
+                self.released_to = end;
+            }
         }
     }
 
@@ -438,12 +448,17 @@ fn representatives(
         })
         .collect::<Result<Vec<_>, _>>()?;
     let mut counts = vec![0u64; buckets as usize];
-    let mut index = 0u32;
+    // Counted in `u64`: the inputs may hold exactly 2³² vertices.
+    let mut index = 0u64;
     read_runs(positions, vertices, |run: &[[f32; 3]]| {
         for p in run {
-            let b = (crate::weld::position_hash(p) as u128 * u128::from(buckets)) >> 64;
+            // The bucket from the hash's bits below its top 12, which pick the in-memory
+            // weld's own buckets: from the same bits, a bucket of ours would fall in one or
+            // two of those, resolved on one thread with a table out of cache.
+            let hash = crate::weld::position_hash(p) << 12;
+            let b = (u128::from(hash) * u128::from(buckets)) >> 64;
             let bits = p.map(f32::to_bits);
-            let record = [bits[0], bits[1], bits[2], index];
+            let record = [bits[0], bits[1], bits[2], index as u32];
             files[b as usize].write_all(bytemuck::cast_slice(&record))?;
             counts[b as usize] += 1;
             index += 1;

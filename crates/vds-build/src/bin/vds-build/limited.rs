@@ -8,7 +8,7 @@
 //! limit allow. Their inputs and parts, and the merge's spilled pages, go beside the output
 //! (not `TMPDIR`, which may be memory) and are removed at the end. The import spills the
 //! model to that folder as it reads it and welds it there ([`vds_import::spill_files`]); the
-//! plan then holds about 20 bytes per welded vertex (positions, each vertex's weld and root).
+//! plan then holds 16 bytes per welded vertex (position, root) and 4 per input vertex (weld).
 //! The build reports the import's and plan's peak and the shards' and merge's apart, and warns
 //! when either is over the limit.
 
@@ -198,7 +198,7 @@ pub(crate) fn build_within(
     {
         progress.print(&format!(
             "vds-build: warning: reading and planning the model took {} MB, over the limit of \
-             {} MB (the plan holds about 20 bytes per vertex)",
+             {} MB (the plan holds 16 bytes per vertex and 4 per input vertex)",
             peak >> 20,
             limit >> 20
         ));

@@ -126,7 +126,7 @@ struct Args {
     /// Build within this much memory (512MiB, 4GiB): the sharded build (plan, shards, merge)
     /// run by this process, with as many shards as keep them within it; the same file as
     /// without. Takes exact welding and the octree builder. The import spills the model to
-    /// disk as it reads it; the plan holds about 20 bytes per vertex.
+    /// disk as it reads it; the plan holds 16 bytes per vertex and 4 per input vertex.
     #[arg(long, value_name = "SIZE", value_parser = parse_size, conflicts_with = "batch", requires = "output")]
     memory_limit: Option<u64>,
 }
