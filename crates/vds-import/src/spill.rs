@@ -32,6 +32,8 @@ const BUCKET_VERTICES: u64 = 1 << 20;
 /// positions are scattered): 2³² vertices make buckets of 8 M vertices, 0.4 GB to resolve.
 const MAX_BUCKETS: u64 = 512;
 const BUCKET_BUFFER: usize = 64 << 10;
+/// Positions the weld remembers while it scatters (16 bytes each): see [`representatives`].
+const RECENT_POSITIONS: usize = 1 << 16;
 /// Triangles or vertices read from a spill file at a time (4 MB of triangles).
 const RUN: usize = 1 << 18;
 
@@ -325,11 +327,16 @@ fn io_error(folder: &Path, cause: std::io::Error) -> ImportError {
 impl SoupFiles {
     /// Welds the spilled soup exactly, as [`crate::weld`] with [`crate::Weld::Exact`] does.
     pub fn weld(self) -> Result<SpilledScene, ImportError> {
-        self.weld_in_buckets_of(BUCKET_VERTICES)
+        self.weld_in_buckets_of(BUCKET_VERTICES, RECENT_POSITIONS)
     }
 
-    /// [`SoupFiles::weld`] with buckets of about `bucket_vertices` positions.
-    fn weld_in_buckets_of(self, bucket_vertices: u64) -> Result<SpilledScene, ImportError> {
+    /// [`SoupFiles::weld`] with buckets of about `bucket_vertices` positions, remembering
+    /// `recent` positions (a power of two) while scattering.
+    fn weld_in_buckets_of(
+        self,
+        bucket_vertices: u64,
+        recent: usize,
+    ) -> Result<SpilledScene, ImportError> {
         let folder = self.folder.clone();
         let io = |cause| io_error(&folder, cause);
         let positions = self
@@ -343,7 +350,8 @@ impl SoupFiles {
         let vertices = self.vertex_count;
         let input_triangles = self.triangle_count;
 
-        let representative = representatives(&positions, vertices, bucket_vertices, &folder)?;
+        let representative =
+            representatives(&positions, vertices, bucket_vertices, recent, &folder)?;
         let distinct = representative
             .par_iter()
             .enumerate()
@@ -421,10 +429,17 @@ impl SoupFiles {
 /// Each vertex's lowest-index vertex at the same position: the positions are scattered by a
 /// hash of their bits into bucket files (in input order within each), and each bucket is
 /// resolved in memory by the in-memory weld.
+///
+/// While scattering, the last vertex to miss at each of `recent` slots (by hash) is
+/// remembered: a vertex at its position is a later copy of it, and goes to no bucket; at the
+/// end it takes that vertex's representative. A soup's copies (an STL repeats each vertex
+/// about six times) mostly end there, and no position repeated millions of times fills a
+/// bucket (which would hold about 50 bytes per vertex as it is resolved).
 fn representatives(
     positions: &File,
     vertices: u64,
     bucket_vertices: u64,
+    recent: usize,
     folder: &Path,
 ) -> Result<Vec<u32>, ImportError> {
     let io = |cause| io_error(folder, cause);
@@ -448,15 +463,28 @@ fn representatives(
         })
         .collect::<Result<Vec<_>, _>>()?;
     let mut counts = vec![0u64; buckets as usize];
+    // Slots of (position bits with `-0.0` as `0.0`, vertex); NaN bits match no position.
+    let mut seen = vec![([u32::MAX; 3], 0u32); recent];
+    let slot_shift = 64 - recent.trailing_zeros();
+    let mut copies = vec![0u64; (vertices as usize).div_ceil(64)];
     // Counted in `u64`: the inputs may hold exactly 2³² vertices.
     let mut index = 0u64;
     read_runs(positions, vertices, |run: &[[f32; 3]]| {
         for p in run {
+            let hash = crate::weld::position_hash(p);
+            let key = p.map(|c| (c + 0.0).to_bits());
+            let slot = &mut seen[hash.checked_shr(slot_shift).unwrap_or(0) as usize];
+            if slot.0 == key {
+                representative[index as usize] = slot.1;
+                copies[index as usize / 64] |= 1 << (index % 64);
+                index += 1;
+                continue;
+            }
+            *slot = (key, index as u32);
             // The bucket from the hash's bits below its top 12, which pick the in-memory
             // weld's own buckets: from the same bits, a bucket of ours would fall in one or
             // two of those, resolved on one thread with a table out of cache.
-            let hash = crate::weld::position_hash(p) << 12;
-            let b = (u128::from(hash) * u128::from(buckets)) >> 64;
+            let b = (u128::from(hash << 12) * u128::from(buckets)) >> 64;
             let bits = p.map(f32::to_bits);
             let record = [bits[0], bits[1], bits[2], index as u32];
             files[b as usize].write_all(bytemuck::cast_slice(&record))?;
@@ -482,6 +510,12 @@ fn representatives(
         let local = crate::weld::exact_representatives(&bucket);
         for (i, &r) in local.iter().enumerate() {
             representative[global[i] as usize] = global[r as usize];
+        }
+    }
+    // A copy points at an earlier vertex that went to a bucket, now resolved.
+    for v in 0..vertices as usize {
+        if copies[v / 64] & (1 << (v % 64)) != 0 {
+            representative[v] = representative[representative[v] as usize];
         }
     }
     Ok(representative)
@@ -545,10 +579,11 @@ mod tests {
             assert!(expected.stats.welded_vertices > 0);
             assert!(expected.stats.degenerate_triangles_dropped > 0);
             assert!(expected.stats.unreferenced_vertices_dropped > 0);
-            // One bucket, a few, and more than `MAX_BUCKETS` asked for.
-            for bucket_vertices in [1 << 20, 700, 1] {
+            // One bucket, a few, and more than `MAX_BUCKETS` asked for; positions remembered
+            // while scattering, one (nearly every copy to a bucket) and more than there are.
+            for (bucket_vertices, recent) in [(1 << 20, 1), (700, 1), (700, 1 << 16), (1, 4)] {
                 let scene = spilled(soup.clone(), folder.path())
-                    .weld_in_buckets_of(bucket_vertices)
+                    .weld_in_buckets_of(bucket_vertices, recent)
                     .unwrap();
                 assert_eq!(scene.triangle_count, expected.triangles.len() as u64);
                 assert_eq!(scene.to_scene().unwrap(), expected, "seed {seed}");
