@@ -178,10 +178,14 @@ fn read_into(
         // Streamed: the decompressed text is never in memory whole.
         return source::read_obj_gz(path, &name, &materials, options, file_soup);
     }
+    // A build that spills decompresses gzipped inputs beside its spill files, not in
+    // `TMPDIR`, which may be memory.
+    let temp_folder = file_soup.spill.0.as_ref().map(|s| s.folder());
     let bytes = std::sync::Arc::new(source::read_bytes(
         path,
         gz,
         options.max_decompressed_bytes,
+        temp_folder,
     )?);
     if let Some(spill) = file_soup.spill.0.as_mut() {
         spill.input = Some(bytes.clone());

@@ -166,13 +166,15 @@ fn describe(kind: std::fs::FileType) -> &'static str {
 /// Plain files are memory-mapped rather than read: for a multi-gigabyte mesh that skips
 /// copying every byte into freshly zeroed pages, which was half of a 10 M-triangle import
 /// on the dev machine. A gzipped file is decompressed into an unnamed temporary file (in
-/// the system's temporary folder, `TMPDIR`) and that is mapped: the decompressed bytes live
-/// in the page cache, which the kernel can drop and reread, not in the process's own memory.
-/// (A gzipped OBJ file does not come here: it is streamed through its reader.)
+/// `temp_folder`, else the system's temporary folder, `TMPDIR`) and that is mapped: the
+/// decompressed bytes live in the page cache, which the kernel can drop and reread, not in
+/// the process's own memory. (A gzipped OBJ file does not come here: it is streamed through
+/// its reader.)
 pub fn read_bytes(
     path: &Path,
     gz: bool,
     max_decompressed_bytes: u64,
+    temp_folder: Option<&Path>,
 ) -> Result<Bytes, ImportError> {
     let io_error = |cause| ImportError::Io {
         path: path.to_path_buf(),
@@ -180,8 +182,9 @@ pub fn read_bytes(
     };
     let file = open_regular_file(path)?;
     if gz {
-        let mut decompressed = tempfile::tempfile().map_err(|cause| ImportError::Io {
-            path: std::env::temp_dir(),
+        let folder = temp_folder.map_or_else(std::env::temp_dir, Path::to_path_buf);
+        let mut decompressed = tempfile::tempfile_in(&folder).map_err(|cause| ImportError::Io {
+            path: folder,
             cause,
         })?;
         let mut out = std::io::BufWriter::with_capacity(1 << 20, &mut decompressed);

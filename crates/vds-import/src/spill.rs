@@ -122,6 +122,11 @@ impl FileSpill {
         self.spilled
     }
 
+    /// The folder the spill files are in.
+    pub(crate) fn folder(&self) -> &Path {
+        &self.files.folder
+    }
+
     /// Writes out and clears the soup's arrays (keeping their memory for the next rows).
     pub(crate) fn take(
         &mut self,
@@ -650,6 +655,12 @@ mod file_tests {
         (positions, triangles)
     }
 
+    fn gzip(bytes: &[u8]) -> Vec<u8> {
+        let mut out = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        out.write_all(bytes).unwrap();
+        out.finish().unwrap()
+    }
+
     fn write(folder: &Path, name: &str, bytes: &[u8]) -> PathBuf {
         let path = folder.join(name);
         std::fs::File::create(&path)
@@ -774,6 +785,7 @@ mod file_tests {
             write(f, "e.obj", OBJ),
             write(f, "f.obj", &large_obj("\n")),
             write(f, "g.obj", &large_obj("\r")),
+            write(f, "h.ply.gz", &gzip(&binary_ply(true, false))),
         ];
         let options = ImportOptions {
             weld: Weld::Exact,
