@@ -513,25 +513,15 @@ fn read_body(
                 let mut parts = PartMap::new(name, part);
                 for piece in pieces(element, soup) {
                     let first_triangle = soup.triangles.len();
-                    let faces = fast::read_faces(
-                        &piece.element,
-                        values,
+                    let mut faces = Faces {
                         vertex_count,
                         base,
-                        &mut parts,
+                        parts: &mut parts,
                         soup,
-                        &mut triangle_colors,
-                    )?;
-                    if !faces {
-                        read_faces(
-                            &piece,
-                            values,
-                            vertex_count,
-                            base,
-                            &mut parts,
-                            soup,
-                            &mut triangle_colors,
-                        )?;
+                        triangle_colors: &mut triangle_colors,
+                    };
+                    if !fast::read_faces(&piece.element, values, &mut faces)? {
+                        read_faces(&piece, values, &mut faces)?;
                     }
                     // The file's vertices are all read when its faces are (PLY puts the
                     // vertex element first in practice); faces before them get no colour.
@@ -749,15 +739,22 @@ fn part_slot(element: &Element) -> Option<usize> {
     )
 }
 
+/// Where a face element's rows go, for both face readers: the file's vertex count and first
+/// vertex, its parts, the soup, and one colour per triangle when the faces have colours.
+struct Faces<'a> {
+    vertex_count: u64,
+    base: usize,
+    parts: &'a mut PartMap,
+    soup: &'a mut MeshSoup,
+    triangle_colors: &'a mut Vec<[f32; 4]>,
+}
+
 fn read_faces(
     piece: &Piece,
     values: &mut impl Values,
-    vertex_count: u64,
-    base: usize,
-    parts: &mut PartMap,
-    soup: &mut MeshSoup,
-    triangle_colors: &mut Vec<[f32; 4]>,
+    faces: &mut Faces,
 ) -> Result<(), FormatError> {
+    let (vertex_count, base) = (faces.vertex_count, faces.base);
     let (element, first_row) = (&piece.element, piece.first_row);
     let part_slot = part_slot(element);
     let color_slots = color_slots(element);
@@ -774,7 +771,7 @@ fn read_faces(
                 "face element has no list property 'vertex_indices'",
             )
         })?;
-    soup.reserve(0, element.count as usize);
+    faces.soup.reserve(0, element.count as usize);
     let mut corners: Vec<u32> = Vec::new();
     for row in 0..element.count {
         let mut part_value = None;
@@ -825,12 +822,15 @@ fn read_faces(
                 }
             }
         }
-        let part = parts.part(part_value, soup);
-        let before = soup.triangles.len();
-        soup.push_polygon(part, &corners);
+        let part = faces.parts.part(part_value, faces.soup);
+        let before = faces.soup.triangles.len();
+        faces.soup.push_polygon(part, &corners);
         if let Some(slots) = &color_slots {
             let rgba = row_color(&color, slots);
-            triangle_colors.extend(std::iter::repeat_n(rgba, soup.triangles.len() - before));
+            faces.triangle_colors.extend(std::iter::repeat_n(
+                rgba,
+                faces.soup.triangles.len() - before,
+            ));
         }
     }
     Ok(())
@@ -876,7 +876,7 @@ fn skip_rows(element: &Element, values: &mut impl Values) -> Result<(), FormatEr
 mod fast {
     use rayon::prelude::*;
 
-    use super::{Element, PartMap, Property, Scalar, Values, color_slots, part_slot, row_color};
+    use super::{Element, Faces, Property, Scalar, Values, color_slots, part_slot, row_color};
     use crate::error::FormatError;
     use crate::soup::{MeshSoup, check_position};
 
@@ -1092,12 +1092,9 @@ mod fast {
     pub(super) fn read_faces(
         element: &Element,
         values: &mut impl Values,
-        vertex_count: u64,
-        base: usize,
-        parts: &mut PartMap,
-        soup: &mut MeshSoup,
-        triangle_colors: &mut Vec<[f32; 4]>,
+        faces: &mut Faces,
     ) -> Result<bool, FormatError> {
+        let (vertex_count, base) = (faces.vertex_count, faces.base);
         let Some((raw, big_endian)) = values.raw() else {
             return Ok(false);
         };
@@ -1134,13 +1131,17 @@ mod fast {
         }
         let base = base as u32;
         // Decode straight into the soup's arrays; on a fallback they are cut back.
-        let first = soup.triangles.len();
+        let first = faces.soup.triangles.len();
         let count = element.count as usize;
         // Zero-filled in parallel: the fill is these arrays' first touch (160 MB at 10 M
         // triangles), whose page faults one thread would take alone.
-        soup.triangles
+        faces
+            .soup
+            .triangles
             .par_extend(rayon::iter::repeat_n([0; 3], count));
-        soup.triangle_parts
+        faces
+            .soup
+            .triangle_parts
             .par_extend(rayon::iter::repeat_n(0, count));
         let layout = FaceLayout {
             stride,
@@ -1152,8 +1153,8 @@ mod fast {
             base,
         };
         let (triangles, part_values) = (
-            &mut soup.triangles[first..],
-            &mut soup.triangle_parts[first..],
+            &mut faces.soup.triangles[first..],
+            &mut faces.soup.triangle_parts[first..],
         );
         let raw = &raw[..bytes];
         // The layouts nearly every file uses get readers without per-value type dispatch;
@@ -1191,26 +1192,26 @@ mod fast {
         if outcome.is_err() {
             // Not all triangles, or bad data: the general reader decodes the element again
             // and reports the first problem in file order.
-            soup.triangles.truncate(first);
-            soup.triangle_parts.truncate(first);
+            faces.soup.triangles.truncate(first);
+            faces.soup.triangle_parts.truncate(first);
             return Ok(false);
         }
-        let mut triangle_parts = std::mem::take(&mut soup.triangle_parts);
+        let mut triangle_parts = std::mem::take(&mut faces.soup.triangle_parts);
         let mut last: Option<(u32, u32)> = None;
         for value in &mut triangle_parts[first..] {
             let raw = part_at.map(|_| *value);
             *value = match (raw, last) {
                 (Some(v), Some((previous, part))) if v == previous => part,
                 _ => {
-                    let part = parts.part(raw.map(i64::from), soup);
+                    let part = faces.parts.part(raw.map(i64::from), faces.soup);
                     last = raw.map(|v| (v, part));
                     part
                 }
             };
         }
-        soup.triangle_parts = triangle_parts;
+        faces.soup.triangle_parts = triangle_parts;
         if let Some(found) = row_colors(element, raw, stride, big_endian) {
-            triangle_colors.extend(found);
+            faces.triangle_colors.extend(found);
         }
         values.skip_bytes(bytes);
         Ok(true)

@@ -449,7 +449,6 @@ fn representatives(
 ) -> Result<Vec<u32>, ImportError> {
     let io = |cause| io_error(folder, cause);
     let buckets = vertices.div_ceil(bucket_vertices).clamp(1, MAX_BUCKETS);
-    let mut representative = vec![0u32; vertices as usize];
     if buckets == 1 {
         let mut all = Vec::with_capacity(vertices as usize);
         read_runs(positions, vertices, |run: &[[f32; 3]]| {
@@ -459,6 +458,7 @@ fn representatives(
         .map_err(io)?;
         return Ok(crate::weld::exact_representatives(&all));
     }
+    let mut representative = vec![0u32; vertices as usize];
     // Bucket files of `[x, y, z, index]` records.
     let mut files = (0..buckets)
         .map(|_| {

@@ -90,12 +90,12 @@ pub fn write_shard_inputs(
         // still written in scene order).
         let mut gathered: Vec<Vec<u8>> = vec![Vec::new(); batch.len()];
         scene.for_each_triangle_run(&mut |run_first, triangles, parts| {
-            for (k, (triangles, parts)) in triangles
+            for (sub, (triangles, parts)) in triangles
                 .chunks(TRIANGLES_PER_RUN)
                 .zip(parts.chunks(TRIANGLES_PER_RUN))
                 .enumerate()
             {
-                let sub_first = run_first + (k * TRIANGLES_PER_RUN) as u64;
+                let sub_first = run_first + (sub * TRIANGLES_PER_RUN) as u64;
                 for (i, (&t, &part)) in triangles.iter().zip(parts).enumerate() {
                     for_each_shard(&t, root_of, &shard_of_root, |k| {
                         if batch.contains(&k) {
