@@ -6,7 +6,8 @@
 use std::path::PathBuf;
 
 use vds_build::shard::{
-    Plan, PlanMetadata, ShardError, ShardPart, build_shard, merge, plan, read_part, write_part,
+    Plan, PlanMetadata, RegionBody, ShardError, ShardPart, build_shard, merge, plan, read_part,
+    write_part,
 };
 use vds_build::{build_tree, part_records, snap_to_grid, tree_content};
 use vds_format::{BuildInfo, Grid, Metadata, WriteOptions, encode};
@@ -112,20 +113,28 @@ fn parts(scene: &Scene, plan: &Plan) -> Vec<ShardPart> {
         .collect()
 }
 
-fn sharded(scene: &Scene, grid: Grid, shards: u32, page_bytes: u32) -> (Vec<u8>, Plan) {
+/// The sharded build's file, its plan, and how many of the parts' regions the shards sealed
+/// (encoded as the file's pages) and left open (as records, for the merge to encode).
+fn sharded(scene: &Scene, grid: Grid, shards: u32, page_bytes: u32) -> (Vec<u8>, Plan, [usize; 2]) {
     let plan = planned_with(scene, grid, shards, page_bytes);
     let mut parts = parts(scene, &plan);
+    let mut kinds = [0, 0];
+    for region in parts.iter().flat_map(|p| &p.roots).flat_map(|r| &r.regions) {
+        kinds[usize::from(matches!(region.body, RegionBody::Open { .. }))] += 1;
+    }
     // Any order will do.
     parts.reverse();
     let bytes = merge(&plan, parts).unwrap();
-    (bytes, plan)
+    (bytes, plan, kinds)
 }
 
 fn assert_same_file(name: &str, scene: &Scene, grid: Grid, shard_counts: &[u32]) {
+    let mut kinds = [0, 0];
     for page_bytes in PAGE_SIZES {
         let expected = in_memory(scene, grid, page_bytes);
         for &shards in shard_counts {
-            let (bytes, plan) = sharded(scene, grid, shards, page_bytes);
+            let (bytes, plan, regions) = sharded(scene, grid, shards, page_bytes);
+            kinds = [kinds[0] + regions[0], kinds[1] + regions[1]];
             assert!(
                 bytes == expected,
                 "{name}, {page_bytes} B pages, {shards} shards ({} roots, {} top nodes): the \
@@ -146,6 +155,12 @@ fn assert_same_file(name: &str, scene: &Scene, grid: Grid, shard_counts: &[u32])
             }
         }
     }
+    // Both kinds of region went through the merge, on scenes cut into many regions: pages
+    // the shards encoded, and regions with triangles across roots that the merge encoded.
+    assert!(
+        scene.positions.len() < 1000 || kinds[0] > 0 && kinds[1] > 0,
+        "{name}: sealed and open regions {kinds:?}"
+    );
 }
 
 #[test]
@@ -307,7 +322,7 @@ fn merge_refuses_a_part_that_changes_between_its_passes() {
             let mut part = all[k as usize].clone();
             if asked > plan.shard_count() {
                 // Same shape, one proxy moved.
-                let node = &mut part.roots[0].nodes[0];
+                let node = &mut part.roots[0].top_nodes[0];
                 node.proxy[0] = (node.proxy[0].get() + 1.0).into();
             }
             Ok(part)
@@ -387,16 +402,17 @@ fn truncated_or_damaged_parts_are_refused() {
 #[test]
 fn a_part_with_overlapping_subtri_ranges_is_refused() {
     let (scene, grid) = loaded(testdata("as1_assembly.obj"));
-    let plan = planned(&scene, grid, 2);
+    // Pages so large that the whole tree is the file's top: every node is a record.
+    let plan = planned_with(&scene, grid, 2, 1 << 20);
     let mut part = build_shard(&scene, &plan, 0).unwrap();
     let root = part
         .roots
         .iter_mut()
-        .max_by_key(|r| r.triangles.len())
+        .max_by_key(|r| r.top_triangles.len())
         .unwrap();
-    let all = root.triangles.len() as u32;
-    assert!(all > 0 && root.nodes.len() > 2);
-    for n in &mut root.nodes {
+    let all = root.top_triangles.len() as u32;
+    assert!(all > 0 && root.top_nodes.len() > 2);
+    for n in &mut root.top_nodes {
         n.subtri_begin = 0.into();
         n.subtri_count = all.into();
     }

@@ -481,6 +481,49 @@ pub fn encode_page_into(
     Ok(())
 }
 
+/// Rewrites the parent step of a page's first node (the first value of its parent stream)
+/// from `old` to `new`, as encoding the page with another numbering of nodes outside it would
+/// have written it. A region's first page is the only page of the region whose bytes depend
+/// on where the region lands in the file: its first node's parent is the region root, in the
+/// file's top, and every other link inside the region is a difference of two region ids.
+pub(crate) fn rebase_first_parent(
+    raw: &[u8],
+    old: u64,
+    new: u64,
+    out: &mut Vec<u8>,
+) -> Result<(), String> {
+    let length = |k: usize| -> Result<usize, String> {
+        let bytes = raw
+            .get(4 * k..4 * k + 4)
+            .ok_or("page too short for its stream table")?;
+        Ok(u32::from_le_bytes(bytes.try_into().expect("4 bytes")) as usize)
+    };
+    let start = 4 * STREAMS + length(CHILD_COUNT)?;
+    let parent_length = length(PARENT)?;
+    let mut stream = Stream {
+        bytes: raw
+            .get(start..start + parent_length)
+            .ok_or("stream runs past the page")?,
+        at: 0,
+    };
+    let value = stream.varint().ok_or("the page has no first parent")?;
+    if value != old {
+        return Err(format!("the first parent step is {value}, not {old}"));
+    }
+    let old_bytes = stream.at;
+    let mut new_bytes = Vec::with_capacity(10);
+    put_varint(&mut new_bytes, new);
+    let rebased = (parent_length - old_bytes + new_bytes.len()) as u32;
+    out.clear();
+    out.reserve(raw.len() + new_bytes.len());
+    out.extend_from_slice(&raw[..4 * PARENT]);
+    out.extend_from_slice(&rebased.to_le_bytes());
+    out.extend_from_slice(&raw[4 * PARENT + 4..start]);
+    out.extend_from_slice(&new_bytes);
+    out.extend_from_slice(&raw[start + old_bytes..]);
+    Ok(())
+}
+
 /// A decoded grid coordinate, if it lies on the grid.
 fn grid_coordinate(v: i64) -> Option<u32> {
     u32::try_from(v)

@@ -300,7 +300,7 @@ fn plan_pages<N: NodeSource>(
 }
 
 /// One page encoded and compressed, and what the directory says of it.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct EncodedPage {
     /// The page's zstd frame.
     pub frame: Vec<u8>,
@@ -486,6 +486,103 @@ pub fn file_head(
     head.extend_from_slice(directory.as_bytes());
     report.file_bytes = offset;
     Ok((head, report))
+}
+
+/// Node id of a detached region's root (see [`encode_detached_region`]).
+const DETACHED_ROOT: u32 = 0;
+/// Node id of a detached region's first node.
+const DETACHED_FIRST: u32 = 1;
+
+/// Encodes and compresses the pages of one region (`layout`, from [`PageLayout::region`] of
+/// `region_root`'s children in `nodes`) apart from where the region lies in the file: its
+/// nodes numbered from 1 in page order, and its root as node 0. Each link inside a region is
+/// a difference of two of its ids, so every page but the first is the page the file holds
+/// wherever the region lands; [`attach_region`] makes the first one the file's. (The sharded
+/// build's shards encode their regions so, and the merge copies them.)
+pub fn encode_detached_region<N: NodeSource>(
+    nodes: &N,
+    triangles: &[TriangleRecord],
+    layout: &PageLayout,
+    region_root: u32,
+    grid: &Grid,
+    zstd_level: i32,
+) -> Result<Vec<EncodedPage>, VdtError> {
+    let mut detached: Vec<(u32, u32)> = layout
+        .nodes()
+        .enumerate()
+        .map(|(k, id)| (id, DETACHED_FIRST + k as u32))
+        .collect();
+    detached.sort_unstable();
+    let new_id = |id: u32| {
+        if id == region_root {
+            return DETACHED_ROOT;
+        }
+        match detached.binary_search_by_key(&id, |&(old, _)| old) {
+            Ok(k) => detached[k].1,
+            // A link out of the region other than to its root: no page of a region has one,
+            // and this id, past every region id, would be refused by any reader.
+            Err(_) => NO_NODE - 1,
+        }
+    };
+    encode_pages(
+        nodes,
+        triangles,
+        layout,
+        &new_id,
+        DETACHED_FIRST,
+        grid,
+        zstd_level,
+    )
+}
+
+/// The first page of a region encoded by [`encode_detached_region`] as the file holds it when
+/// the region's nodes are numbered from `first_node` and its root is node `root` (an id of the
+/// file's top, below `first_node`): its first node's parent step rewritten, and the page
+/// compressed again.
+pub fn attach_region(
+    first_page: &EncodedPage,
+    first_node: u32,
+    root: u32,
+    zstd_level: i32,
+) -> Result<EncodedPage, VdtError> {
+    let bad =
+        |reason: String| VdtError::invalid(format!("the region of node {first_node}"), reason);
+    if root >= first_node {
+        return Err(bad(format!("its root {root} does not precede it")));
+    }
+    if first_page.raw_length > crate::read::MAX_PAGE_RAW_BYTES
+        || u64::from(first_page.raw_length)
+            > crate::read::MAX_COMPRESSION_RATIO * first_page.frame.len() as u64
+    {
+        return Err(bad("a first page larger than a page can be".into()));
+    }
+    let raw = zstd::bulk::decompress(&first_page.frame, first_page.raw_length as usize)
+        .map_err(|e| bad(format!("its first page does not decompress: {e}")))?;
+    if raw.len() != first_page.raw_length as usize {
+        return Err(bad("its first page decompresses to another length".into()));
+    }
+    let mut rebased = Vec::new();
+    crate::codec::rebase_first_parent(
+        &raw,
+        u64::from(DETACHED_FIRST - DETACHED_ROOT),
+        u64::from(first_node - root),
+        &mut rebased,
+    )
+    .map_err(bad)?;
+    let frame = zstd::bulk::Compressor::new(zstd_level)
+        .and_then(|mut c| c.compress(&rebased))
+        .map_err(|e| bad(format!("zstd: {e}")))?;
+    if rebased.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
+        return Err(bad(
+            "its first page compresses beyond the ratio readers accept".into(),
+        ));
+    }
+    Ok(EncodedPage {
+        frame,
+        raw_length: rebased.len() as u32,
+        node_count: first_page.node_count,
+        triangle_count: first_page.triangle_count,
+    })
 }
 
 /// What the directory needs of an [`EncodedPage`] once its frame has been written elsewhere.

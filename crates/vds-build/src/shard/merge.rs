@@ -12,10 +12,12 @@
 //!    plan get their proxies from the roots' sums, as the in-memory build's levels above its
 //!    parallel frontier get theirs; the cross corners are joined into triangles and placed
 //!    with their owners; and the top is laid out, which numbers its nodes.
-//! 2. *The regions.* Each part's regions are laid out, numbered after everything before
-//!    them, encoded and compressed, and their pages spilled to a temporary file; the part's
-//!    leaves widen the error radii of the plan's top nodes above them (an exact
-//!    farthest-leaf scan, as every node's radius is).
+//! 2. *The regions.* Each part's regions are numbered after everything before them and
+//!    their pages spilled to a temporary file: the pages a shard sealed are copied (the first
+//!    one's first parent rewritten, `vds_format::attach_region`), an open region is laid out
+//!    and encoded with the triangles across shards that its nodes own. The part's leaves
+//!    widen the error radii of the plan's top nodes above them (an exact farthest-leaf scan,
+//!    as every node's radius is).
 //!
 //! Last, the plan's top nodes get their bounds, the top pages are encoded, and the file is
 //! written: header, metadata and directory, the top's pages, the spilled pages. What is held
@@ -28,13 +30,13 @@ use std::path::Path;
 use rayon::prelude::*;
 use vds_format::{
     BuildInfo, EncodedPage, EncodedPageSummary, FileFigures, InputInfo, Metadata, NO_NODE,
-    NodeRecord, PageLayout, TriangleRecord, WriteReport, encode_pages, file_head,
+    NodeRecord, PageLayout, TriangleRecord, WriteReport, attach_region, encode_pages, file_head,
     in_top_with_children,
 };
 use zerocopy::IntoBytes;
-use zerocopy::little_endian::{U16, U32};
+use zerocopy::little_endian::U32;
 
-use super::part::{CrossCorner, RootPart, ShardPart};
+use super::part::{CrossCorner, RegionBody, RootPart, SealedRegion, ShardPart};
 use super::plan::TopNode;
 use super::{Plan, ShardError};
 use crate::build::{
@@ -133,8 +135,38 @@ fn digest(shard: &ShardPart) -> u64 {
     let mut hasher = xxhash_rust::xxh3::Xxh3::new();
     for root in &shard.roots {
         hasher.update(&root.root.to_le_bytes());
-        hasher.update(root.nodes.as_bytes());
-        hasher.update(root.triangles.as_bytes());
+        hasher.update(root.top_ids.as_bytes());
+        hasher.update(root.top_nodes.as_bytes());
+        hasher.update(root.top_triangles.as_bytes());
+        hasher.update(root.leaves.as_bytes());
+        for region in &root.regions {
+            hasher.update(&region.root.to_le_bytes());
+            match &region.body {
+                RegionBody::Sealed(sealed) => {
+                    for page in &sealed.pages {
+                        for n in [page.raw_length, page.node_count, page.triangle_count] {
+                            hasher.update(&n.to_le_bytes());
+                        }
+                        hasher.update(&page.frame);
+                    }
+                    hasher.update(sealed.degree_histogram.as_bytes());
+                    hasher.update(&sealed.max_depth.to_le_bytes());
+                    for (part, count) in &sealed.part_triangles {
+                        hasher.update(&part.to_le_bytes());
+                        hasher.update(&count.to_le_bytes());
+                    }
+                }
+                RegionBody::Open {
+                    ids,
+                    nodes,
+                    triangles,
+                } => {
+                    hasher.update(ids.as_bytes());
+                    hasher.update(nodes.as_bytes());
+                    hasher.update(triangles.as_bytes());
+                }
+            }
+        }
         let (sums, sphere) = (&root.sums, &root.sphere);
         let floats = sums
             .quadric
@@ -198,37 +230,12 @@ fn subtris(n: &NodeRecord) -> std::ops::Range<usize> {
     begin..begin + n.subtri_count.get() as usize
 }
 
-/// Where a root's subtree sits in the file's tree: its leaf ranks and depths move by the
-/// root's first rank and depth.
-struct Placement {
-    offset: u32,
-    depth: u16,
-}
-
-impl Placement {
-    fn of(top: &TopNode) -> Placement {
-        Placement {
-            offset: top.leaf_begin,
-            depth: top.depth,
-        }
+fn children(n: &NodeRecord) -> std::ops::Range<u32> {
+    if n.child_count == 0 {
+        return 0..0;
     }
-
-    /// `n` with the file's depth and leaf ranks (its links and subtri range as they were).
-    fn node(&self, n: &NodeRecord) -> Result<NodeRecord, ShardError> {
-        let mut moved = *n;
-        let depth = n.depth.get().checked_add(self.depth);
-        moved.depth = U16::new(depth.ok_or_else(|| set("a tree deeper than a file holds".into()))?);
-        moved.leaf_begin = U32::new(n.leaf_begin.get() + self.offset);
-        moved.leaf_end = U32::new(n.leaf_end.get() + self.offset);
-        Ok(moved)
-    }
-
-    fn triangle(&self, t: &TriangleRecord) -> TriangleRecord {
-        TriangleRecord {
-            corners: t.corners.map(|c| U32::new(c.get() + self.offset)),
-            part: t.part,
-        }
-    }
+    let first = n.first_child.get();
+    first..first + u32::from(n.child_count)
 }
 
 /// A region root: a top node with at most a region's leaves, and children.
@@ -275,7 +282,6 @@ struct FinishedTop {
     /// proxies.
     up: Vec<(Accumulator, Sphere)>,
     proxies: Vec<[f32; 3]>,
-    under_root: Vec<Vec<(u32, u32)>>,
     regions: Vec<Region>,
     /// Triangles across roots owned by region nodes: (shard root, id under it, triangle),
     /// sorted as the file stores each node's.
@@ -323,37 +329,50 @@ impl<'p> Top<'p> {
         let r = root.root;
         let id = self.plan.roots[r as usize];
         let plan_node = &self.plan.top[id as usize];
-        let place = Placement::of(plan_node);
         self.up[id as usize] = (root.sums, root.sphere);
-        let mut record = place.node(&root.nodes[0])?;
+        let missing = |local: u32| {
+            set(format!(
+                "shard root {r}: node {local} of its top is missing"
+            ))
+        };
+        let record_of = |local: u32| -> Result<NodeRecord, ShardError> {
+            let k = root
+                .top_ids
+                .binary_search(&local)
+                .map_err(|_| missing(local))?;
+            Ok(root.top_nodes[k])
+        };
+        let mut record = record_of(0)?;
         record.parent = U32::new(plan_node.parent);
         self.nodes[id as usize] = record;
         let mut mine = vec![(0u32, id)];
-        let mut owned = 0usize;
+        let mut regions = Vec::new();
         let mut queue = VecDeque::from([(0u32, id)]);
         while let Some((local, at)) = queue.pop_front() {
-            let n = &root.nodes[local as usize];
-            for t in &root.triangles[subtris(n)] {
-                self.triangles.push((at, place.triangle(t)));
+            let n = record_of(local)?;
+            for t in &root.top_triangles[subtris(&n)] {
+                self.triangles.push((at, *t));
             }
-            owned += n.subtri_count.get() as usize;
             if n.child_count == 0 {
                 continue;
             }
-            if !self.expands(n) {
-                self.regions.push(Region {
+            if !self.expands(&n) {
+                regions.push(Region {
                     top: at,
                     root: r,
                     local,
-                    leaf_begin: n.leaf_begin.get() + place.offset,
+                    leaf_begin: n.leaf_begin.get(),
                 });
                 continue;
             }
             let first = self.nodes.len() as u32;
             self.nodes[at as usize].first_child = U32::new(first);
-            let children = n.first_child.get()..n.first_child.get() + u32::from(n.child_count);
-            for c in children {
-                let mut child = place.node(&root.nodes[c as usize])?;
+            for c in children(&n) {
+                // Children after their parent, each reached once: the walk ends.
+                if c <= local || mine.len() >= root.top_ids.len() {
+                    return Err(set(format!("shard root {r}: its top is not a tree")));
+                }
+                let mut child = record_of(c)?;
                 child.parent = U32::new(at);
                 let child_at = self.nodes.len() as u32;
                 self.nodes.push(child);
@@ -361,9 +380,25 @@ impl<'p> Top<'p> {
                 queue.push_back((c, child_at));
             }
         }
+        regions.sort_unstable_by_key(|g| g.leaf_begin);
+        if regions.len() != root.regions.len()
+            || regions
+                .iter()
+                .zip(&root.regions)
+                .any(|(g, p)| g.local != p.root)
+        {
+            return Err(set(format!(
+                "shard root {r}: its regions are not the ones below its top"
+            )));
+        }
+        self.regions.extend(regions);
         mine.sort_unstable();
         self.under_root[r as usize] = mine;
-        self.region_triangles += (root.triangles.len() - owned) as u64;
+        self.region_triangles += root
+            .regions
+            .iter()
+            .map(|g| g.body.triangle_count())
+            .sum::<u64>();
         Ok(())
     }
 
@@ -465,7 +500,6 @@ impl<'p> Top<'p> {
             file_id,
             up: self.up,
             proxies,
-            under_root: self.under_root,
             regions: self.regions,
             region_cross,
         })
@@ -504,7 +538,20 @@ fn plan_node(t: &TopNode) -> Node {
     }
 }
 
-/// Pass 2: each part's regions, encoded and spilled.
+/// An open region of a part, as the merge encodes it.
+struct OpenRegion<'a> {
+    /// Its shard root (plan index).
+    root: u32,
+    /// The region root's record (links are subtree ids), and its subtree id.
+    region_root: &'a NodeRecord,
+    local_root: u32,
+    /// The region's nodes below its root: subtree ids, records and own subtris.
+    ids: &'a [u32],
+    nodes: &'a [NodeRecord],
+    triangles: &'a [TriangleRecord],
+}
+
+/// Pass 2: each part's regions, copied or encoded, and spilled.
 struct RegionWriter<'p> {
     plan: &'p Plan,
     spill: BufWriter<std::fs::File>,
@@ -554,131 +601,211 @@ impl<'p> RegionWriter<'p> {
         })
     }
 
-    /// Lays out, numbers, encodes and spills the regions of one part.
+    /// Numbers the regions of one part and spills their pages: a sealed region's copied (its
+    /// first page rebased), an open one's laid out and encoded with the triangles across
+    /// roots its nodes own.
     fn write_part(&mut self, top: &FinishedTop, shard: ShardPart) -> Result<(), ShardError> {
-        let plan = self.plan;
-        let total: usize = shard.roots.iter().map(|r| r.nodes.len()).sum();
-        // The part's nodes with the file's depths and ranks, linked by index into `nodes`;
-        // each region node's subtris (its own and the cross triangles it owns) in `triangles`.
-        let mut nodes: Vec<NodeRecord> = Vec::with_capacity(total);
-        let mut triangles: Vec<TriangleRecord> = Vec::new();
-        let mut file_id = vec![NO_NODE; total];
-        let mut bases = Vec::with_capacity(shard.roots.len());
         for root in shard.roots {
-            let r = root.root;
-            let plan_node = plan.root_node(r);
-            let place = Placement::of(plan_node);
-            let base = nodes.len() as u32;
-            bases.push((r, base));
-            self.widen_radii(&top.proxies, plan_node, &root);
-            let mine = &top.under_root[r as usize];
-            let mut next_top = mine.iter().peekable();
-            for (local, n) in root.nodes.iter().enumerate() {
-                let local = local as u32;
-                let mut moved = place.node(n)?;
-                moved.parent = match n.parent.get() {
-                    NO_NODE => U32::new(NO_NODE),
-                    p => U32::new(base + p),
+            let RootPart {
+                root: r,
+                top_ids,
+                top_nodes,
+                regions,
+                leaves,
+                ..
+            } = root;
+            self.widen_radii(&top.proxies, self.plan.root_node(r), &leaves);
+            drop(leaves);
+            for region in regions {
+                let changed = || set(format!("shard root {r}: its part changed between passes"));
+                let g = *top.regions.get(self.regions_done).ok_or_else(changed)?;
+                if (g.root, g.local) != (r, region.root) {
+                    return Err(changed());
+                }
+                let first_node = u32::try_from(self.next_node)
+                    .map_err(|_| set("more nodes than a file holds".into()))?;
+                self.region_first[self.regions_done] = first_node;
+                let parent = top.file_id[g.top as usize];
+                let written = match region.body {
+                    RegionBody::Sealed(sealed) => self.copy_sealed(first_node, parent, sealed)?,
+                    RegionBody::Open {
+                        ids,
+                        nodes,
+                        triangles,
+                    } => {
+                        let k = top_ids.binary_search(&g.local).map_err(|_| changed())?;
+                        let open = OpenRegion {
+                            root: r,
+                            region_root: &top_nodes[k],
+                            local_root: g.local,
+                            ids: &ids,
+                            nodes: &nodes,
+                            triangles: &triangles,
+                        };
+                        self.encode_open(top, first_node, parent, open)?
+                    }
                 };
-                if n.child_count > 0 {
-                    moved.first_child = U32::new(base + n.first_child.get());
+                self.next_node += written;
+                if self.next_node > u64::from(u32::MAX) {
+                    return Err(set("more nodes than a file holds".into()));
                 }
-                let begin = triangles.len();
-                if next_top.peek().is_some_and(|&&(l, _)| l == local) {
-                    // A top node: its record and subtris are the top's.
-                    let (_, at) = next_top.next().expect("peeked");
-                    file_id[(base + local) as usize] = top.file_id[*at as usize];
-                } else {
-                    triangles.extend(root.triangles[subtris(n)].iter().map(|t| place.triangle(t)));
-                    let cross = &top.region_cross[self.cross_done..];
-                    let owned = cross
-                        .iter()
-                        .take_while(|(cr, cl, _)| (*cr, *cl) == (r, local))
-                        .count();
-                    triangles.extend(cross[..owned].iter().map(|(_, _, t)| *t));
-                    self.cross_done += owned;
-                    triangles[begin..]
-                        .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
-                    self.degree_histogram[usize::from(n.child_count).min(8)] += 1;
-                    self.max_depth = self.max_depth.max(u32::from(moved.depth.get()));
-                }
-                moved.subtri_begin = U32::new(begin as u32);
-                moved.subtri_count = U32::new((triangles.len() - begin) as u32);
-                nodes.push(moved);
+                self.regions_done += 1;
             }
-            if next_top.next().is_some() {
-                return Err(set(format!(
-                    "shard root {r}: its part changed between passes"
-                )));
-            }
-        }
-        if let Some(&(r, l, _)) = top.region_cross.get(self.cross_done)
-            && bases.iter().any(|&(root, _)| root == r)
-        {
-            return Err(set(format!(
-                "a triangle across roots names node {l} of root {r}, which has no such node"
-            )));
-        }
-        for t in &triangles {
-            self.part_counts.add(t.part.get(), 1);
-        }
-
-        // This part's regions, in leaf order, numbered after everything before them.
-        let mut layout = PageLayout::default();
-        let mut laid_out = 0u64;
-        let base_of = |r: u32| bases.iter().find(|&&(root, _)| root == r).map(|&(_, b)| b);
-        while let Some(g) = top.regions.get(self.regions_done) {
-            let Some(base) = base_of(g.root) else { break };
-            let root = &nodes[(base + g.local) as usize];
-            self.region_first[self.regions_done] = u32::try_from(self.next_node + laid_out)
-                .map_err(|_| set("more nodes than a file holds".into()))?;
-            let region = PageLayout::region(
-                &nodes,
-                root.first_child.get(),
-                root.child_count,
-                plan.metadata.page_bytes,
-            );
-            laid_out += region.node_count() as u64;
-            layout.append(region);
-            self.regions_done += 1;
-        }
-        let first_node = self.next_node;
-        for (k, id) in layout.nodes().enumerate() {
-            file_id[id as usize] = (first_node + k as u64) as u32;
-        }
-        if file_id.contains(&NO_NODE) {
-            return Err(set(format!(
-                "shard {}: nodes that are in neither the top nor a region",
-                shard.index
-            )));
-        }
-        self.next_node += layout.node_count() as u64;
-        if self.next_node > u64::from(u32::MAX) {
-            return Err(set("more nodes than a file holds".into()));
-        }
-        let pages = encode_pages(
-            &nodes,
-            &triangles,
-            &layout,
-            &|id| file_id[id as usize],
-            first_node as u32,
-            &plan.grid(),
-            plan.metadata.zstd_level,
-        )?;
-        for page in &pages {
-            self.spill
-                .write_all(&page.frame)
-                .map_err(|source| ShardError::Io {
-                    path: self.spill_folder.clone(),
-                    source,
-                })?;
-            self.pages.push(page.summary());
         }
         Ok(())
     }
 
+    /// Spills a sealed region's pages, numbered from `first_node` under the top node `parent`;
+    /// returns its node count.
+    fn copy_sealed(
+        &mut self,
+        first_node: u32,
+        parent: u32,
+        sealed: SealedRegion,
+    ) -> Result<u64, ShardError> {
+        let nodes = sealed.node_count();
+        let mut pages = sealed.pages.into_iter();
+        let first = pages
+            .next()
+            .ok_or_else(|| set("a sealed region without pages".into()))?;
+        let first = attach_region(&first, first_node, parent, self.plan.metadata.zstd_level)?;
+        self.spill_page(&first)?;
+        for page in pages {
+            self.spill_page(&page)?;
+        }
+        for (total, n) in self
+            .degree_histogram
+            .iter_mut()
+            .zip(sealed.degree_histogram)
+        {
+            *total += n;
+        }
+        self.max_depth = self.max_depth.max(sealed.max_depth);
+        for (part, count) in sealed.part_triangles {
+            self.part_counts.add(part, count);
+        }
+        Ok(nodes)
+    }
+
+    /// Lays out and spills an open region's pages, numbered from `first_node` under the top
+    /// node `parent`, with the triangles across roots that its nodes own; returns its node
+    /// count.
+    fn encode_open(
+        &mut self,
+        top: &FinishedTop,
+        first_node: u32,
+        parent: u32,
+        open: OpenRegion,
+    ) -> Result<u64, ShardError> {
+        let OpenRegion {
+            root: r,
+            region_root,
+            local_root,
+            ids,
+            nodes,
+            triangles,
+        } = open;
+        let bad = || set(format!("shard root {r}: an open region is not a subtree"));
+        // The region's nodes indexed from 1 in subtree order, its root as 0.
+        let index_of = |id: u32| -> Result<u32, ShardError> {
+            ids.binary_search(&id)
+                .map(|k| k as u32 + 1)
+                .map_err(|_| bad())
+        };
+        let mut region: Vec<NodeRecord> = Vec::with_capacity(ids.len() + 1);
+        let mut adopted = vec![false; ids.len() + 1];
+        let mut links = |n: &NodeRecord, at: u32| -> Result<U32, ShardError> {
+            let first = index_of(n.first_child.get())?;
+            for (j, c) in children(n).enumerate() {
+                let k = first as usize + j;
+                if k <= at as usize
+                    || ids.get(k - 1) != Some(&c)
+                    || std::mem::replace(&mut adopted[k], true)
+                {
+                    return Err(bad());
+                }
+            }
+            Ok(U32::new(first))
+        };
+        let mut stub = *region_root;
+        stub.first_child = links(region_root, 0)?;
+        region.push(stub);
+        let mut region_triangles = Vec::with_capacity(triangles.len());
+        let cross = &top.region_cross;
+        for (k, (&id, n)) in ids.iter().zip(nodes).enumerate() {
+            let at = k as u32 + 1;
+            let mut m = *n;
+            m.parent = match n.parent.get() {
+                p if p == local_root => U32::new(0),
+                p => U32::new(index_of(p)?),
+            };
+            if n.child_count > 0 {
+                m.first_child = links(n, at)?;
+            }
+            let begin = region_triangles.len();
+            let own = triangles.get(subtris(n)).ok_or_else(bad)?;
+            region_triangles.extend_from_slice(own);
+            let from = cross.partition_point(|(cr, cl, _)| (*cr, *cl) < (r, id));
+            let to = cross.partition_point(|(cr, cl, _)| (*cr, *cl) <= (r, id));
+            region_triangles.extend(cross[from..to].iter().map(|(_, _, t)| *t));
+            self.cross_done += to - from;
+            region_triangles[begin..]
+                .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
+            m.subtri_begin = U32::new(begin as u32);
+            m.subtri_count = U32::new((region_triangles.len() - begin) as u32);
+            self.degree_histogram[usize::from(m.child_count).min(8)] += 1;
+            self.max_depth = self.max_depth.max(u32::from(m.depth.get()));
+            region.push(m);
+        }
+        if adopted.iter().skip(1).any(|&a| !a) {
+            return Err(bad());
+        }
+        for t in &region_triangles {
+            self.part_counts.add(t.part.get(), 1);
+        }
+        let page_bytes = self.plan.metadata.page_bytes;
+        let layout = PageLayout::region(
+            &region,
+            region[0].first_child.get(),
+            region[0].child_count,
+            page_bytes,
+        );
+        let mut file_id = vec![NO_NODE; region.len()];
+        file_id[0] = parent;
+        for (k, i) in layout.nodes().enumerate() {
+            file_id[i as usize] = first_node + k as u32;
+        }
+        if layout.node_count() != ids.len() {
+            return Err(bad());
+        }
+        let pages = encode_pages(
+            &region,
+            &region_triangles,
+            &layout,
+            &|i| file_id[i as usize],
+            first_node,
+            &self.plan.grid(),
+            self.plan.metadata.zstd_level,
+        )?;
+        for page in &pages {
+            self.spill_page(page)?;
+        }
+        Ok(ids.len() as u64)
+    }
+
+    fn spill_page(&mut self, page: &EncodedPage) -> Result<(), ShardError> {
+        self.spill
+            .write_all(&page.frame)
+            .map_err(|source| ShardError::Io {
+                path: self.spill_folder.clone(),
+                source,
+            })?;
+        self.pages.push(page.summary());
+        Ok(())
+    }
+
     /// Widens the error radii of the plan's top nodes above `plan_node` by its leaves.
-    fn widen_radii(&mut self, proxies: &[[f32; 3]], plan_node: &TopNode, root: &RootPart) {
+    fn widen_radii(&mut self, proxies: &[[f32; 3]], plan_node: &TopNode, leaves: &[[f32; 3]]) {
         let mut above = Vec::new();
         let mut at = plan_node.parent;
         while at != u32::MAX {
@@ -686,14 +813,11 @@ impl<'p> RegionWriter<'p> {
             at = self.plan.top[at as usize].parent;
         }
         let proxies: Vec<[f32; 3]> = above.iter().map(|&a| proxies[a]).collect();
-        let farthest = root
-            .nodes
+        let farthest = leaves
             .par_iter()
-            .filter(|n| n.child_count == 0)
             .fold(
                 || vec![0.0f64; above.len()],
-                |mut far, n| {
-                    let leaf = n.proxy.map(|c| c.get());
+                |mut far, &leaf| {
                     for (f, &p) in far.iter_mut().zip(&proxies) {
                         *f = f.max(leaf_distance_squared(p, leaf));
                     }

@@ -4,10 +4,11 @@
 //! each cell, so a small *top tree* can be planned first ([`plan()`]). Its leaves, the *shard
 //! roots*, are octree nodes whose subtrees depend only on their own vertices in input order:
 //! each shard builds the subtrees of a contiguous run of roots ([`build_shard`]) with the
-//! in-memory builder's own clustering and attribute passes, and a merge ([`merge_to`]) fills
-//! the top nodes from the roots' accumulated sums, renumbers leaf ranks and nodes, places the
-//! triangles whose corners lie under different roots, and writes the file one part at a time
-//! (the file's pages fall in regions that each lie under one root). The result is the tree the
+//! in-memory builder's own clustering and attribute passes, and encodes the file's pages of
+//! each region below the top that it can finish alone (the file's pages fall in regions that
+//! each lie under one root). A merge ([`merge_to`]) fills the top nodes from the roots'
+//! accumulated sums, places the triangles whose corners lie in different shards, numbers the
+//! regions and writes the file one part at a time, copying the shards' pages. The result is the tree the
 //! in-memory build makes, node for node and bit for bit, in the same file, byte for byte.
 //!
 //! What crosses shard borders:
@@ -23,6 +24,7 @@
 //!
 //! Modules: [`mod@plan`] (the top tree and the shards), `part` (one shard's build),
 //! `container` (the layout of the build's files), `input_file` (a shard's input, `.vdtin`),
+//! `seal` (a root's subtree as the merge takes it: top records, regions as the file's pages),
 //! `part_file` (a shard's output, `.vdtpart`), `merge` (the top nodes, renumbering, the
 //! file).
 
@@ -32,6 +34,7 @@ mod merge;
 mod part;
 mod part_file;
 pub mod plan;
+mod seal;
 mod source;
 
 pub use input_file::{
@@ -40,8 +43,9 @@ pub use input_file::{
 };
 pub use merge::{merge, merge_to};
 pub use part::{
-    CrossCorner, InputTriangle, RootPart, ShardPart, build_shard, build_shard_from,
-    build_shard_into, input_triangle, roots_of_vertices, shard_input_of,
+    CrossCorner, InputTriangle, RegionBody, RegionPart, RootPart, SealedRegion, ShardPart,
+    build_shard, build_shard_from, build_shard_into, input_triangle, roots_of_vertices,
+    shard_input_of,
 };
 pub use part_file::{PART_MAGIC, part_from_bytes, part_header, read_part, write_part, write_shard};
 pub use plan::{Plan, PlanMetadata, plan};

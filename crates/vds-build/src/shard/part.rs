@@ -10,7 +10,7 @@
 //! and sphere) goes into the part for the merge.
 
 use rayon::prelude::*;
-use vds_format::{NodeRecord, TriangleRecord};
+use vds_format::{EncodedPage, NodeRecord, TriangleRecord};
 use vds_import::Scene;
 use zerocopy::little_endian::{F32, U32, U64};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
@@ -22,21 +22,92 @@ use crate::octree::cluster_with;
 use crate::tree::{Node, subtri_node_of_ranks};
 use crate::vdt::{leading_smallest, node_record};
 
-/// One root's subtree, as the shard built it: node ids, leaf ranks and subtri ranges are the
-/// subtree's own (node 0 is the root, ranks start at 0).
+/// One root's subtree, as the shard hands it to the merge: the nodes of the file's top that
+/// lie under the root as records, and below them the regions (`vds_format::region_leaves`),
+/// each encoded into the file's pages by the shard where it can be. Records hold the file's
+/// depths and leaf ranks; their links are node ids of the subtree (node 0 is the root,
+/// children after their parent).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RootPart {
     /// The root's index in the plan.
     pub root: u32,
-    /// The subtree's nodes, breadth-first; `subtri_begin` indexes `triangles`.
-    pub nodes: Vec<NodeRecord>,
-    /// Subtris whose three corners lie under the root, grouped by node, corners as the
-    /// subtree's leaf ranks.
-    pub triangles: Vec<TriangleRecord>,
+    /// Subtree ids of the nodes in the file's top (the root, each node with more than a
+    /// region's leaves, and their children), ascending.
+    pub top_ids: Vec<u32>,
+    /// Their records, in the same order; `subtri_begin` indexes `top_triangles`.
+    pub top_nodes: Vec<NodeRecord>,
+    /// The top nodes' subtris whose corners all lie under the root, grouped by node.
+    pub top_triangles: Vec<TriangleRecord>,
+    /// The regions below the top nodes, in leaf order.
+    pub regions: Vec<RegionPart>,
+    /// Every leaf's position: the merge measures the error radii of the nodes above the root.
+    pub leaves: Vec<[f32; 3]>,
     /// What the root passes to its parent.
     pub(crate) sums: Accumulator,
     /// The root's bounding sphere as passed up (a leaf's is not in its record).
     pub(crate) sphere: Sphere,
+}
+
+/// The subtree below one region root.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegionPart {
+    /// The region root's id in the subtree (a top node).
+    pub root: u32,
+    /// Its pages, or its records.
+    pub body: RegionBody,
+}
+
+/// A region as the shard could leave it.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RegionBody {
+    /// Its pages, compressed, from `vds_format::encode_detached_region`: the merge copies them
+    /// (the first one rebased by `vds_format::attach_region`).
+    Sealed(SealedRegion),
+    /// A region with nodes that own triangles across roots, whose other corners' ranks only
+    /// the merge knows: its records, for the merge to lay out and encode.
+    Open {
+        /// Subtree ids of its nodes (below the region root), ascending.
+        ids: Vec<u32>,
+        /// Their records; `subtri_begin` indexes `triangles`.
+        nodes: Vec<NodeRecord>,
+        /// The nodes' subtris within the root, grouped by node.
+        triangles: Vec<TriangleRecord>,
+    },
+}
+
+/// A region's pages and what the file's metadata counts of them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SealedRegion {
+    /// Its pages, in order.
+    pub pages: Vec<EncodedPage>,
+    /// Its nodes by child count (8 for eight or more), as the metadata's histogram.
+    pub degree_histogram: [u64; 9],
+    /// Its deepest node's depth.
+    pub max_depth: u32,
+    /// Its triangles per part: (part, count), by part.
+    pub part_triangles: Vec<(u32, u64)>,
+}
+
+impl SealedRegion {
+    /// Its nodes.
+    pub fn node_count(&self) -> u64 {
+        self.pages.iter().map(|p| u64::from(p.node_count)).sum()
+    }
+
+    /// Its triangles.
+    pub fn triangle_count(&self) -> u64 {
+        self.pages.iter().map(|p| u64::from(p.triangle_count)).sum()
+    }
+}
+
+impl RegionBody {
+    /// The triangles it holds (for an open region, without the ones across roots).
+    pub fn triangle_count(&self) -> u64 {
+        match self {
+            RegionBody::Sealed(sealed) => sealed.triangle_count(),
+            RegionBody::Open { triangles, .. } => triangles.len() as u64,
+        }
+    }
 }
 
 /// One corner of a triangle whose corners lie under two or three roots: the corner's root and
@@ -234,10 +305,19 @@ fn build_shard_with(
     let adjacency = Adjacency::new(local.scene.positions.len(), &local.scene.triangles);
     let (subtrees, rank_of) = local.subtrees(&adjacency, mine.start, isa);
     drop(adjacency);
-    let (pure, cross) = local.assign_triangles(&subtrees, &rank_of, mine.start);
+    let (pure, completed, cross) = local.assign_triangles(plan, &subtrees, &rank_of, mine.start);
     drop((local, rank_of));
-    for ((root, subtree), triangles) in subtrees.into_iter().zip(pure) {
-        each_root(subtree.into_part(root, triangles))?;
+    // The nodes that own triangles across roots, by root: their regions stay open.
+    let mut owners: Vec<Vec<u32>> = vec![Vec::new(); subtrees.len()];
+    for c in cross.iter().filter(|c| c.owner != u32::MAX) {
+        owners[(c.root - mine.start) as usize].push(c.owner);
+    }
+    let roots = subtrees.into_iter().zip(pure).zip(completed).zip(owners);
+    for ((((root, subtree), triangles), completed), owners) in roots {
+        let records = subtree.into_records(triangles);
+        each_root(super::seal::seal_root(
+            plan, root, records, completed, &owners,
+        )?)?;
     }
     Ok(cross)
 }
@@ -362,16 +442,25 @@ impl LocalScene {
         (subtrees, rank_of)
     }
 
-    /// A triangle within one root is a subtri of its subtree, listed with its owner per root;
-    /// one across roots has this shard's corners reported, with the owner where two of them
-    /// lie under one root.
+    /// A triangle within one root is a subtri of its subtree, listed with its owner per root
+    /// (corners as the subtree's ranks). One with two corners under one root and the third
+    /// under another of this shard's is a subtri of that subtree too, listed apart with its
+    /// owner and its corners as the file's ranks. Of any other triangle across roots, this
+    /// shard's corners are reported, with the owner where two of them lie under one root.
+    #[allow(clippy::type_complexity)]
     fn assign_triangles(
         &self,
+        plan: &Plan,
         subtrees: &[(u32, Subtree)],
         rank_of: &[u32],
         first: u32,
-    ) -> (Vec<Vec<(u32, TriangleRecord)>>, Vec<CrossCorner>) {
+    ) -> (
+        Vec<Vec<(u32, TriangleRecord)>>,
+        Vec<Vec<(u32, TriangleRecord)>>,
+        Vec<CrossCorner>,
+    ) {
         let mut pure: Vec<Vec<(u32, TriangleRecord)>> = vec![Vec::new(); subtrees.len()];
+        let mut completed: Vec<Vec<(u32, TriangleRecord)>> = vec![Vec::new(); subtrees.len()];
         let mut cross = Vec::new();
         for (&(t, part), &corners) in self.ids.iter().zip(&self.scene.triangles) {
             let roots = corners.map(|v| self.root[v as usize]);
@@ -383,12 +472,31 @@ impl LocalScene {
                 pure[k].push((owner, record(leading_smallest(ranks), part)));
                 continue;
             }
+            let shared = |k: usize| roots.iter().filter(|&&r| r == roots[k]).count();
+            if !roots.contains(&ELSEWHERE)
+                && let Some(k) = (0..3).find(|&k| shared(k) == 2)
+            {
+                // All three corners are this shard's: the third corner's rank is known here.
+                let subtree = &subtrees[(roots[k] - first) as usize].1;
+                let ranks = [0, 1, 2].map(|j| {
+                    if roots[j] == roots[k] {
+                        rank_of[corners[j] as usize]
+                    } else {
+                        u32::MAX
+                    }
+                });
+                let owner = subtree.owner(ranks);
+                let file_ranks = [0, 1, 2]
+                    .map(|j| plan.root_node(roots[j]).leaf_begin + rank_of[corners[j] as usize]);
+                completed[(roots[k] - first) as usize]
+                    .push((owner, record(leading_smallest(file_ranks), part)));
+                continue;
+            }
             for k in 0..3 {
                 if roots[k] == ELSEWHERE {
                     continue;
                 }
-                let shared = roots.iter().filter(|&&r| r == roots[k]).count();
-                let owner = if shared == 2 {
+                let owner = if shared(k) == 2 {
                     let subtree = &subtrees[(roots[k] - first) as usize].1;
                     // The corner under another root sorts last and stops no walk.
                     let ranks = [0, 1, 2].map(|j| {
@@ -412,7 +520,7 @@ impl LocalScene {
                 });
             }
         }
-        (pure, cross)
+        (pure, completed, cross)
     }
 }
 
@@ -477,9 +585,9 @@ impl Subtree {
         subtri_node_of_ranks(&self.nodes, &self.leaf_node, ranks)
     }
 
-    /// The part of the root: records with subtri ranges over its triangles, grouped by node
-    /// and sorted within a node as the file stores them.
-    fn into_part(mut self, root: u32, mut owned: Vec<(u32, TriangleRecord)>) -> RootPart {
+    /// The subtree's records, with subtri ranges over its triangles, grouped by node and
+    /// sorted within a node as the file stores them.
+    fn into_records(mut self, mut owned: Vec<(u32, TriangleRecord)>) -> SubtreeRecords {
         owned.sort_unstable_by_key(|(node, t)| (*node, t.corners.map(|c| c.get()), t.part.get()));
         let mut at = 0usize;
         for (id, node) in self.nodes.iter_mut().enumerate() {
@@ -499,12 +607,20 @@ impl Subtree {
                 node_record(node, bounds, position)
             })
             .collect();
-        RootPart {
-            root,
+        SubtreeRecords {
             nodes,
             triangles: owned.into_iter().map(|(_, t)| t).collect(),
             sums: self.sums,
             sphere: self.sphere,
         }
     }
+}
+
+/// A root's whole subtree as records: node ids, leaf ranks and subtri ranges are the
+/// subtree's own (node 0 is the root, nodes breadth-first, ranks from 0).
+pub(crate) struct SubtreeRecords {
+    pub(crate) nodes: Vec<NodeRecord>,
+    pub(crate) triangles: Vec<TriangleRecord>,
+    pub(crate) sums: Accumulator,
+    pub(crate) sphere: Sphere,
 }

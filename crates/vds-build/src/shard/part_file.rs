@@ -3,17 +3,30 @@
 //! ([`super::container`]); its body is:
 //!
 //! - the root count (`u32`);
-//! - per root: its index, node count and triangle count (`u32` each), its accumulated sums
-//!   and sphere ([`SUMS_BYTES`] bytes: the quadric's 10, the position sum's 3 `f64`, the
-//!   vertex and triangle boxes' 12 `f32`, the one-sided cone's axis and angle as 4 `f64`, a
-//!   byte saying whether a two-sided cone follows and its 4 `f64`, the sphere's 4 `f32`), its
-//!   node records and its triangle records (the `.vdt` record layouts, subtree ids and ranks);
+//! - per root: its index, top node count, top triangle count, region count and leaf count
+//!   (`u32` each), its accumulated sums and sphere ([`SUMS_BYTES`] bytes: the quadric's 10,
+//!   the position sum's 3 `f64`, the vertex and triangle boxes' 12 `f32`, the one-sided
+//!   cone's axis and angle as 4 `f64`, a byte saying whether a two-sided cone follows and its
+//!   4 `f64`, the sphere's 4 `f32`), its top nodes' subtree ids (`u32`), node records and
+//!   triangle records (the `.vdt` record layouts), its leaves' positions (3 `f32` each), and
+//!   its regions in leaf order, each its root's subtree id (`u32`) and a kind byte:
+//!   - 0, *sealed*: the page count (`u32`); per page its frame length, decoded length, node
+//!     count and triangle count (`u32` each); the frames; the nodes by child count (9 `u64`),
+//!     the deepest depth (`u32`), and the triangles per part (a count, `u32`, then part `u32`
+//!     and triangles `u64` each);
+//!   - 1, *open*: its node and triangle counts (`u32`), its nodes' subtree ids (`u32`), node
+//!     records and triangle records;
 //! - the cross-corner count (`u64`) and the cross corners, 25 bytes each (triangle `u64`,
 //!   corner `u8`, root, rank, part and owner `u32`).
 //!
-//! The reader checks every index a record holds against the plan and the subtree, that the
-//! subtree is a tree whose leaves hold each rank once, and that every value is finite, before
-//! the merge uses it.
+//! Records hold the file's depths and leaf ranks and link by subtree ids (see
+//! [`super::RootPart`]). A sealed region's pages are the file's (`vds_format::
+//! encode_detached_region`); the merge copies them without decoding them, so a part made by
+//! hand can make a wrong file but never a panic: the `.vdt` reader checks every page.
+//!
+//! The reader checks every count against the body, every range a record holds against the
+//! plan and the root, and that every value is finite, before the merge uses it; the merge
+//! checks the links as it walks them.
 
 use std::path::Path;
 
@@ -24,7 +37,9 @@ use super::container::{
     BodyReader, BodyWriter, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, file_size,
     parse_header, parse_trailer, read_ends,
 };
-use super::part::{CrossCorner, InputTriangle, RootPart, ShardPart};
+use super::part::{
+    CrossCorner, InputTriangle, RegionBody, RegionPart, RootPart, SealedRegion, ShardPart,
+};
 use super::{Plan, ShardError};
 use crate::bounds::{Aabb, NormalCone};
 use crate::build::{Accumulator, Sphere};
@@ -37,6 +52,12 @@ const WHAT: &str = ".vdtpart file";
 /// Bytes of a root's sums and sphere in the body.
 const SUMS_BYTES: usize = 10 * 8 + 3 * 8 + 12 * 4 + 4 * 8 + 1 + 4 * 8 + 4 * 4;
 const CROSS_BYTES: usize = 8 + 1 + 4 * 4;
+/// Kind bytes of a region.
+const SEALED: u8 = 0;
+const OPEN: u8 = 1;
+/// Bytes a sealed region states beyond its frames: a page's four lengths, and its counts.
+const PAGE_HEAD_BYTES: u64 = 16;
+const REGION_TAIL_BYTES: u64 = 9 * 8 + 4 + 4;
 const NODE_BYTES: usize = vds_format::layout::NODE_BYTES;
 const TRIANGLE_BYTES: usize = vds_format::layout::TRIANGLE_BYTES;
 
@@ -71,18 +92,68 @@ pub fn write_shard(
 
 /// One root's entry of a part's body.
 fn put_root(out: &mut BodyWriter, root: &RootPart) -> Result<(), ShardError> {
+    let mut head = Vec::with_capacity(20 + SUMS_BYTES);
     for n in [
         root.root,
-        root.nodes.len() as u32,
-        root.triangles.len() as u32,
+        root.top_ids.len() as u32,
+        root.top_triangles.len() as u32,
+        root.regions.len() as u32,
+        root.leaves.len() as u32,
     ] {
-        out.put(&n.to_le_bytes())?;
+        head.extend_from_slice(&n.to_le_bytes());
     }
-    let mut sums = Vec::with_capacity(SUMS_BYTES);
-    put_sums(&mut sums, &root.sums, &root.sphere);
-    out.put(&sums)?;
-    out.put(root.nodes.as_bytes())?;
-    out.put(root.triangles.as_bytes())
+    put_sums(&mut head, &root.sums, &root.sphere);
+    out.put(&head)?;
+    out.put(root.top_ids.as_bytes())?;
+    out.put(root.top_nodes.as_bytes())?;
+    out.put(root.top_triangles.as_bytes())?;
+    out.put(root.leaves.as_bytes())?;
+    for region in &root.regions {
+        out.put(&region.root.to_le_bytes())?;
+        match &region.body {
+            RegionBody::Sealed(sealed) => {
+                let mut head = vec![SEALED];
+                head.extend_from_slice(&(sealed.pages.len() as u32).to_le_bytes());
+                for page in &sealed.pages {
+                    for n in [
+                        page.frame.len() as u32,
+                        page.raw_length,
+                        page.node_count,
+                        page.triangle_count,
+                    ] {
+                        head.extend_from_slice(&n.to_le_bytes());
+                    }
+                }
+                out.put(&head)?;
+                for page in &sealed.pages {
+                    out.put(&page.frame)?;
+                }
+                let mut tail = Vec::new();
+                tail.extend_from_slice(sealed.degree_histogram.as_bytes());
+                tail.extend_from_slice(&sealed.max_depth.to_le_bytes());
+                tail.extend_from_slice(&(sealed.part_triangles.len() as u32).to_le_bytes());
+                for (part, count) in &sealed.part_triangles {
+                    tail.extend_from_slice(&part.to_le_bytes());
+                    tail.extend_from_slice(&count.to_le_bytes());
+                }
+                out.put(&tail)?;
+            }
+            RegionBody::Open {
+                ids,
+                nodes,
+                triangles,
+            } => {
+                let mut head = vec![OPEN];
+                head.extend_from_slice(&(ids.len() as u32).to_le_bytes());
+                head.extend_from_slice(&(triangles.len() as u32).to_le_bytes());
+                out.put(&head)?;
+                out.put(ids.as_bytes())?;
+                out.put(nodes.as_bytes())?;
+                out.put(triangles.as_bytes())?;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The cross-root corners at the end of a part's body.
@@ -102,8 +173,10 @@ fn put_cross(out: &mut BodyWriter, cross: &[CrossCorner]) -> Result<(), ShardErr
 }
 
 /// The most body bytes shard `index` of `plan` can hold: a subtree has fewer than twice its
-/// vertices in nodes, and each of the shard's input triangles is stored once or has at most
-/// three corners reported.
+/// vertices in nodes, each stored once (a record with its id, or in a page, its encoding
+/// shorter than its record, with a region's lengths and counts), a position per vertex, and
+/// each of the shard's input triangles stored once (a record, or in a page with its part
+/// counted) or has at most three corners reported.
 fn body_limit(plan: &Plan, index: u32) -> u64 {
     let roots = plan.shard_roots(index);
     let vertices: u64 = roots
@@ -114,9 +187,11 @@ fn body_limit(plan: &Plan, index: u32) -> u64 {
         })
         .sum();
     let triangles = plan.triangles_of_shard(index);
-    12 + roots.len() as u64 * (12 + SUMS_BYTES as u64)
-        + 2 * vertices * NODE_BYTES as u64
-        + triangles * (TRIANGLE_BYTES as u64).max(3 * CROSS_BYTES as u64)
+    let per_node = NODE_BYTES as u64 + 4 + PAGE_HEAD_BYTES + REGION_TAIL_BYTES + 5;
+    12 + roots.len() as u64 * (20 + SUMS_BYTES as u64)
+        + 2 * vertices * per_node
+        + 12 * vertices
+        + triangles * (TRIANGLE_BYTES as u64 + 12).max(3 * CROSS_BYTES as u64)
 }
 
 /// Which shard of which plan a part file is (its index and the plan's id), from its header
@@ -337,31 +412,8 @@ fn parse_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardPar
     }
     let mut roots = Vec::with_capacity(expected.len());
     for root in expected {
-        let head: [u8; 12] = body.array()?;
-        let mut c = Cursor { bytes: &head };
-        let (index, node_count, triangle_count) = (c.u32()?, c.u32()?, c.u32()?);
-        if index != root {
-            return Err(format!("root {index} where the plan has root {root}"));
-        }
-        let node = plan.root_node(root);
-        let leaves = node.leaf_end - node.leaf_begin;
-        if node_count == 0 || u64::from(node_count) > 2 * u64::from(leaves) {
-            return Err(format!(
-                "root {root}: {node_count} nodes for {leaves} vertices"
-            ));
-        }
-        let sums: [u8; SUMS_BYTES] = body.array()?;
-        let (sums, sphere) = get_sums(&mut Cursor { bytes: &sums })?;
-        let nodes: Vec<NodeRecord> = body.records(node_count as usize)?;
-        let triangles: Vec<TriangleRecord> = body.records(triangle_count as usize)?;
-        check_subtree(&nodes, &triangles, leaves).map_err(|e| format!("root {root}: {e}"))?;
-        roots.push(RootPart {
-            root,
-            nodes,
-            triangles,
-            sums,
-            sphere,
-        });
+        let part = parse_root(body, plan, index, root).map_err(|e| format!("root {root}: {e}"))?;
+        roots.push(part);
     }
     let cross_count = u64::from_le_bytes(body.array()?);
     if cross_count > body.left() / CROSS_BYTES as u64 {
@@ -397,11 +449,11 @@ fn parse_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardPar
                         corner.root
                     )
                 })?;
-            let leaves = local.nodes[0].leaf_end.get();
+            let leaves = local.leaves.len() as u64;
             if corner.triangle >= plan.triangles
                 || corner.corner > 2
-                || corner.rank >= leaves
-                || (corner.owner != u32::MAX && corner.owner as usize >= local.nodes.len())
+                || u64::from(corner.rank) >= leaves
+                || (corner.owner != u32::MAX && u64::from(corner.owner) >= 2 * leaves)
             {
                 return Err(format!(
                     "cross corner of triangle {} out of range",
@@ -419,93 +471,192 @@ fn parse_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardPar
     })
 }
 
-/// The checks the merge relies on: links and ranges inside the subtree, and leaves that hold
-/// every rank once.
-fn check_subtree(
+/// One root's entry, checked: counts against the body and the root's vertices, ranges
+/// against the root, values finite.
+fn parse_root(
+    body: &mut BodyReader,
+    plan: &Plan,
+    index: u32,
+    root: u32,
+) -> Result<RootPart, String> {
+    let head: [u8; 20] = body.array()?;
+    let mut c = Cursor { bytes: &head };
+    let (stated, top_count, top_triangle_count, region_count, leaf_count) =
+        (c.u32()?, c.u32()?, c.u32()?, c.u32()?, c.u32()?);
+    if stated != root {
+        return Err(format!("root {stated} where the plan has root {root}"));
+    }
+    let node = plan.root_node(root);
+    let ranks = node.leaf_begin..node.leaf_end;
+    // A subtri's corners lie under the shard's roots (two under this one).
+    let shard = plan.shard_roots(index);
+    let corners = plan.root_node(shard.start).leaf_begin..plan.root_node(shard.end - 1).leaf_end;
+    let most_nodes = 2 * u64::from(ranks.end - ranks.start);
+    if leaf_count != ranks.end - ranks.start
+        || top_count == 0
+        || u64::from(top_count) > most_nodes
+        || region_count > top_count
+    {
+        return Err(format!(
+            "{top_count} top nodes, {region_count} regions and {leaf_count} leaves for {} vertices",
+            ranks.end - ranks.start
+        ));
+    }
+    let sums: [u8; SUMS_BYTES] = body.array()?;
+    let (sums, sphere) = get_sums(&mut Cursor { bytes: &sums })?;
+    let top_ids: Vec<u32> = body.records(top_count as usize)?;
+    if top_ids[0] != 0 || top_ids.windows(2).any(|w| w[0] >= w[1]) {
+        return Err("its top's ids are not ascending from its root".into());
+    }
+    let top_nodes: Vec<NodeRecord> = body.records(top_count as usize)?;
+    let top_triangles: Vec<TriangleRecord> = body.records(top_triangle_count as usize)?;
+    check_records(&top_nodes, &top_triangles, &ranks, &corners)
+        .map_err(|e| format!("its top: {e}"))?;
+    let leaves: Vec<[f32; 3]> = body.records(leaf_count as usize)?;
+    if !leaves.iter().flatten().all(|x| x.is_finite()) {
+        return Err("a leaf position that is not finite".into());
+    }
+    let mut regions = Vec::with_capacity(region_count as usize);
+    let mut region_nodes = 0u64;
+    for _ in 0..region_count {
+        let head: [u8; 5] = body.array()?;
+        let mut c = Cursor { bytes: &head };
+        let (region_root, kind) = (c.u32()?, c.u8()?);
+        let region = match kind {
+            SEALED => parse_sealed(body, &mut region_nodes, most_nodes)?,
+            OPEN => {
+                let counts: [u8; 8] = body.array()?;
+                let mut c = Cursor { bytes: &counts };
+                let (node_count, triangle_count) = (c.u32()?, c.u32()?);
+                region_nodes += u64::from(node_count);
+                if region_nodes > most_nodes {
+                    return Err("more nodes than its vertices can have".into());
+                }
+                let ids: Vec<u32> = body.records(node_count as usize)?;
+                if ids.windows(2).any(|w| w[0] >= w[1]) {
+                    return Err("an open region's ids are not ascending".into());
+                }
+                let nodes: Vec<NodeRecord> = body.records(node_count as usize)?;
+                let triangles: Vec<TriangleRecord> = body.records(triangle_count as usize)?;
+                check_records(&nodes, &triangles, &ranks, &corners)
+                    .map_err(|e| format!("an open region: {e}"))?;
+                RegionBody::Open {
+                    ids,
+                    nodes,
+                    triangles,
+                }
+            }
+            _ => return Err(format!("a region of kind {kind}")),
+        };
+        regions.push(RegionPart {
+            root: region_root,
+            body: region,
+        });
+    }
+    Ok(RootPart {
+        root,
+        top_ids,
+        top_nodes,
+        top_triangles,
+        regions,
+        leaves,
+        sums,
+        sphere,
+    })
+}
+
+/// A sealed region's pages and counts, its nodes added to `nodes` (at most `most`).
+fn parse_sealed(body: &mut BodyReader, nodes: &mut u64, most: u64) -> Result<RegionBody, String> {
+    let page_count = u32::from_le_bytes(body.array()?);
+    if page_count == 0 || u64::from(page_count) > body.left() / PAGE_HEAD_BYTES {
+        return Err(format!("a sealed region of {page_count} pages"));
+    }
+    let heads: Vec<[u32; 4]> = body.records(page_count as usize)?;
+    let mut pages = Vec::with_capacity(page_count as usize);
+    for [frame_length, raw_length, node_count, triangle_count] in heads {
+        let [frame_length, raw_length, node_count, triangle_count] =
+            [frame_length, raw_length, node_count, triangle_count].map(u32::from_le);
+        *nodes += u64::from(node_count);
+        if *nodes > most || raw_length > vds_format::MAX_PAGE_RAW_BYTES {
+            return Err("a sealed page larger than its vertices can fill".into());
+        }
+        let frame: Vec<u8> = body.records(frame_length as usize)?;
+        pages.push(vds_format::EncodedPage {
+            frame,
+            raw_length,
+            node_count,
+            triangle_count,
+        });
+    }
+    let tail: [u8; 9 * 8 + 4 + 4] = body.array()?;
+    let mut c = Cursor { bytes: &tail };
+    let mut degree_histogram = [0u64; 9];
+    for d in &mut degree_histogram {
+        *d = c.u64()?;
+    }
+    let max_depth = c.u32()?;
+    let part_count = c.u32()?;
+    if u64::from(part_count) > body.left() / 12 {
+        return Err("truncated body".into());
+    }
+    let mut part_triangles = Vec::with_capacity(part_count as usize);
+    for _ in 0..part_count {
+        let entry: [u8; 12] = body.array()?;
+        let mut c = Cursor { bytes: &entry };
+        part_triangles.push((c.u32()?, c.u64()?));
+    }
+    Ok(RegionBody::Sealed(SealedRegion {
+        pages,
+        degree_histogram,
+        max_depth,
+        part_triangles,
+    }))
+}
+
+/// The checks the merge relies on for records of a root's top or of an open region: values
+/// finite, leaf ranges within the root's `ranks` and triangle corners within the shard's
+/// `corners`, at most eight children, and
+/// subtri ranges that follow each other and cover the triangles once (ranges that overlapped
+/// would let a small file make the merge copy triangles many times). Links are checked by the
+/// merge as it walks them.
+fn check_records(
     nodes: &[NodeRecord],
     triangles: &[TriangleRecord],
-    leaves: u32,
+    ranks: &std::ops::Range<u32>,
+    corners: &std::ops::Range<u32>,
 ) -> Result<(), String> {
-    let count = nodes.len() as u64;
-    let root = &nodes[0];
-    if root.parent.get() != NO_NODE || root.leaf_begin.get() != 0 || root.leaf_end.get() != leaves {
-        return Err("its root does not span its vertices".into());
-    }
-    let mut seen = vec![false; leaves as usize];
-    // Subtri ranges follow each other in node order and cover the triangles once: ranges
-    // that overlapped would let a small file make the merge copy triangles many times.
     let mut subtris_at = 0u64;
-    for (id, n) in nodes.iter().enumerate() {
+    for (k, n) in nodes.iter().enumerate() {
         let floats = n.proxy.iter().chain(&n.sphere).chain(&n.cone);
         if !floats
             .chain([&n.error_radius, &n.surface_error])
             .all(|x| x.get().is_finite())
         {
-            return Err(format!("node {id} has a value that is not finite"));
+            return Err(format!("node {k} has a value that is not finite"));
         }
         let (begin, end) = (n.leaf_begin.get(), n.leaf_end.get());
-        if begin >= end || end > leaves {
-            return Err(format!("node {id} has leaf range {begin}..{end}"));
+        if begin >= end || begin < ranks.start || end > ranks.end {
+            return Err(format!("node {k} has leaf range {begin}..{end}"));
         }
-        if id > 0 && u64::from(n.parent.get()) >= count {
-            return Err(format!("node {id} has no parent"));
+        if n.child_count > 8 || (n.child_count == 0 && n.first_child.get() != NO_NODE) {
+            return Err(format!("node {k} has children out of range"));
         }
         if u64::from(n.subtri_begin.get()) != subtris_at {
             return Err(format!(
-                "node {id}'s subtris do not follow the previous node's"
+                "node {k}'s subtris do not follow the previous node's"
             ));
         }
         subtris_at += u64::from(n.subtri_count.get());
         if subtris_at > triangles.len() as u64 {
-            return Err(format!("node {id}'s subtris lie past the triangles"));
+            return Err(format!("node {k}'s subtris lie past the triangles"));
         }
-        if n.child_count == 0 {
-            if end != begin + 1
-                || n.first_child.get() != NO_NODE
-                || std::mem::replace(&mut seen[begin as usize], true)
-            {
-                return Err(format!("leaf {id} does not hold one rank of its own"));
-            }
-        } else if n.child_count > 8
-            || u64::from(n.first_child.get()) + u64::from(n.child_count) > count
-            || n.first_child.get() as usize <= id
-        {
-            return Err(format!("node {id} has children out of range"));
-        }
-    }
-    if seen.iter().any(|&s| !s) {
-        return Err("a rank no leaf holds".into());
     }
     if subtris_at != triangles.len() as u64 {
         return Err("triangles no node owns".into());
     }
-    // A tree: every node but the root is the child of exactly the node its parent field
-    // names, one level below it, and children partition their parent's ranks in order.
-    let mut adopted = vec![false; nodes.len()];
-    for (id, n) in nodes.iter().enumerate() {
-        let first = n.first_child.get() as usize;
-        let mut at = n.leaf_begin.get();
-        for c in first..first + usize::from(n.child_count) {
-            let child = &nodes[c];
-            if child.parent.get() as usize != id
-                || child.depth.get() != n.depth.get().wrapping_add(1)
-                || child.leaf_begin.get() != at
-                || std::mem::replace(&mut adopted[c], true)
-            {
-                return Err(format!("node {c} is not a child of node {id}"));
-            }
-            at = child.leaf_end.get();
-        }
-        if n.child_count > 0 && at != n.leaf_end.get() {
-            return Err(format!("node {id}'s children do not cover its ranks"));
-        }
-    }
-    if root.depth.get() != 0 || adopted.iter().skip(1).any(|&a| !a) {
-        return Err("a node outside the tree".into());
-    }
     if triangles
         .iter()
-        .any(|t| t.corners.iter().any(|c| c.get() >= leaves))
+        .any(|t| t.corners.iter().any(|c| !corners.contains(&c.get())))
     {
         return Err("a triangle corner past its vertices".into());
     }
