@@ -38,6 +38,7 @@ use zerocopy::little_endian::U32;
 
 use super::part::{CrossCorner, RegionBody, RootPart, SealedRegion, ShardPart};
 use super::plan::TopNode;
+use super::seal::{children, leaf_count, subtris};
 use super::{Plan, ShardError};
 use crate::build::{
     Accumulator, Sphere, absorb_on, inner_bounds, inner_proxy, leaf_distance_squared,
@@ -219,23 +220,6 @@ fn check_part(plan: &Plan, shard: &ShardPart, k: u32) -> Result<(), ShardError> 
         return Err(set(format!("shard {k} does not hold the plan's roots")));
     }
     Ok(())
-}
-
-fn leaf_count(n: &NodeRecord) -> u32 {
-    n.leaf_end.get().saturating_sub(n.leaf_begin.get())
-}
-
-fn subtris(n: &NodeRecord) -> std::ops::Range<usize> {
-    let begin = n.subtri_begin.get() as usize;
-    begin..begin + n.subtri_count.get() as usize
-}
-
-fn children(n: &NodeRecord) -> std::ops::Range<u32> {
-    if n.child_count == 0 {
-        return 0..0;
-    }
-    let first = n.first_child.get();
-    first..first + u32::from(n.child_count)
 }
 
 /// A region root: a top node with at most a region's leaves, and children.

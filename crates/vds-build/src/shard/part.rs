@@ -473,11 +473,9 @@ impl LocalScene {
                 continue;
             }
             let shared = |k: usize| roots.iter().filter(|&&r| r == roots[k]).count();
-            if !roots.contains(&ELSEWHERE)
-                && let Some(k) = (0..3).find(|&k| shared(k) == 2)
-            {
-                // All three corners are this shard's: the third corner's rank is known here.
-                let subtree = &subtrees[(roots[k] - first) as usize].1;
+            // The node of corner `k`'s subtree that the triangle is a subtri of, with two of
+            // its corners there: the corner under another root sorts last and stops no walk.
+            let owner_under = |k: usize| {
                 let ranks = [0, 1, 2].map(|j| {
                     if roots[j] == roots[k] {
                         rank_of[corners[j] as usize]
@@ -485,7 +483,13 @@ impl LocalScene {
                         u32::MAX
                     }
                 });
-                let owner = subtree.owner(ranks);
+                subtrees[(roots[k] - first) as usize].1.owner(ranks)
+            };
+            if !roots.contains(&ELSEWHERE)
+                && let Some(k) = (0..3).find(|&k| shared(k) == 2)
+            {
+                // All three corners are this shard's: the third corner's rank is known here.
+                let owner = owner_under(k);
                 let file_ranks = [0, 1, 2]
                     .map(|j| plan.root_node(roots[j]).leaf_begin + rank_of[corners[j] as usize]);
                 completed[(roots[k] - first) as usize]
@@ -497,16 +501,7 @@ impl LocalScene {
                     continue;
                 }
                 let owner = if shared(k) == 2 {
-                    let subtree = &subtrees[(roots[k] - first) as usize].1;
-                    // The corner under another root sorts last and stops no walk.
-                    let ranks = [0, 1, 2].map(|j| {
-                        if roots[j] == roots[k] {
-                            rank_of[corners[j] as usize]
-                        } else {
-                            u32::MAX
-                        }
-                    });
-                    subtree.owner(ranks)
+                    owner_under(k)
                 } else {
                     u32::MAX
                 };

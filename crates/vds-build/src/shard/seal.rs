@@ -20,16 +20,19 @@ use super::{Plan, ShardError};
 /// No region: a node of the top, or not looked at yet.
 const NO_REGION: u32 = u32::MAX;
 
-fn leaf_count(n: &NodeRecord) -> u32 {
+/// A record's leaf count.
+pub(super) fn leaf_count(n: &NodeRecord) -> u32 {
     n.leaf_end.get().saturating_sub(n.leaf_begin.get())
 }
 
-fn subtris(n: &NodeRecord) -> std::ops::Range<usize> {
+/// A record's subtri range.
+pub(super) fn subtris(n: &NodeRecord) -> std::ops::Range<usize> {
     let begin = n.subtri_begin.get() as usize;
     begin..begin + n.subtri_count.get() as usize
 }
 
-fn children(n: &NodeRecord) -> std::ops::Range<u32> {
+/// A record's children's ids.
+pub(super) fn children(n: &NodeRecord) -> std::ops::Range<u32> {
     if n.child_count == 0 {
         return 0..0;
     }
