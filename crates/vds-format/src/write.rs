@@ -348,42 +348,52 @@ pub fn encode_pages<N: NodeSource>(
         .pages
         .par_iter()
         .zip(starts)
-        .map_init(PageWork::new(zstd_level), |work, (page, n0)| {
-            let PageWork {
-                compressor,
-                scratch,
-                records,
-                triangles: page_triangles,
-                raw,
-            } = work;
-            records.clear();
-            page_triangles.clear();
-            for group in &page.groups {
-                for old in group.first..group.first + group.count {
-                    let mut n = nodes.node_record(old);
-                    n.parent = map(n.parent);
-                    n.first_child = map(n.first_child);
-                    let begin = n.subtri_begin.get() as usize;
-                    let count = n.subtri_count.get() as usize;
-                    page_triangles.extend_from_slice(&triangles[begin..begin + count]);
-                    records.push(n);
+        .map(|(page, n0)| {
+            PageWork::with(zstd_level, |work| {
+                let PageWork {
+                    compressor,
+                    scratch,
+                    records,
+                    triangles: page_triangles,
+                    raw,
+                    ..
+                } = work;
+                records.clear();
+                page_triangles.clear();
+                for group in &page.groups {
+                    for old in group.first..group.first + group.count {
+                        let mut n = nodes.node_record(old);
+                        n.parent = map(n.parent);
+                        n.first_child = map(n.first_child);
+                        let begin = n.subtri_begin.get() as usize;
+                        let count = n.subtri_count.get() as usize;
+                        page_triangles.extend_from_slice(&triangles[begin..begin + count]);
+                        records.push(n);
+                    }
                 }
-            }
-            crate::codec::encode_page_into(scratch, grid, n0 as u32, records, page_triangles, raw)?;
-            let frame = compressor
-                .compress(raw)
-                .expect("zstd compression of an in-memory buffer cannot fail");
-            if raw.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
-                return Err(VdtError::invalid(
-                    format!("the page of node {n0}"),
-                    "compresses beyond the ratio readers accept as a decompression bomb",
-                ));
-            }
-            Ok(EncodedPage {
-                frame,
-                raw_length: raw.len() as u32,
-                node_count: page.nodes as u32,
-                triangle_count: page.triangles as u32,
+                crate::codec::encode_page_into(
+                    scratch,
+                    grid,
+                    n0 as u32,
+                    records,
+                    page_triangles,
+                    raw,
+                )?;
+                let frame = compressor
+                    .compress(raw)
+                    .expect("zstd compression of an in-memory buffer cannot fail");
+                if raw.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
+                    return Err(VdtError::invalid(
+                        format!("the page of node {n0}"),
+                        "compresses beyond the ratio readers accept as a decompression bomb",
+                    ));
+                }
+                Ok(EncodedPage {
+                    frame,
+                    raw_length: raw.len() as u32,
+                    node_count: page.nodes as u32,
+                    triangle_count: page.triangles as u32,
+                })
             })
         })
         .collect()
@@ -569,8 +579,7 @@ pub fn attach_region(
         &mut rebased,
     )
     .map_err(bad)?;
-    let frame = zstd::bulk::Compressor::new(zstd_level)
-        .and_then(|mut c| c.compress(&rebased))
+    let frame = PageWork::with(zstd_level, |work| work.compressor.compress(&rebased))
         .map_err(|e| bad(format!("zstd: {e}")))?;
     if rebased.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
         return Err(bad(
@@ -687,6 +696,7 @@ pub fn encode<N: NodeSource>(
 /// task it splits off (a handful per thread), where a context per page cost a table setup
 /// for every page and streams that grew from empty each time.
 struct PageWork {
+    level: i32,
     compressor: zstd::bulk::Compressor<'static>,
     scratch: crate::codec::EncodeScratch,
     records: Vec<NodeRecord>,
@@ -694,16 +704,31 @@ struct PageWork {
     raw: Vec<u8>,
 }
 
+thread_local! {
+    /// Each thread's working arrays and zstd context, kept across calls: a sharded build
+    /// encodes its regions a few pages per call, and a zstd context at the default level
+    /// allocates and clears megabytes of tables when it is made.
+    static PAGE_WORK: std::cell::RefCell<Option<PageWork>> = const { std::cell::RefCell::new(None) };
+}
+
 impl PageWork {
-    fn new(zstd_level: i32) -> impl Fn() -> PageWork + Sync {
-        move || PageWork {
-            compressor: zstd::bulk::Compressor::new(zstd_level)
-                .expect("a zstd context at a level zstd accepts"),
-            scratch: Default::default(),
-            records: Vec::new(),
-            triangles: Vec::new(),
-            raw: Vec::new(),
-        }
+    /// Runs `f` with this thread's working arrays, with a compressor at `zstd_level`.
+    fn with<T>(zstd_level: i32, f: impl FnOnce(&mut PageWork) -> T) -> T {
+        PAGE_WORK.with(|cell| {
+            let mut slot = cell.borrow_mut();
+            if slot.as_ref().is_none_or(|w| w.level != zstd_level) {
+                *slot = Some(PageWork {
+                    level: zstd_level,
+                    compressor: zstd::bulk::Compressor::new(zstd_level)
+                        .expect("a zstd context at a level zstd accepts"),
+                    scratch: Default::default(),
+                    records: Vec::new(),
+                    triangles: Vec::new(),
+                    raw: Vec::new(),
+                });
+            }
+            f(slot.as_mut().expect("made above"))
+        })
     }
 }
 
