@@ -691,10 +691,8 @@ pub fn encode<N: NodeSource>(
     Ok((out, report))
 }
 
-/// What a writing task keeps from page to page: a zstd context, the encoder's working
-/// arrays, and the page's gathered records and encoding. Rayon's `map_init` makes one per
-/// task it splits off (a handful per thread), where a context per page cost a table setup
-/// for every page and streams that grew from empty each time.
+/// What a writing thread keeps from page to page: a zstd context, the encoder's working
+/// arrays, and the page's gathered records and encoding (see `PAGE_WORK`).
 struct PageWork {
     level: i32,
     compressor: zstd::bulk::Compressor<'static>,
