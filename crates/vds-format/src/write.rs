@@ -745,3 +745,60 @@ pub fn write_file<N: NodeSource>(
     crate::output::write_atomically(path, |out| out.write_all(&bytes))?;
     Ok(report)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn page(raw: &[u8]) -> EncodedPage {
+        EncodedPage {
+            frame: zstd::bulk::compress(raw, 1).unwrap(),
+            raw_length: raw.len() as u32,
+            node_count: 1,
+            triangle_count: 0,
+        }
+    }
+
+    /// A page of empty streams but a parent stream holding `steps`.
+    fn raw_with_parents(steps: &[u8]) -> Vec<u8> {
+        let mut raw = Vec::new();
+        for k in 0..crate::codec::STREAMS {
+            let length = if k == 1 { steps.len() } else { 0 };
+            raw.extend_from_slice(&(length as u32).to_le_bytes());
+        }
+        raw.extend_from_slice(steps);
+        raw
+    }
+
+    #[test]
+    fn attaching_rewrites_the_first_parent_step_and_nothing_else() {
+        let attached = attach_region(&page(&raw_with_parents(&[1, 0, 0])), 300, 5, 3).unwrap();
+        let raw = zstd::bulk::decompress(&attached.frame, attached.raw_length as usize).unwrap();
+        // 295 takes two varint bytes: the stream and its length grow by one.
+        assert_eq!(raw, raw_with_parents(&[0xa7, 0x02, 0, 0]));
+        assert_eq!(
+            attached.summary().compressed_length as usize,
+            attached.frame.len()
+        );
+    }
+
+    #[test]
+    fn attaching_a_page_that_is_not_a_detached_first_page_is_refused() {
+        let cases = [
+            (page(b"short"), 10, 2),
+            (page(&raw_with_parents(&[])), 10, 2),
+            (page(&raw_with_parents(&[7])), 10, 2),
+            (page(&raw_with_parents(&[1])), 10, 10),
+            (page(&raw_with_parents(&[0x80])), 10, 2),
+        ];
+        for (page, first, root) in cases {
+            assert!(attach_region(&page, first, root, 3).is_err());
+        }
+        let mut lying = page(&raw_with_parents(&[1]));
+        lying.raw_length = 1 << 30;
+        assert!(attach_region(&lying, 10, 2, 3).is_err());
+        lying.frame = b"not zstd".to_vec();
+        lying.raw_length = 8;
+        assert!(attach_region(&lying, 10, 2, 3).is_err());
+    }
+}
