@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use vds_build::shard::{
-    Plan, PlanMetadata, RegionBody, ShardError, ShardPart, build_shard, merge, plan, read_part,
+    Plan, PlanMetadata, RegionPage, ShardError, ShardPart, build_shard, merge, plan, read_part,
     write_part,
 };
 use vds_build::{build_tree, part_records, snap_to_grid, tree_content};
@@ -113,14 +113,19 @@ fn parts(scene: &Scene, plan: &Plan) -> Vec<ShardPart> {
         .collect()
 }
 
-/// The sharded build's file, its plan, and how many of the parts' regions the shards sealed
-/// (encoded as the file's pages) and left open (as records, for the merge to encode).
+/// The sharded build's file, its plan, and how many of the parts' region pages the shards
+/// sealed (encoded as the file's pages) and left open (as records, for the merge to encode).
 fn sharded(scene: &Scene, grid: Grid, shards: u32, page_bytes: u32) -> (Vec<u8>, Plan, [usize; 2]) {
     let plan = planned_with(scene, grid, shards, page_bytes);
     let mut parts = parts(scene, &plan);
     let mut kinds = [0, 0];
-    for region in parts.iter().flat_map(|p| &p.roots).flat_map(|r| &r.regions) {
-        kinds[usize::from(matches!(region.body, RegionBody::Open { .. }))] += 1;
+    let pages = parts
+        .iter()
+        .flat_map(|p| &p.roots)
+        .flat_map(|r| &r.regions)
+        .flat_map(|g| &g.pages);
+    for page in pages {
+        kinds[usize::from(matches!(page, RegionPage::Open(_)))] += 1;
     }
     // Any order will do.
     parts.reverse();
@@ -155,11 +160,11 @@ fn assert_same_file(name: &str, scene: &Scene, grid: Grid, shard_counts: &[u32])
             }
         }
     }
-    // Both kinds of region went through the merge, on scenes cut into many regions: pages
-    // the shards encoded, and regions with triangles across roots that the merge encoded.
+    // Both kinds of page went through the merge, on scenes cut into many regions: pages the
+    // shards encoded, and pages with triangles across shards that the merge encoded.
     assert!(
         scene.positions.len() < 1000 || kinds[0] > 0 && kinds[1] > 0,
-        "{name}: sealed and open regions {kinds:?}"
+        "{name}: sealed and open pages {kinds:?}"
     );
 }
 

@@ -35,7 +35,7 @@ pub use output::{AtomicFile, OutputError, resolve_output, same_file, write_atomi
 pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};
 pub use write::{
     DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, EncodedPage, EncodedPageSummary, FileFigures,
-    NodeSource, PageLayout, TreeContent, WriteOptions, WriteReport, attach_region, encode,
-    encode_detached_region, encode_pages, file_head, in_top_with_children, region_leaves,
-    write_file,
+    NodeSource, PageLayout, TreeContent, WriteOptions, WriteReport, attach_region, detached_id,
+    encode, encode_detached_region, encode_page_frame, encode_pages, file_head,
+    in_top_with_children, region_leaves, write_file,
 };

@@ -206,6 +206,19 @@ impl PageLayout {
         self.pages.extend(later.pages);
     }
 
+    /// Number of pages.
+    pub fn page_count(&self) -> usize {
+        self.pages.len()
+    }
+
+    /// The nodes of page `k` (below [`PageLayout::page_count`]), in order.
+    pub fn page_nodes(&self, k: usize) -> impl Iterator<Item = u32> + '_ {
+        self.pages[k]
+            .groups
+            .iter()
+            .flat_map(|g| g.first..g.first + g.count)
+    }
+
     /// Number of nodes in the pages.
     pub fn node_count(&self) -> usize {
         self.pages.iter().map(|p| p.nodes).sum()
@@ -326,6 +339,31 @@ pub fn encode_pages<N: NodeSource>(
     grid: &Grid,
     zstd_level: i32,
 ) -> Result<Vec<EncodedPage>, VdtError> {
+    let pages = encode_pages_where(
+        nodes,
+        triangles,
+        layout,
+        new_id,
+        first_node,
+        grid,
+        zstd_level,
+        |_| true,
+    )?;
+    Ok(pages.into_iter().flatten().collect())
+}
+
+/// [`encode_pages`] for the pages `k` of `layout` where `keep(k)`; `None` for the others.
+#[allow(clippy::too_many_arguments)]
+fn encode_pages_where<N: NodeSource>(
+    nodes: &N,
+    triangles: &[TriangleRecord],
+    layout: &PageLayout,
+    new_id: &(impl Fn(u32) -> u32 + Sync),
+    first_node: u32,
+    grid: &Grid,
+    zstd_level: i32,
+    keep: impl Fn(usize) -> bool + Sync,
+) -> Result<Vec<Option<EncodedPage>>, VdtError> {
     let mut starts = Vec::with_capacity(layout.pages.len());
     let mut at = u64::from(first_node);
     for page in &layout.pages {
@@ -348,7 +386,11 @@ pub fn encode_pages<N: NodeSource>(
         .pages
         .par_iter()
         .zip(starts)
-        .map(|(page, n0)| {
+        .enumerate()
+        .map(|(k, (page, n0))| {
+            if !keep(k) {
+                return Ok(None);
+            }
             PageWork::with(zstd_level, |work| {
                 let PageWork {
                     compressor,
@@ -388,12 +430,12 @@ pub fn encode_pages<N: NodeSource>(
                         "compresses beyond the ratio readers accept as a decompression bomb",
                     ));
                 }
-                Ok(EncodedPage {
+                Ok(Some(EncodedPage {
                     frame,
                     raw_length: raw.len() as u32,
                     node_count: page.nodes as u32,
                     triangle_count: page.triangles as u32,
-                })
+                }))
             })
         })
         .collect()
@@ -503,9 +545,10 @@ const DETACHED_ROOT: u32 = 0;
 /// Node id of a detached region's first node.
 const DETACHED_FIRST: u32 = 1;
 
-/// Encodes and compresses the pages of one region (`layout`, from [`PageLayout::region`] of
-/// `region_root`'s children in `nodes`) apart from where the region lies in the file: its
-/// nodes numbered from 1 in page order, and its root as node 0. Each link inside a region is
+/// Encodes and compresses the pages `k` of one region where `keep(k)` (`layout`, from
+/// [`PageLayout::region`] of `region_root`'s children in `nodes`; `None` for the others)
+/// apart from where the region lies in the file: its nodes numbered from 1 in page order
+/// ([`detached_id`]), and its root as node 0. Each link inside a region is
 /// a difference of two of its ids, so every page but the first is the page the file holds
 /// wherever the region lands; [`attach_region`] makes the first one the file's. (The sharded
 /// build's shards encode their regions so, and the merge copies them.)
@@ -514,9 +557,10 @@ pub fn encode_detached_region<N: NodeSource>(
     triangles: &[TriangleRecord],
     layout: &PageLayout,
     region_root: u32,
+    keep: impl Fn(usize) -> bool + Sync,
     grid: &Grid,
     zstd_level: i32,
-) -> Result<Vec<EncodedPage>, VdtError> {
+) -> Result<Vec<Option<EncodedPage>>, VdtError> {
     let mut detached: Vec<(u32, u32)> = layout
         .nodes()
         .enumerate()
@@ -534,7 +578,7 @@ pub fn encode_detached_region<N: NodeSource>(
             Err(_) => NO_NODE - 1,
         }
     };
-    encode_pages(
+    encode_pages_where(
         nodes,
         triangles,
         layout,
@@ -542,7 +586,52 @@ pub fn encode_detached_region<N: NodeSource>(
         DETACHED_FIRST,
         grid,
         zstd_level,
+        keep,
     )
+}
+
+/// The id [`encode_detached_region`] gives the `k`-th node of a region's layout.
+pub fn detached_id(k: usize) -> u32 {
+    DETACHED_FIRST + k as u32
+}
+
+/// Encodes and compresses one page: `nodes` numbered from `first_node`, their links the
+/// file's ids, and their subtris `triangles` (each node's `subtri_count` of them, in node
+/// order). What [`encode_pages`] does for each page of a layout, for a caller that gathers a
+/// page's records itself (the sharded build's merge, for a page with triangles across shards).
+pub fn encode_page_frame(
+    grid: &Grid,
+    first_node: u32,
+    nodes: &[NodeRecord],
+    triangles: &[TriangleRecord],
+    zstd_level: i32,
+) -> Result<EncodedPage, VdtError> {
+    PageWork::with(zstd_level, |work| {
+        crate::codec::encode_page_into(
+            &mut work.scratch,
+            grid,
+            first_node,
+            nodes,
+            triangles,
+            &mut work.raw,
+        )?;
+        let frame = work
+            .compressor
+            .compress(&work.raw)
+            .expect("zstd compression of an in-memory buffer cannot fail");
+        if work.raw.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
+            return Err(VdtError::invalid(
+                format!("the page of node {first_node}"),
+                "compresses beyond the ratio readers accept as a decompression bomb",
+            ));
+        }
+        Ok(EncodedPage {
+            frame,
+            raw_length: work.raw.len() as u32,
+            node_count: nodes.len() as u32,
+            triangle_count: triangles.len() as u32,
+        })
+    })
 }
 
 /// The first page of a region encoded by [`encode_detached_region`] as the file holds it when

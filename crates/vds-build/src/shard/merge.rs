@@ -30,13 +30,13 @@ use std::path::Path;
 use rayon::prelude::*;
 use vds_format::{
     BuildInfo, EncodedPage, EncodedPageSummary, FileFigures, InputInfo, Metadata, NO_NODE,
-    NodeRecord, PageLayout, TriangleRecord, WriteReport, attach_region, encode_pages, file_head,
-    in_top_with_children,
+    NodeRecord, PageLayout, TriangleRecord, WriteReport, attach_region, encode_page_frame,
+    encode_pages, file_head, in_top_with_children,
 };
 use zerocopy::IntoBytes;
 use zerocopy::little_endian::U32;
 
-use super::part::{CrossCorner, RegionBody, RootPart, SealedRegion, ShardPart};
+use super::part::{CrossCorner, OpenPage, RegionPage, RootPart, ShardPart};
 use super::plan::TopNode;
 use super::seal::{children, leaf_count, subtris};
 use super::{Plan, ShardError};
@@ -142,30 +142,27 @@ fn digest(shard: &ShardPart) -> u64 {
         hasher.update(root.leaves.as_bytes());
         for region in &root.regions {
             hasher.update(&region.root.to_le_bytes());
-            match &region.body {
-                RegionBody::Sealed(sealed) => {
-                    for page in &sealed.pages {
+            for page in &region.pages {
+                match page {
+                    RegionPage::Sealed(page) => {
                         for n in [page.raw_length, page.node_count, page.triangle_count] {
                             hasher.update(&n.to_le_bytes());
                         }
                         hasher.update(&page.frame);
                     }
-                    hasher.update(sealed.degree_histogram.as_bytes());
-                    hasher.update(&sealed.max_depth.to_le_bytes());
-                    for (part, count) in &sealed.part_triangles {
-                        hasher.update(&part.to_le_bytes());
-                        hasher.update(&count.to_le_bytes());
+                    RegionPage::Open(page) => {
+                        hasher.update(&page.first.to_le_bytes());
+                        hasher.update(page.ids.as_bytes());
+                        hasher.update(page.nodes.as_bytes());
+                        hasher.update(page.triangles.as_bytes());
                     }
                 }
-                RegionBody::Open {
-                    ids,
-                    nodes,
-                    triangles,
-                } => {
-                    hasher.update(ids.as_bytes());
-                    hasher.update(nodes.as_bytes());
-                    hasher.update(triangles.as_bytes());
-                }
+            }
+            hasher.update(region.degree_histogram.as_bytes());
+            hasher.update(&region.max_depth.to_le_bytes());
+            for (part, count) in &region.part_triangles {
+                hasher.update(&part.to_le_bytes());
+                hasher.update(&count.to_le_bytes());
             }
         }
         let (sums, sphere) = (&root.sums, &root.sphere);
@@ -381,7 +378,8 @@ impl<'p> Top<'p> {
         self.region_triangles += root
             .regions
             .iter()
-            .map(|g| g.body.triangle_count())
+            .flat_map(|g| &g.pages)
+            .map(RegionPage::triangle_count)
             .sum::<u64>();
         Ok(())
     }
@@ -522,19 +520,6 @@ fn plan_node(t: &TopNode) -> Node {
     }
 }
 
-/// An open region of a part, as the merge encodes it.
-struct OpenRegion<'a> {
-    /// Its shard root (plan index).
-    root: u32,
-    /// The region root's record (links are subtree ids), and its subtree id.
-    region_root: &'a NodeRecord,
-    local_root: u32,
-    /// The region's nodes below its root: subtree ids, records and own subtris.
-    ids: &'a [u32],
-    nodes: &'a [NodeRecord],
-    triangles: &'a [TriangleRecord],
-}
-
 /// Pass 2: each part's regions, copied or encoded, and spilled.
 struct RegionWriter<'p> {
     plan: &'p Plan,
@@ -585,53 +570,55 @@ impl<'p> RegionWriter<'p> {
         })
     }
 
-    /// Numbers the regions of one part and spills their pages: a sealed region's copied (its
-    /// first page rebased), an open one's laid out and encoded with the triangles across
-    /// roots its nodes own.
+    /// Numbers the regions of one part and spills their pages: sealed pages copied (a
+    /// region's first page rebased), open pages encoded with the triangles across shards that
+    /// their nodes own.
     fn write_part(&mut self, top: &FinishedTop, shard: ShardPart) -> Result<(), ShardError> {
+        let level = self.plan.metadata.zstd_level;
         for root in shard.roots {
-            let RootPart {
-                root: r,
-                top_ids,
-                top_nodes,
-                regions,
-                leaves,
-                ..
-            } = root;
-            self.widen_radii(&top.proxies, self.plan.root_node(r), &leaves);
-            drop(leaves);
-            for region in regions {
+            let r = root.root;
+            self.widen_radii(&top.proxies, self.plan.root_node(r), &root.leaves);
+            drop(root.leaves);
+            for region in root.regions {
                 let changed = || set(format!("shard root {r}: its part changed between passes"));
                 let g = *top.regions.get(self.regions_done).ok_or_else(changed)?;
                 if (g.root, g.local) != (r, region.root) {
                     return Err(changed());
                 }
-                let first_node = u32::try_from(self.next_node)
-                    .map_err(|_| set("more nodes than a file holds".into()))?;
+                let too_many = || set("more nodes than a file holds".into());
+                let first_node = u32::try_from(self.next_node).map_err(|_| too_many())?;
                 self.region_first[self.regions_done] = first_node;
                 let parent = top.file_id[g.top as usize];
-                let written = match region.body {
-                    RegionBody::Sealed(sealed) => self.copy_sealed(first_node, parent, sealed)?,
-                    RegionBody::Open {
-                        ids,
-                        nodes,
-                        triangles,
-                    } => {
-                        let k = top_ids.binary_search(&g.local).map_err(|_| changed())?;
-                        let open = OpenRegion {
-                            root: r,
-                            region_root: &top_nodes[k],
-                            local_root: g.local,
-                            ids: &ids,
-                            nodes: &nodes,
-                            triangles: &triangles,
-                        };
-                        self.encode_open(top, first_node, parent, open)?
+                for (k, page) in region.pages.into_iter().enumerate() {
+                    let page = match page {
+                        RegionPage::Sealed(page) if k == 0 => {
+                            attach_region(&page, first_node, parent, level)?
+                        }
+                        RegionPage::Sealed(page) => page,
+                        RegionPage::Open(page) => {
+                            let expected = self.next_node - u64::from(first_node);
+                            if u64::from(page.first) != expected + 1 {
+                                return Err(changed());
+                            }
+                            self.encode_open(top, r, first_node, parent, page)?
+                        }
+                    };
+                    self.next_node += u64::from(page.node_count);
+                    if self.next_node > u64::from(u32::MAX) {
+                        return Err(too_many());
                     }
-                };
-                self.next_node += written;
-                if self.next_node > u64::from(u32::MAX) {
-                    return Err(set("more nodes than a file holds".into()));
+                    self.spill_page(&page)?;
+                }
+                for (total, n) in self
+                    .degree_histogram
+                    .iter_mut()
+                    .zip(region.degree_histogram)
+                {
+                    *total += n;
+                }
+                self.max_depth = self.max_depth.max(region.max_depth);
+                for (part, count) in region.part_triangles {
+                    self.part_counts.add(part, count);
                 }
                 self.regions_done += 1;
             }
@@ -639,142 +626,72 @@ impl<'p> RegionWriter<'p> {
         Ok(())
     }
 
-    /// Spills a sealed region's pages, numbered from `first_node` under the top node `parent`;
-    /// returns its node count.
-    fn copy_sealed(
-        &mut self,
-        first_node: u32,
-        parent: u32,
-        sealed: SealedRegion,
-    ) -> Result<u64, ShardError> {
-        let nodes = sealed.node_count();
-        let mut pages = sealed.pages.into_iter();
-        let first = pages
-            .next()
-            .ok_or_else(|| set("a sealed region without pages".into()))?;
-        let first = attach_region(&first, first_node, parent, self.plan.metadata.zstd_level)?;
-        self.spill_page(&first)?;
-        for page in pages {
-            self.spill_page(&page)?;
-        }
-        for (total, n) in self
-            .degree_histogram
-            .iter_mut()
-            .zip(sealed.degree_histogram)
-        {
-            *total += n;
-        }
-        self.max_depth = self.max_depth.max(sealed.max_depth);
-        for (part, count) in sealed.part_triangles {
-            self.part_counts.add(part, count);
-        }
-        Ok(nodes)
-    }
-
-    /// Lays out and spills an open region's pages, numbered from `first_node` under the top
-    /// node `parent`, with the triangles across roots that its nodes own; returns its node
-    /// count.
+    /// Encodes an open page of the region numbered from `first_node` under the top node
+    /// `parent` (shard root `r`), with the triangles across shards that its nodes own.
     fn encode_open(
         &mut self,
         top: &FinishedTop,
+        r: u32,
         first_node: u32,
         parent: u32,
-        open: OpenRegion,
-    ) -> Result<u64, ShardError> {
-        let OpenRegion {
-            root: r,
-            region_root,
-            local_root,
-            ids,
-            nodes,
-            triangles,
-        } = open;
-        let bad = || set(format!("shard root {r}: an open region is not a subtree"));
-        // The region's nodes indexed from 1 in subtree order, its root as 0.
-        let index_of = |id: u32| -> Result<u32, ShardError> {
-            ids.binary_search(&id)
-                .map(|k| k as u32 + 1)
-                .map_err(|_| bad())
+        page: OpenPage,
+    ) -> Result<EncodedPage, ShardError> {
+        let bad = || {
+            set(format!(
+                "shard root {r}: an open page's links leave its region"
+            ))
         };
-        let mut region: Vec<NodeRecord> = Vec::with_capacity(ids.len() + 1);
-        let mut adopted = vec![false; ids.len() + 1];
-        let mut links = |n: &NodeRecord, at: u32| -> Result<U32, ShardError> {
-            let first = index_of(n.first_child.get())?;
-            for (j, c) in children(n).enumerate() {
-                let k = first as usize + j;
-                if k <= at as usize
-                    || ids.get(k - 1) != Some(&c)
-                    || std::mem::replace(&mut adopted[k], true)
-                {
+        // A region-relative id as the file's: 0 is the region root, the others follow
+        // `first_node`.
+        let file_id = |id: u32| -> Result<u32, ShardError> {
+            match id {
+                0 => Ok(parent),
+                id => u32::try_from(u64::from(first_node) + u64::from(id) - 1).map_err(|_| bad()),
+            }
+        };
+        let n0 = file_id(page.first)?;
+        let mut records = Vec::with_capacity(page.nodes.len());
+        let mut triangles = Vec::with_capacity(page.triangles.len());
+        let cross = &top.region_cross;
+        for (j, (&id, n)) in page.ids.iter().zip(&page.nodes).enumerate() {
+            let at = u64::from(n0) + j as u64;
+            let mut m = *n;
+            // Parents before their children, children after: the encoder's steps hold.
+            let p = file_id(n.parent.get())?;
+            if page.first == 0 || u64::from(p) >= at {
+                return Err(bad());
+            }
+            m.parent = U32::new(p);
+            if n.child_count > 0 {
+                let c = file_id(n.first_child.get())?;
+                if u64::from(c) <= at {
                     return Err(bad());
                 }
+                m.first_child = U32::new(c);
             }
-            Ok(U32::new(first))
-        };
-        let mut stub = *region_root;
-        stub.first_child = links(region_root, 0)?;
-        region.push(stub);
-        let mut region_triangles = Vec::with_capacity(triangles.len());
-        let cross = &top.region_cross;
-        for (k, (&id, n)) in ids.iter().zip(nodes).enumerate() {
-            let at = k as u32 + 1;
-            let mut m = *n;
-            m.parent = match n.parent.get() {
-                p if p == local_root => U32::new(0),
-                p => U32::new(index_of(p)?),
-            };
-            if n.child_count > 0 {
-                m.first_child = links(n, at)?;
-            }
-            let begin = region_triangles.len();
-            let own = triangles.get(subtris(n)).ok_or_else(bad)?;
-            region_triangles.extend_from_slice(own);
+            let begin = triangles.len();
+            triangles.extend_from_slice(page.triangles.get(subtris(n)).ok_or_else(bad)?);
             let from = cross.partition_point(|(cr, cl, _)| (*cr, *cl) < (r, id));
             let to = cross.partition_point(|(cr, cl, _)| (*cr, *cl) <= (r, id));
-            region_triangles.extend(cross[from..to].iter().map(|(_, _, t)| *t));
+            for (_, _, t) in &cross[from..to] {
+                triangles.push(*t);
+                self.part_counts.add(t.part.get(), 1);
+            }
             self.cross_done += to - from;
-            region_triangles[begin..]
-                .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
-            m.subtri_begin = U32::new(begin as u32);
-            m.subtri_count = U32::new((region_triangles.len() - begin) as u32);
-            self.degree_histogram[usize::from(m.child_count).min(8)] += 1;
-            self.max_depth = self.max_depth.max(u32::from(m.depth.get()));
-            region.push(m);
+            if to > from {
+                triangles[begin..]
+                    .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
+            }
+            m.subtri_count = U32::new((triangles.len() - begin) as u32);
+            records.push(m);
         }
-        if adopted.iter().skip(1).any(|&a| !a) {
-            return Err(bad());
-        }
-        for t in &region_triangles {
-            self.part_counts.add(t.part.get(), 1);
-        }
-        let page_bytes = self.plan.metadata.page_bytes;
-        let layout = PageLayout::region(
-            &region,
-            region[0].first_child.get(),
-            region[0].child_count,
-            page_bytes,
-        );
-        let mut file_id = vec![NO_NODE; region.len()];
-        file_id[0] = parent;
-        for (k, i) in layout.nodes().enumerate() {
-            file_id[i as usize] = first_node + k as u32;
-        }
-        if layout.node_count() != ids.len() {
-            return Err(bad());
-        }
-        let pages = encode_pages(
-            &region,
-            &region_triangles,
-            &layout,
-            &|i| file_id[i as usize],
-            first_node,
+        Ok(encode_page_frame(
             &self.plan.grid(),
+            n0,
+            &records,
+            &triangles,
             self.plan.metadata.zstd_level,
-        )?;
-        for page in &pages {
-            self.spill_page(page)?;
-        }
-        Ok(ids.len() as u64)
+        )?)
     }
 
     fn spill_page(&mut self, page: &EncodedPage) -> Result<(), ShardError> {

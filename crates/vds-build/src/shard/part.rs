@@ -48,64 +48,61 @@ pub struct RootPart {
     pub(crate) sphere: Sphere,
 }
 
-/// The subtree below one region root.
+/// The subtree below one region root: its pages, each encoded by the shard unless it holds
+/// a node that owns a triangle across shards (whose other corners' ranks only the merge
+/// knows), and what the file's metadata counts of it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RegionPart {
     /// The region root's id in the subtree (a top node).
     pub root: u32,
-    /// Its pages, or its records.
-    pub body: RegionBody,
-}
-
-/// A region as the shard could leave it.
-#[derive(Debug, Clone, PartialEq)]
-pub enum RegionBody {
-    /// Its pages, compressed, from `vds_format::encode_detached_region`: the merge copies them
-    /// (the first one rebased by `vds_format::attach_region`).
-    Sealed(SealedRegion),
-    /// A region with nodes that own triangles across roots, whose other corners' ranks only
-    /// the merge knows: its records, for the merge to lay out and encode.
-    Open {
-        /// Subtree ids of its nodes (below the region root), ascending.
-        ids: Vec<u32>,
-        /// Their records; `subtri_begin` indexes `triangles`.
-        nodes: Vec<NodeRecord>,
-        /// The nodes' subtris within the root, grouped by node.
-        triangles: Vec<TriangleRecord>,
-    },
-}
-
-/// A region's pages and what the file's metadata counts of them.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SealedRegion {
-    /// Its pages, in order.
-    pub pages: Vec<EncodedPage>,
+    /// Its pages, in order, laid out with the triangles across shards counted.
+    pub pages: Vec<RegionPage>,
     /// Its nodes by child count (8 for eight or more), as the metadata's histogram.
     pub degree_histogram: [u64; 9],
     /// Its deepest node's depth.
     pub max_depth: u32,
-    /// Its triangles per part: (part, count), by part.
+    /// Its triangles per part, (part, count) by part, without those across shards.
     pub part_triangles: Vec<(u32, u64)>,
 }
 
-impl SealedRegion {
-    /// Its nodes.
-    pub fn node_count(&self) -> u64 {
-        self.pages.iter().map(|p| u64::from(p.node_count)).sum()
-    }
-
-    /// Its triangles.
-    pub fn triangle_count(&self) -> u64 {
-        self.pages.iter().map(|p| u64::from(p.triangle_count)).sum()
-    }
+/// One page of a region.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RegionPage {
+    /// The page compressed, from `vds_format::encode_detached_region`: the merge copies it
+    /// (the region's first page rebased by `vds_format::attach_region`).
+    Sealed(EncodedPage),
+    /// A page with triangles across shards: its records, for the merge to encode.
+    Open(OpenPage),
 }
 
-impl RegionBody {
-    /// The triangles it holds (for an open region, without the ones across roots).
+/// The records of a page the merge encodes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OpenPage {
+    /// The region-relative id of its first node (`vds_format::detached_id`).
+    pub first: u32,
+    /// Subtree ids of its nodes, in page order (to find the triangles across shards they own).
+    pub ids: Vec<u32>,
+    /// Their records, links as region-relative ids (0: the region root), subtri counts
+    /// without the triangles across shards.
+    pub nodes: Vec<NodeRecord>,
+    /// The nodes' own subtris, in node order.
+    pub triangles: Vec<TriangleRecord>,
+}
+
+impl RegionPage {
+    /// Nodes in the page.
+    pub fn node_count(&self) -> u64 {
+        match self {
+            RegionPage::Sealed(page) => u64::from(page.node_count),
+            RegionPage::Open(page) => page.ids.len() as u64,
+        }
+    }
+
+    /// Triangles the part holds of the page (an open page's without those across shards).
     pub fn triangle_count(&self) -> u64 {
         match self {
-            RegionBody::Sealed(sealed) => sealed.triangle_count(),
-            RegionBody::Open { triangles, .. } => triangles.len() as u64,
+            RegionPage::Sealed(page) => u64::from(page.triangle_count),
+            RegionPage::Open(page) => page.triangles.len() as u64,
         }
     }
 }
@@ -307,11 +304,20 @@ fn build_shard_with(
     drop(adjacency);
     let (pure, completed, cross) = local.assign_triangles(plan, &subtrees, &rank_of, mine.start);
     drop((local, rank_of));
-    // The nodes that own triangles across roots, by root: their regions stay open.
-    let mut owners: Vec<Vec<u32>> = vec![Vec::new(); subtrees.len()];
-    for c in cross.iter().filter(|c| c.owner != u32::MAX) {
-        owners[(c.root - mine.start) as usize].push(c.owner);
+    // The nodes that own triangles across shards, by root, with how many they own (two
+    // corners of each are reported here): their pages wait for the merge.
+    let mut owned: Vec<(u32, u32, u64)> = cross
+        .iter()
+        .filter(|c| c.owner != u32::MAX)
+        .map(|c| (c.root - mine.start, c.owner, c.triangle))
+        .collect();
+    owned.sort_unstable();
+    owned.dedup();
+    let mut owners: Vec<Vec<(u32, u32)>> = vec![Vec::new(); subtrees.len()];
+    for run in owned.chunk_by(|a, b| (a.0, a.1) == (b.0, b.1)) {
+        owners[run[0].0 as usize].push((run[0].1, run.len() as u32));
     }
+    drop(owned);
     let roots = subtrees.into_iter().zip(pure).zip(completed).zip(owners);
     for ((((root, subtree), triangles), completed), owners) in roots {
         let records = subtree.into_records(triangles);

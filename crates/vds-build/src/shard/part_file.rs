@@ -9,20 +9,23 @@
 //!   cone's axis and angle as 4 `f64`, a byte saying whether a two-sided cone follows and its
 //!   4 `f64`, the sphere's 4 `f32`), its top nodes' subtree ids (`u32`), node records and
 //!   triangle records (the `.vdt` record layouts), its leaves' positions (3 `f32` each), and
-//!   its regions in leaf order, each its root's subtree id (`u32`) and a kind byte:
-//!   - 0, *sealed*: the page count (`u32`); per page its frame length, decoded length, node
-//!     count and triangle count (`u32` each); the frames; the nodes by child count (9 `u64`),
-//!     the deepest depth (`u32`), and the triangles per part (a count, `u32`, then part `u32`
-//!     and triangles `u64` each);
-//!   - 1, *open*: its node and triangle counts (`u32`), its nodes' subtree ids (`u32`), node
-//!     records and triangle records;
+//!   its regions in leaf order: each its root's subtree id and page count (`u32`), its pages,
+//!   each a kind byte and
+//!   - 0, *sealed*: its frame length, decoded length, node count and triangle count (`u32`
+//!     each) and the frame;
+//!   - 1, *open*: its first node's region-relative id, node count and triangle count (`u32`
+//!     each), its nodes' subtree ids (`u32`), node records and triangle records;
+//!
+//!   then the region's nodes by child count (9 `u64`), the deepest depth (`u32`), and its
+//!   triangles per part (a count, `u32`, then part `u32` and triangles `u64` each);
 //! - the cross-corner count (`u64`) and the cross corners, 25 bytes each (triangle `u64`,
 //!   corner `u8`, root, rank, part and owner `u32`).
 //!
 //! Records hold the file's depths and leaf ranks and link by subtree ids (see
-//! [`super::RootPart`]). A sealed region's pages are the file's (`vds_format::
-//! encode_detached_region`); the merge copies them without decoding them, so a part made by
-//! hand can make a wrong file but never a panic: the `.vdt` reader checks every page.
+//! [`super::RootPart`]); an open page's link to a region node is its region-relative id. A
+//! sealed page is the file's (`vds_format::encode_detached_region`); the merge copies it
+//! without decoding it, so a part made by hand can make a wrong file but never a panic: the
+//! `.vdt` reader checks every page.
 //!
 //! The reader checks every count against the body, every range a record holds against the
 //! plan and the root, and that every value is finite, before the merge uses it; the merge
@@ -38,7 +41,7 @@ use super::container::{
     parse_header, parse_trailer, read_ends,
 };
 use super::part::{
-    CrossCorner, InputTriangle, RegionBody, RegionPart, RootPart, SealedRegion, ShardPart,
+    CrossCorner, InputTriangle, OpenPage, RegionPage, RegionPart, RootPart, ShardPart,
 };
 use super::{Plan, ShardError};
 use crate::bounds::{Aabb, NormalCone};
@@ -55,8 +58,8 @@ const CROSS_BYTES: usize = 8 + 1 + 4 * 4;
 /// Kind bytes of a region.
 const SEALED: u8 = 0;
 const OPEN: u8 = 1;
-/// Bytes a sealed region states beyond its frames: a page's four lengths, and its counts.
-const PAGE_HEAD_BYTES: u64 = 16;
+/// Bytes of a page's head: its kind, and four lengths or counts.
+const PAGE_HEAD_BYTES: u64 = 17;
 const REGION_TAIL_BYTES: u64 = 9 * 8 + 4 + 4;
 const NODE_BYTES: usize = vds_format::layout::NODE_BYTES;
 const TRIANGLE_BYTES: usize = vds_format::layout::TRIANGLE_BYTES;
@@ -109,12 +112,14 @@ fn put_root(out: &mut BodyWriter, root: &RootPart) -> Result<(), ShardError> {
     out.put(root.top_triangles.as_bytes())?;
     out.put(root.leaves.as_bytes())?;
     for region in &root.regions {
-        out.put(&region.root.to_le_bytes())?;
-        match &region.body {
-            RegionBody::Sealed(sealed) => {
-                let mut head = vec![SEALED];
-                head.extend_from_slice(&(sealed.pages.len() as u32).to_le_bytes());
-                for page in &sealed.pages {
+        let mut head = Vec::new();
+        head.extend_from_slice(&region.root.to_le_bytes());
+        head.extend_from_slice(&(region.pages.len() as u32).to_le_bytes());
+        out.put(&head)?;
+        for page in &region.pages {
+            match page {
+                RegionPage::Sealed(page) => {
+                    let mut head = vec![SEALED];
                     for n in [
                         page.frame.len() as u32,
                         page.raw_length,
@@ -123,35 +128,34 @@ fn put_root(out: &mut BodyWriter, root: &RootPart) -> Result<(), ShardError> {
                     ] {
                         head.extend_from_slice(&n.to_le_bytes());
                     }
-                }
-                out.put(&head)?;
-                for page in &sealed.pages {
+                    out.put(&head)?;
                     out.put(&page.frame)?;
                 }
-                let mut tail = Vec::new();
-                tail.extend_from_slice(sealed.degree_histogram.as_bytes());
-                tail.extend_from_slice(&sealed.max_depth.to_le_bytes());
-                tail.extend_from_slice(&(sealed.part_triangles.len() as u32).to_le_bytes());
-                for (part, count) in &sealed.part_triangles {
-                    tail.extend_from_slice(&part.to_le_bytes());
-                    tail.extend_from_slice(&count.to_le_bytes());
+                RegionPage::Open(page) => {
+                    let mut head = vec![OPEN];
+                    for n in [
+                        page.first,
+                        page.ids.len() as u32,
+                        page.triangles.len() as u32,
+                    ] {
+                        head.extend_from_slice(&n.to_le_bytes());
+                    }
+                    out.put(&head)?;
+                    out.put(page.ids.as_bytes())?;
+                    out.put(page.nodes.as_bytes())?;
+                    out.put(page.triangles.as_bytes())?;
                 }
-                out.put(&tail)?;
-            }
-            RegionBody::Open {
-                ids,
-                nodes,
-                triangles,
-            } => {
-                let mut head = vec![OPEN];
-                head.extend_from_slice(&(ids.len() as u32).to_le_bytes());
-                head.extend_from_slice(&(triangles.len() as u32).to_le_bytes());
-                out.put(&head)?;
-                out.put(ids.as_bytes())?;
-                out.put(nodes.as_bytes())?;
-                out.put(triangles.as_bytes())?;
             }
         }
+        let mut tail = Vec::new();
+        tail.extend_from_slice(region.degree_histogram.as_bytes());
+        tail.extend_from_slice(&region.max_depth.to_le_bytes());
+        tail.extend_from_slice(&(region.part_triangles.len() as u32).to_le_bytes());
+        for (part, count) in &region.part_triangles {
+            tail.extend_from_slice(&part.to_le_bytes());
+            tail.extend_from_slice(&count.to_le_bytes());
+        }
+        out.put(&tail)?;
     }
     Ok(())
 }
@@ -510,7 +514,7 @@ fn parse_root(
     }
     let top_nodes: Vec<NodeRecord> = body.records(top_count as usize)?;
     let top_triangles: Vec<TriangleRecord> = body.records(top_triangle_count as usize)?;
-    check_records(&top_nodes, &top_triangles, &ranks, &corners)
+    check_records(&top_nodes, &top_triangles, &ranks, &corners, most_nodes)
         .map_err(|e| format!("its top: {e}"))?;
     let leaves: Vec<[f32; 3]> = body.records(leaf_count as usize)?;
     if !leaves.iter().flatten().all(|x| x.is_finite()) {
@@ -519,38 +523,92 @@ fn parse_root(
     let mut regions = Vec::with_capacity(region_count as usize);
     let mut region_nodes = 0u64;
     for _ in 0..region_count {
-        let head: [u8; 5] = body.array()?;
+        let head: [u8; 8] = body.array()?;
         let mut c = Cursor { bytes: &head };
-        let (region_root, kind) = (c.u32()?, c.u8()?);
-        let region = match kind {
-            SEALED => parse_sealed(body, &mut region_nodes, most_nodes)?,
-            OPEN => {
-                let counts: [u8; 8] = body.array()?;
-                let mut c = Cursor { bytes: &counts };
-                let (node_count, triangle_count) = (c.u32()?, c.u32()?);
-                region_nodes += u64::from(node_count);
-                if region_nodes > most_nodes {
-                    return Err("more nodes than its vertices can have".into());
+        let (region_root, page_count) = (c.u32()?, c.u32()?);
+        if page_count == 0 || u64::from(page_count) > body.left() / PAGE_HEAD_BYTES {
+            return Err(format!("a region of {page_count} pages"));
+        }
+        let mut pages = Vec::with_capacity(page_count as usize);
+        let (mut nodes_here, mut triangles_here) = (0u64, 0u64);
+        for _ in 0..page_count {
+            let head: [u8; 17] = body.array()?;
+            let mut c = Cursor { bytes: &head };
+            let kind = c.u8()?;
+            let (a, b, d, e) = (c.u32()?, c.u32()?, c.u32()?, c.u32()?);
+            pages.push(match kind {
+                SEALED => {
+                    let (frame_length, raw_length, node_count, triangle_count) = (a, b, d, e);
+                    region_nodes += u64::from(node_count);
+                    if region_nodes > most_nodes || raw_length > vds_format::MAX_PAGE_RAW_BYTES {
+                        return Err("a sealed page larger than its vertices can fill".into());
+                    }
+                    RegionPage::Sealed(vds_format::EncodedPage {
+                        frame: body.records(frame_length as usize)?,
+                        raw_length,
+                        node_count,
+                        triangle_count,
+                    })
                 }
-                let ids: Vec<u32> = body.records(node_count as usize)?;
-                if ids.windows(2).any(|w| w[0] >= w[1]) {
-                    return Err("an open region's ids are not ascending".into());
+                OPEN => {
+                    // The head's last `u32` is the first of the subtree ids.
+                    let (first, node_count, triangle_count) = (a, b, d);
+                    region_nodes += u64::from(node_count);
+                    if node_count == 0 || region_nodes > most_nodes {
+                        return Err(format!("an open page of {node_count} nodes"));
+                    }
+                    let mut ids = vec![e];
+                    ids.extend(body.records::<u32>(node_count as usize - 1)?);
+                    let nodes: Vec<NodeRecord> = body.records(node_count as usize)?;
+                    let triangles: Vec<TriangleRecord> = body.records(triangle_count as usize)?;
+                    check_records(&nodes, &triangles, &ranks, &corners, most_nodes + 1)
+                        .map_err(|e| format!("an open page: {e}"))?;
+                    RegionPage::Open(OpenPage {
+                        first,
+                        ids,
+                        nodes,
+                        triangles,
+                    })
                 }
-                let nodes: Vec<NodeRecord> = body.records(node_count as usize)?;
-                let triangles: Vec<TriangleRecord> = body.records(triangle_count as usize)?;
-                check_records(&nodes, &triangles, &ranks, &corners)
-                    .map_err(|e| format!("an open region: {e}"))?;
-                RegionBody::Open {
-                    ids,
-                    nodes,
-                    triangles,
-                }
-            }
-            _ => return Err(format!("a region of kind {kind}")),
-        };
+                _ => return Err(format!("a page of kind {kind}")),
+            });
+        }
+        for page in &pages {
+            nodes_here += page.node_count();
+            triangles_here += page.triangle_count();
+        }
+        let tail: [u8; 9 * 8 + 4 + 4] = body.array()?;
+        let mut c = Cursor { bytes: &tail };
+        let mut degree_histogram = [0u64; 9];
+        for d in &mut degree_histogram {
+            *d = c.u64()?;
+        }
+        let max_depth = c.u32()?;
+        let part_count = c.u32()?;
+        if u64::from(part_count) > body.left() / 12 {
+            return Err("truncated body".into());
+        }
+        let mut part_triangles = Vec::with_capacity(part_count as usize);
+        for _ in 0..part_count {
+            let entry: [u8; 12] = body.array()?;
+            let mut c = Cursor { bytes: &entry };
+            part_triangles.push((c.u32()?, c.u64()?));
+        }
+        // The counts the merge adds to the file's metadata are the pages' own.
+        let sum = |counts: &[u64]| counts.iter().try_fold(0u64, |t, &n| t.checked_add(n));
+        let per_part: Vec<u64> = part_triangles.iter().map(|&(_, n)| n).collect();
+        if sum(&degree_histogram) != Some(nodes_here)
+            || sum(&per_part) != Some(triangles_here)
+            || max_depth > u32::from(u16::MAX)
+        {
+            return Err("a region's counts are not its pages'".into());
+        }
         regions.push(RegionPart {
             root: region_root,
-            body: region,
+            pages,
+            degree_histogram,
+            max_depth,
+            part_triangles,
         });
     }
     Ok(RootPart {
@@ -565,57 +623,9 @@ fn parse_root(
     })
 }
 
-/// A sealed region's pages and counts, its nodes added to `nodes` (at most `most`).
-fn parse_sealed(body: &mut BodyReader, nodes: &mut u64, most: u64) -> Result<RegionBody, String> {
-    let page_count = u32::from_le_bytes(body.array()?);
-    if page_count == 0 || u64::from(page_count) > body.left() / PAGE_HEAD_BYTES {
-        return Err(format!("a sealed region of {page_count} pages"));
-    }
-    let heads: Vec<[u32; 4]> = body.records(page_count as usize)?;
-    let mut pages = Vec::with_capacity(page_count as usize);
-    for [frame_length, raw_length, node_count, triangle_count] in heads {
-        let [frame_length, raw_length, node_count, triangle_count] =
-            [frame_length, raw_length, node_count, triangle_count].map(u32::from_le);
-        *nodes += u64::from(node_count);
-        if *nodes > most || raw_length > vds_format::MAX_PAGE_RAW_BYTES {
-            return Err("a sealed page larger than its vertices can fill".into());
-        }
-        let frame: Vec<u8> = body.records(frame_length as usize)?;
-        pages.push(vds_format::EncodedPage {
-            frame,
-            raw_length,
-            node_count,
-            triangle_count,
-        });
-    }
-    let tail: [u8; 9 * 8 + 4 + 4] = body.array()?;
-    let mut c = Cursor { bytes: &tail };
-    let mut degree_histogram = [0u64; 9];
-    for d in &mut degree_histogram {
-        *d = c.u64()?;
-    }
-    let max_depth = c.u32()?;
-    let part_count = c.u32()?;
-    if u64::from(part_count) > body.left() / 12 {
-        return Err("truncated body".into());
-    }
-    let mut part_triangles = Vec::with_capacity(part_count as usize);
-    for _ in 0..part_count {
-        let entry: [u8; 12] = body.array()?;
-        let mut c = Cursor { bytes: &entry };
-        part_triangles.push((c.u32()?, c.u64()?));
-    }
-    Ok(RegionBody::Sealed(SealedRegion {
-        pages,
-        degree_histogram,
-        max_depth,
-        part_triangles,
-    }))
-}
-
-/// The checks the merge relies on for records of a root's top or of an open region: values
+/// The checks the merge relies on for records of a root's top or of an open page: values
 /// finite, leaf ranges within the root's `ranks` and triangle corners within the shard's
-/// `corners`, at most eight children, and
+/// `corners`, at most eight children with ids below `ids_below`, and
 /// subtri ranges that follow each other and cover the triangles once (ranges that overlapped
 /// would let a small file make the merge copy triangles many times). Links are checked by the
 /// merge as it walks them.
@@ -624,6 +634,7 @@ fn check_records(
     triangles: &[TriangleRecord],
     ranks: &std::ops::Range<u32>,
     corners: &std::ops::Range<u32>,
+    ids_below: u64,
 ) -> Result<(), String> {
     let mut subtris_at = 0u64;
     for (k, n) in nodes.iter().enumerate() {
@@ -638,7 +649,11 @@ fn check_records(
         if begin >= end || begin < ranks.start || end > ranks.end {
             return Err(format!("node {k} has leaf range {begin}..{end}"));
         }
-        if n.child_count > 8 || (n.child_count == 0 && n.first_child.get() != NO_NODE) {
+        let children_end = u64::from(n.first_child.get()) + u64::from(n.child_count);
+        if n.child_count > 8
+            || (n.child_count == 0 && n.first_child.get() != NO_NODE)
+            || (n.child_count > 0 && children_end > ids_below)
+        {
             return Err(format!("node {k} has children out of range"));
         }
         if u64::from(n.subtri_begin.get()) != subtris_at {

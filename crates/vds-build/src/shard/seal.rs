@@ -1,8 +1,9 @@
 //! A root's subtree cut as the merge takes it: the nodes of the file's top that lie under the
-//! root stay records, and each region below them (`vds_format::region_leaves`) is encoded
-//! into the file's own pages by the shard, so that the merge copies them; only a region with
-//! a node that owns a triangle across roots stays records (its subtris' order and corners
-//! wait for the other shards' ranks).
+//! root stay records, and each region below them (`vds_format::region_leaves`) is laid out
+//! and encoded into the file's own pages by the shard, so that the merge copies them. Only a
+//! page holding a node that owns a triangle across shards stays records: that triangle's
+//! corner in another shard has a rank only the merge knows, and with it the order of the
+//! node's subtris. The layout counts those triangles, as the merge will place them.
 //!
 //! A region's pages do not depend on where the region lands in the file but for its first
 //! page's first parent (`vds_format::encode_detached_region`), so the shard needs to know
@@ -10,15 +11,13 @@
 //! the zstd level.
 
 use vds_format::{
-    NodeRecord, PageLayout, TriangleRecord, encode_detached_region, in_top_with_children,
+    NO_NODE, NodeRecord, NodeSource, PageLayout, TriangleRecord, detached_id,
+    encode_detached_region, in_top_with_children,
 };
 use zerocopy::little_endian::{U16, U32};
 
-use super::part::{RegionBody, RegionPart, RootPart, SealedRegion, SubtreeRecords};
+use super::part::{OpenPage, RegionPage, RegionPart, RootPart, SubtreeRecords};
 use super::{Plan, ShardError};
-
-/// No region: a node of the top, or not looked at yet.
-const NO_REGION: u32 = u32::MAX;
 
 /// A record's leaf count.
 pub(super) fn leaf_count(n: &NodeRecord) -> u32 {
@@ -42,14 +41,15 @@ pub(super) fn children(n: &NodeRecord) -> std::ops::Range<u32> {
 
 /// Root `root`'s subtree (`records`, the shard's numbering) as its part: placed in the file
 /// (depths and leaf ranks moved by the root's), with the triangles `completed` (owner, and
-/// corners as the file's ranks) added to their owners' subtris, its top nodes as records, its
-/// regions sealed or, where a node in `owners` owns a triangle across shards, open.
+/// corners as the file's ranks) added to their owners' subtris, its top nodes as records, and
+/// its regions' pages, sealed but where a node of `owners` (owner, triangles across shards it
+/// owns; by owner) lies.
 pub(crate) fn seal_root(
     plan: &Plan,
     root: u32,
     records: SubtreeRecords,
     mut completed: Vec<(u32, TriangleRecord)>,
-    owners: &[u32],
+    owners: &[(u32, u32)],
 ) -> Result<RootPart, ShardError> {
     let SubtreeRecords {
         mut nodes,
@@ -95,55 +95,39 @@ pub(crate) fn seal_root(
     top_ids.sort_unstable();
     region_roots.sort_unstable_by_key(|&id| nodes[id as usize].leaf_begin.get());
 
-    // Which region each node lies in, and which regions own triangles across roots.
-    let mut region_of = vec![NO_REGION; nodes.len()];
-    for (k, &r) in region_roots.iter().enumerate() {
-        let mut stack: Vec<u32> = children(&nodes[r as usize]).collect();
-        while let Some(id) = stack.pop() {
-            region_of[id as usize] = k as u32;
-            stack.extend(children(&nodes[id as usize]));
-        }
-    }
-    let mut open = vec![false; region_roots.len()];
-    for &owner in owners {
-        if let Some(&k) = region_of.get(owner as usize)
-            && k != NO_REGION
-        {
-            open[k as usize] = true;
-        }
-    }
-    let mut open_ids: Vec<Vec<u32>> = vec![Vec::new(); region_roots.len()];
-    for (id, &k) in region_of.iter().enumerate() {
-        if k != NO_REGION && open[k as usize] {
-            open_ids[k as usize].push(id as u32);
-        }
-    }
-
-    let grid = plan.grid();
+    let counted = WithOwned {
+        nodes: &nodes,
+        owners,
+    };
+    let mut detached = vec![0u32; nodes.len()];
     let mut regions = Vec::with_capacity(region_roots.len());
-    for (k, &r) in region_roots.iter().enumerate() {
-        let body = if open[k] {
-            let ids = std::mem::take(&mut open_ids[k]);
-            let (nodes, triangles) = records_of(&nodes, &triangles, &ids);
-            RegionBody::Open {
-                ids,
-                nodes,
-                triangles,
-            }
-        } else {
-            let n = &nodes[r as usize];
-            let layout = PageLayout::region(&nodes, n.first_child.get(), n.child_count, page_bytes);
-            let pages = encode_detached_region(
-                &nodes,
-                &triangles,
-                &layout,
-                r,
-                &grid,
-                plan.metadata.zstd_level,
-            )?;
-            RegionBody::Sealed(sealed(&nodes, &triangles, &layout, pages))
-        };
-        regions.push(RegionPart { root: r, body });
+    for &r in &region_roots {
+        let n = &nodes[r as usize];
+        let layout = PageLayout::region(&counted, n.first_child.get(), n.child_count, page_bytes);
+        let open: Vec<bool> = (0..layout.page_count())
+            .map(|k| layout.page_nodes(k).any(|id| counted.owns(id) > 0))
+            .collect();
+        let sealed = encode_detached_region(
+            &nodes,
+            &triangles,
+            &layout,
+            r,
+            |k| !open[k],
+            &plan.grid(),
+            plan.metadata.zstd_level,
+        )?;
+        detached[r as usize] = 0;
+        for (k, id) in layout.nodes().enumerate() {
+            detached[id as usize] = detached_id(k);
+        }
+        let mut pages = Vec::with_capacity(sealed.len());
+        for (k, page) in sealed.into_iter().enumerate() {
+            pages.push(match page {
+                Some(page) => RegionPage::Sealed(page),
+                None => RegionPage::Open(open_page(&nodes, &triangles, &layout, k, &detached)),
+            });
+        }
+        regions.push(region_part(r, pages, &nodes, &triangles, &layout));
     }
 
     let (top_nodes, top_triangles) = records_of(&nodes, &triangles, &top_ids);
@@ -162,6 +146,89 @@ pub(crate) fn seal_root(
         sums,
         sphere,
     })
+}
+
+/// The subtree's records with the triangles across shards their nodes will own counted in,
+/// for the layout.
+struct WithOwned<'a> {
+    nodes: &'a [NodeRecord],
+    owners: &'a [(u32, u32)],
+}
+
+impl WithOwned<'_> {
+    /// How many triangles across shards node `id` owns.
+    fn owns(&self, id: u32) -> u32 {
+        self.owners
+            .binary_search_by_key(&id, |&(owner, _)| owner)
+            .map_or(0, |k| self.owners[k].1)
+    }
+}
+
+impl NodeSource for WithOwned<'_> {
+    fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    fn node_record(&self, id: u32) -> NodeRecord {
+        let mut n = self.nodes[id as usize];
+        n.subtri_count = U32::new(n.subtri_count.get() + self.owns(id));
+        n
+    }
+}
+
+/// Page `k` of a region's `layout` as records, links as `detached` ids.
+fn open_page(
+    nodes: &[NodeRecord],
+    triangles: &[TriangleRecord],
+    layout: &PageLayout,
+    k: usize,
+    detached: &[u32],
+) -> OpenPage {
+    let ids: Vec<u32> = layout.page_nodes(k).collect();
+    let (mut records, triangles) = records_of(nodes, triangles, &ids);
+    for n in &mut records {
+        n.parent = U32::new(detached[n.parent.get() as usize]);
+        if n.first_child.get() != NO_NODE {
+            n.first_child = U32::new(detached[n.first_child.get() as usize]);
+        }
+    }
+    OpenPage {
+        first: detached[ids[0] as usize],
+        ids,
+        nodes: records,
+        triangles,
+    }
+}
+
+/// A region's part: its pages, and what the metadata counts of its nodes and own triangles.
+fn region_part(
+    root: u32,
+    pages: Vec<RegionPage>,
+    nodes: &[NodeRecord],
+    triangles: &[TriangleRecord],
+    layout: &PageLayout,
+) -> RegionPart {
+    let mut degree_histogram = [0u64; 9];
+    let mut max_depth = 0u32;
+    let mut parts = Vec::new();
+    for id in layout.nodes() {
+        let n = &nodes[id as usize];
+        degree_histogram[usize::from(n.child_count).min(8)] += 1;
+        max_depth = max_depth.max(u32::from(n.depth.get()));
+        parts.extend(triangles[subtris(n)].iter().map(|t| t.part.get()));
+    }
+    parts.sort_unstable();
+    let part_triangles = parts
+        .chunk_by(|a, b| a == b)
+        .map(|run| (run[0], run.len() as u64))
+        .collect();
+    RegionPart {
+        root,
+        pages,
+        degree_histogram,
+        max_depth,
+        part_triangles,
+    }
 }
 
 /// The subtris of `nodes` with `completed` (by owner) added, each node's sorted as the file
@@ -206,33 +273,4 @@ fn records_of(
         records.push(n);
     }
     (records, owned)
-}
-
-/// A sealed region: its pages and what the metadata counts of its nodes and triangles.
-fn sealed(
-    nodes: &[NodeRecord],
-    triangles: &[TriangleRecord],
-    layout: &PageLayout,
-    pages: Vec<vds_format::EncodedPage>,
-) -> SealedRegion {
-    let mut degree_histogram = [0u64; 9];
-    let mut max_depth = 0u32;
-    let mut parts = Vec::new();
-    for id in layout.nodes() {
-        let n = &nodes[id as usize];
-        degree_histogram[usize::from(n.child_count).min(8)] += 1;
-        max_depth = max_depth.max(u32::from(n.depth.get()));
-        parts.extend(triangles[subtris(n)].iter().map(|t| t.part.get()));
-    }
-    parts.sort_unstable();
-    let part_triangles = parts
-        .chunk_by(|a, b| a == b)
-        .map(|run| (run[0], run.len() as u64))
-        .collect();
-    SealedRegion {
-        pages,
-        degree_histogram,
-        max_depth,
-        part_triangles,
-    }
 }
