@@ -13,9 +13,9 @@
 //!    parallel frontier get theirs; the cross corners are joined into triangles and placed
 //!    with their owners; and the top is laid out, which numbers its nodes.
 //! 2. *The regions.* Each part's regions are numbered after everything before them and
-//!    their pages spilled to a temporary file: the pages a shard sealed are copied (the first
-//!    one's first parent rewritten, `vds_format::attach_region`), an open region is laid out
-//!    and encoded with the triangles across shards that its nodes own. The part's leaves
+//!    their pages spilled to a temporary file: the pages a shard sealed are copied (a
+//!    region's first one with its first parent rewritten, `vds_format::attach_region`), an
+//!    open page is encoded with the triangles across shards that its nodes own. The part's leaves
 //!    widen the error radii of the plan's top nodes above them (an exact farthest-leaf scan,
 //!    as every node's radius is).
 //!

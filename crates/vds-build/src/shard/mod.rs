@@ -17,9 +17,11 @@
 //!   lie elsewhere as plain positions.
 //! - A triangle whose two corners lie under one root belongs to a node of that root's subtree
 //!   (the deepest node supporting two corners); one whose corners lie under three roots
-//!   belongs to a top node. Either way its other corners' leaf ranks are only known to their
-//!   own shards, so every shard reports the ranks of its corners of such triangles
-//!   ([`CrossCorner`]) and the merge joins them.
+//!   belongs to a top node. When the third corner of the first kind lies under another root of
+//!   the same shard, the shard places the triangle itself. Otherwise some corners' leaf ranks
+//!   are only known to other shards (or the owner is a top node), so every shard reports the
+//!   ranks of its corners of such triangles ([`CrossCorner`]) and the merge joins them; the
+//!   shard leaves the pages of their owners as records for the merge to encode.
 //! - Welding is exact: coincident vertices fall in one cell, so no weld crosses a border.
 //!
 //! Modules: [`mod@plan`] (the top tree and the shards), `part` (one shard's build),
