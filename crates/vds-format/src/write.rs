@@ -392,16 +392,8 @@ fn encode_pages_where<N: NodeSource>(
                 return Ok(None);
             }
             PageWork::with(zstd_level, |work| {
-                let PageWork {
-                    compressor,
-                    scratch,
-                    records,
-                    triangles: page_triangles,
-                    raw,
-                    ..
-                } = work;
-                records.clear();
-                page_triangles.clear();
+                work.records.clear();
+                work.triangles.clear();
                 for group in &page.groups {
                     for old in group.first..group.first + group.count {
                         let mut n = nodes.node_record(old);
@@ -409,33 +401,12 @@ fn encode_pages_where<N: NodeSource>(
                         n.first_child = map(n.first_child);
                         let begin = n.subtri_begin.get() as usize;
                         let count = n.subtri_count.get() as usize;
-                        page_triangles.extend_from_slice(&triangles[begin..begin + count]);
-                        records.push(n);
+                        work.triangles
+                            .extend_from_slice(&triangles[begin..begin + count]);
+                        work.records.push(n);
                     }
                 }
-                crate::codec::encode_page_into(
-                    scratch,
-                    grid,
-                    n0 as u32,
-                    records,
-                    page_triangles,
-                    raw,
-                )?;
-                let frame = compressor
-                    .compress(raw)
-                    .expect("zstd compression of an in-memory buffer cannot fail");
-                if raw.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
-                    return Err(VdtError::invalid(
-                        format!("the page of node {n0}"),
-                        "compresses beyond the ratio readers accept as a decompression bomb",
-                    ));
-                }
-                Ok(Some(EncodedPage {
-                    frame,
-                    raw_length: raw.len() as u32,
-                    node_count: page.nodes as u32,
-                    triangle_count: page.triangles as u32,
-                }))
+                encode_gathered(work, grid, n0 as u32).map(Some)
             })
         })
         .collect()
@@ -607,30 +578,44 @@ pub fn encode_page_frame(
     zstd_level: i32,
 ) -> Result<EncodedPage, VdtError> {
     PageWork::with(zstd_level, |work| {
-        crate::codec::encode_page_into(
-            &mut work.scratch,
-            grid,
-            first_node,
-            nodes,
-            triangles,
-            &mut work.raw,
-        )?;
-        let frame = work
-            .compressor
-            .compress(&work.raw)
-            .expect("zstd compression of an in-memory buffer cannot fail");
-        if work.raw.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
-            return Err(VdtError::invalid(
-                format!("the page of node {first_node}"),
-                "compresses beyond the ratio readers accept as a decompression bomb",
-            ));
-        }
-        Ok(EncodedPage {
-            frame,
-            raw_length: work.raw.len() as u32,
-            node_count: nodes.len() as u32,
-            triangle_count: triangles.len() as u32,
-        })
+        work.records.clear();
+        work.records.extend_from_slice(nodes);
+        work.triangles.clear();
+        work.triangles.extend_from_slice(triangles);
+        encode_gathered(work, grid, first_node)
+    })
+}
+
+/// Encodes and compresses the page gathered in `work` (its records and their subtris),
+/// numbered from `first_node`.
+fn encode_gathered(
+    work: &mut PageWork,
+    grid: &Grid,
+    first_node: u32,
+) -> Result<EncodedPage, VdtError> {
+    let PageWork {
+        compressor,
+        scratch,
+        records,
+        triangles,
+        raw,
+        ..
+    } = work;
+    crate::codec::encode_page_into(scratch, grid, first_node, records, triangles, raw)?;
+    let frame = compressor
+        .compress(raw)
+        .expect("zstd compression of an in-memory buffer cannot fail");
+    if raw.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
+        return Err(VdtError::invalid(
+            format!("the page of node {first_node}"),
+            "compresses beyond the ratio readers accept as a decompression bomb",
+        ));
+    }
+    Ok(EncodedPage {
+        frame,
+        raw_length: raw.len() as u32,
+        node_count: records.len() as u32,
+        triangle_count: triangles.len() as u32,
     })
 }
 
