@@ -1,5 +1,5 @@
 //! Fuzzes the sharded build's `.vdtpart` reader and the merge behind it: a part for a
-//! one-shard plan of a small grid (with pages small enough that the merge lays out regions)
+//! one-shard plan of a small grid (with pages small enough that the part holds regions of pages)
 //! is read from the input; one that reads is merged into a file. Any input must give an
 //! error or a file, never a panic, hang or huge allocation.
 //!

@@ -5,7 +5,7 @@
 //! | bytes | field |
 //! |---|---|
 //! | header 0..8 | magic: [`super::INPUT_MAGIC`] or [`super::PART_MAGIC`] |
-//! | header 8..12 | format version (1) |
+//! | header 8..12 | format version (2) |
 //! | header 12..16 | shard index |
 //! | header 16..24 | the plan's id |
 //! | header 24..32 | XXH3-64 of header bytes 0..24 |
@@ -26,7 +26,7 @@ use zerocopy::{FromBytes, IntoBytes};
 
 use super::ShardError;
 
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
 /// Bytes before the body.
 pub(crate) const HEADER_BYTES: u64 = 32;
 /// Bytes after the body.
