@@ -1,6 +1,6 @@
 //! Fuzzes the sharded build's `.vdtpart` reader and the merge behind it: a part for a
-//! one-shard plan of a small grid (with pages small enough that the part holds regions of pages)
-//! is read from the input; one that reads is merged into a file. Any input must give an
+//! one-shard plan of a small grid (with pages small enough that the part holds regions of
+//! pages) is read from the input; one that reads is merged into a file. Any input must give an
 //! error or a file, never a panic, hang or huge allocation.
 //!
 //! The body's checksum is checked once it has been read, so mutations reach the parser; the
