@@ -34,8 +34,8 @@ pub use metadata::{BuildInfo, InputInfo, MAX_PARTS, Metadata, NO_PART, PartInfo}
 pub use output::{AtomicFile, OutputError, resolve_output, same_file, write_atomically};
 pub use read::{MAX_COMPRESSION_RATIO, MAX_PAGE_RAW_BYTES, Page, VdtFile};
 pub use write::{
-    DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, EncodedPage, EncodedPageSummary, FileFigures,
-    NodeSource, PageLayout, TreeContent, WriteOptions, WriteReport, attach_region, detached_id,
-    encode, encode_detached_region, encode_page_frame, encode_pages, file_head,
-    in_top_with_children, region_leaves, write_file,
+    DEFAULT_PAGE_BYTES, DEFAULT_ZSTD_LEVEL, DETACHED_ROOT, EncodedPage, EncodedPageSummary,
+    FileFigures, NodeSource, PageLayout, TreeContent, WriteOptions, WriteReport, attach_region,
+    attached_id, detached_id, encode, encode_detached_region, encode_page_frame, encode_pages,
+    file_head, in_top_with_children, region_leaves, write_file,
 };

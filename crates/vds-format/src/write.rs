@@ -512,7 +512,7 @@ pub fn file_head(
 }
 
 /// Node id of a detached region's root (see [`encode_detached_region`]).
-const DETACHED_ROOT: u32 = 0;
+pub const DETACHED_ROOT: u32 = 0;
 /// Node id of a detached region's first node.
 const DETACHED_FIRST: u32 = 1;
 
@@ -564,6 +564,15 @@ pub fn encode_detached_region<N: NodeSource>(
 /// The id [`encode_detached_region`] gives the `k`-th node of a region's layout.
 pub fn detached_id(k: usize) -> u32 {
     DETACHED_FIRST + k as u32
+}
+
+/// The file's id of a node named by `detached` id in a region whose nodes are numbered from
+/// `first_node` and whose root is `root`; `None` past the ids a file holds.
+pub fn attached_id(detached: u32, first_node: u32, root: u32) -> Option<u32> {
+    match detached {
+        DETACHED_ROOT => Some(root),
+        id => u32::try_from(u64::from(first_node) + u64::from(id - DETACHED_FIRST)).ok(),
+    }
 }
 
 /// Encodes and compresses one page: `nodes` numbered from `first_node`, their links the

@@ -30,8 +30,8 @@ use std::path::Path;
 use rayon::prelude::*;
 use vds_format::{
     BuildInfo, EncodedPage, EncodedPageSummary, FileFigures, InputInfo, Metadata, NO_NODE,
-    NodeRecord, PageLayout, TriangleRecord, WriteReport, attach_region, encode_page_frame,
-    encode_pages, file_head, in_top_with_children,
+    NodeRecord, PageLayout, TriangleRecord, WriteReport, attach_region, attached_id, detached_id,
+    encode_page_frame, encode_pages, file_head, in_top_with_children,
 };
 use zerocopy::IntoBytes;
 use zerocopy::little_endian::U32;
@@ -596,8 +596,8 @@ impl<'p> RegionWriter<'p> {
                         }
                         RegionPage::Sealed(page) => page,
                         RegionPage::Open(page) => {
-                            let expected = self.next_node - u64::from(first_node);
-                            if u64::from(page.first) != expected + 1 {
+                            let k = (self.next_node - u64::from(first_node)) as usize;
+                            if page.first != detached_id(k) {
                                 return Err(changed());
                             }
                             self.encode_open(top, r, first_node, parent, page)?
@@ -641,14 +641,7 @@ impl<'p> RegionWriter<'p> {
                 "shard root {r}: an open page's links leave its region"
             ))
         };
-        // A region-relative id as the file's: 0 is the region root, the others follow
-        // `first_node`.
-        let file_id = |id: u32| -> Result<u32, ShardError> {
-            match id {
-                0 => Ok(parent),
-                id => u32::try_from(u64::from(first_node) + u64::from(id) - 1).map_err(|_| bad()),
-            }
-        };
+        let file_id = |id: u32| attached_id(id, first_node, parent).ok_or_else(bad);
         let n0 = file_id(page.first)?;
         let mut records = Vec::with_capacity(page.nodes.len());
         let mut triangles = Vec::with_capacity(page.triangles.len());
@@ -658,7 +651,7 @@ impl<'p> RegionWriter<'p> {
             let mut m = *n;
             // Parents before their children, children after: the encoder's steps hold.
             let p = file_id(n.parent.get())?;
-            if page.first == 0 || u64::from(p) >= at {
+            if u64::from(p) >= at {
                 return Err(bad());
             }
             m.parent = U32::new(p);

@@ -11,7 +11,7 @@
 //! the zstd level.
 
 use vds_format::{
-    NO_NODE, NodeRecord, NodeSource, PageLayout, TriangleRecord, detached_id,
+    DETACHED_ROOT, NO_NODE, NodeRecord, NodeSource, PageLayout, TriangleRecord, detached_id,
     encode_detached_region, in_top_with_children,
 };
 use zerocopy::little_endian::{U16, U32};
@@ -99,7 +99,7 @@ pub(crate) fn seal_root(
         nodes: &nodes,
         owners,
     };
-    let mut detached = vec![0u32; nodes.len()];
+    let mut detached = vec![DETACHED_ROOT; nodes.len()];
     let mut regions = Vec::with_capacity(region_roots.len());
     for &r in &region_roots {
         let n = &nodes[r as usize];
@@ -116,9 +116,12 @@ pub(crate) fn seal_root(
             &plan.grid(),
             plan.metadata.zstd_level,
         )?;
-        detached[r as usize] = 0;
-        for (k, id) in layout.nodes().enumerate() {
-            detached[id as usize] = detached_id(k);
+        // The detached ids of the region's nodes, for the links of its open pages (a region
+        // root lies in no region: its entry stays `DETACHED_ROOT`).
+        if open.contains(&true) {
+            for (k, id) in layout.nodes().enumerate() {
+                detached[id as usize] = detached_id(k);
+            }
         }
         let mut pages = Vec::with_capacity(sealed.len());
         for (k, page) in sealed.into_iter().enumerate() {
