@@ -356,15 +356,13 @@ pub fn encode_page_into(
         let mut q = [0u32; 3];
         for a in 0..3 {
             let exact = i64::from(exact_q[a]);
-            let mut steps =
-                crate::grid::round_half_away((exact - prediction[a]) as f64 / unit as f64);
-            // Stay on the grid: step back towards the exact coordinate if rounding left it.
-            while prediction[a] + steps * unit as i64 > i64::from(crate::grid::GRID_STEPS) {
-                steps -= 1;
-            }
-            while prediction[a] + steps * (unit as i64) < 0 {
-                steps += 1;
-            }
+            // With a unit of one step (every leaf), the step is the exact difference and the
+            // stored coordinate the exact one, on the grid: no division, rounding or clamp.
+            let steps = if unit == 1 {
+                exact - prediction[a]
+            } else {
+                proxy_steps(exact, prediction[a], unit as i64)
+            };
             let step = zigzag(steps);
             if n.child_count == 0 {
                 s[LEAF_LOW].push(step as u8);
@@ -479,6 +477,29 @@ pub fn encode_page_into(
         out.extend_from_slice(stream);
     }
     Ok(())
+}
+
+/// The steps of `unit` from `prediction` that come nearest `exact`, kept on the grid.
+fn proxy_steps(exact: i64, prediction: i64, unit: i64) -> i64 {
+    let steps = crate::grid::round_half_away((exact - prediction) as f64 / unit as f64);
+    if (0..=i64::from(crate::grid::GRID_STEPS)).contains(&(prediction + steps * unit)) {
+        steps
+    } else {
+        back_on_grid(prediction, steps, unit)
+    }
+}
+
+/// Steps back towards the grid from a rounding that left it. (Apart and cold: as loops in
+/// [`proxy_steps`], the compiler made them one division per coordinate of every node.)
+#[cold]
+fn back_on_grid(prediction: i64, mut steps: i64, unit: i64) -> i64 {
+    while prediction + steps * unit > i64::from(crate::grid::GRID_STEPS) {
+        steps -= 1;
+    }
+    while prediction + steps * unit < 0 {
+        steps += 1;
+    }
+    steps
 }
 
 /// Rewrites the parent step of a page's first node (the first value of its parent stream)
