@@ -298,10 +298,10 @@ pub fn load_files<P: AsRef<Path>>(
 
 /// Reads several files into a welded scene whose triangles stay on disk, in unnamed temporary
 /// files in `folder`: the same scene [`load_files`] makes with [`Weld::Exact`], read with
-/// memory that does not grow with the model's triangles. PLY, binary STL and OBJ files are
+/// memory that does not grow with the model's triangles. PLY, STL and OBJ files are
 /// streamed (their soup spills every [`SPILL_ROWS`] rows or megabyte of OBJ text, and their
 /// mapped pages are let go as they are read; the OBJ reader keeps a table of its `v` lines);
-/// an ASCII STL or glTF file's soup is held while that file is read.
+/// a glTF file's soup is held while that file is read (its buffers are in memory anyway).
 /// What stays in memory is about 12 bytes per welded vertex and 4 per input vertex
 /// ([`SpilledScene`]), and a PLY file's vertex colours (16 bytes per vertex) while it is read.
 /// `options.weld` is not read: the weld is exact.

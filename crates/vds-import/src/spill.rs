@@ -747,6 +747,26 @@ mod file_tests {
         out
     }
 
+    /// An ASCII STL file of two solids (the second unnamed), lines ending in `ending`.
+    fn ascii_stl(ending: &str) -> Vec<u8> {
+        let (positions, triangles) = grid(9);
+        let mut out = format!("solid first{ending}");
+        let half = triangles.len() / 2;
+        for (k, t) in triangles.iter().enumerate() {
+            if k == half {
+                out += &format!("endsolid first{ending}solid{ending}");
+            }
+            out += &format!("  facet normal 0 0 1{ending}    outer loop{ending}");
+            for &v in t {
+                let p = positions[v as usize];
+                out += &format!("      vertex {} {} {}{ending}", p[0], p[1] + 40.0, p[2]);
+            }
+            out += &format!("    endloop{ending}  endfacet{ending}");
+        }
+        out += &format!("endsolid{ending}");
+        out.into_bytes()
+    }
+
     const OBJ: &[u8] =
         b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\ng left\nf 1 2 3\ng right\nf 2 4 3\nf 1 1 2\n";
 
@@ -786,6 +806,8 @@ mod file_tests {
             write(f, "f.obj", &large_obj("\n")),
             write(f, "g.obj", &large_obj("\r")),
             write(f, "h.ply.gz", &gzip(&binary_ply(true, false))),
+            write(f, "i.stl", &ascii_stl("\n")),
+            write(f, "j.stl", &ascii_stl("\r\n")),
         ];
         let options = ImportOptions {
             weld: Weld::Exact,
@@ -798,6 +820,21 @@ mod file_tests {
             let scene = crate::spill_files_in_pieces(&paths, &options, f, rows).unwrap();
             assert_eq!(scene.to_scene().unwrap(), expected, "pieces of {rows} rows");
         }
+    }
+
+    #[test]
+    fn an_ascii_stl_is_read_a_piece_at_a_time() {
+        let folder = tempfile::tempdir().unwrap();
+        let bytes = ascii_stl("\n");
+        let mut soup = crate::MeshSoup::default();
+        let files = super::SoupFiles::create(folder.path()).unwrap();
+        soup.spill.0 = Some(Box::new(files.for_file(7)));
+        crate::stl::read_stl(&bytes, "x", &mut soup).unwrap();
+        // All but the last piece's facets were spilled as the file was read.
+        let (_, spilled) = soup.spill.0.as_ref().unwrap().spilled();
+        assert_eq!(spilled + soup.triangles.len(), grid(9).1.len());
+        assert!(soup.triangles.len() < 7, "{} held", soup.triangles.len());
+        assert_eq!(soup.parts.len(), 2);
     }
 
     #[test]

@@ -137,22 +137,39 @@ impl ColorConvention {
     }
 }
 
+/// Reads an ASCII STL a line at a time (each checked as UTF-8 on its own, so that the input
+/// is read once, front to back). A soup that spills takes every [`MeshSoup::spill_rows`]
+/// facets, and the text read is let go of as the reader goes.
 fn read_ascii(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<(), FormatError> {
-    let text = std::str::from_utf8(data).map_err(|e| {
-        FormatError::syntax(
-            Location::Byte(e.valid_up_to() as u64),
-            "ASCII STL is not valid UTF-8",
-        )
-    })?;
     let mut part: Option<u32> = None;
     let mut solids = 0usize;
     let mut loop_corners: Vec<u32> = Vec::new();
     let mut in_loop = false;
-    for (line_index, line) in text.lines().enumerate() {
-        let line_number = line_index as u64 + 1;
+    let mut facets = 0usize;
+    let mut line_number = 0u64;
+    let mut start = 0usize;
+    let mut released = 0usize;
+    while start < data.len() {
+        // The text read is let go of a megabyte at a time, as OBJ text is: a facet is about
+        // 190 bytes of text, so the rows between spills would hold 50 MB of it.
+        if soup.spills() && start - released >= crate::obj::CHUNK_BYTES {
+            soup.done_with_input(&data[..start]);
+            released = start;
+        }
+        let end = memchr::memchr(b'\n', &data[start..]).map_or(data.len(), |at| start + at);
+        let next = (end + 1).min(data.len());
+        // A line's `\r` before its `\n` is whitespace to the words below.
+        let line = std::str::from_utf8(&data[start..end]).map_err(|e| {
+            FormatError::syntax(
+                Location::Byte((start + e.valid_up_to()) as u64),
+                "ASCII STL is not valid UTF-8",
+            )
+        })?;
+        line_number += 1;
         let at = || Location::Line(line_number);
         let mut words = line.split_whitespace();
         let Some(keyword) = words.next() else {
+            start = next;
             continue;
         };
         match keyword {
@@ -200,6 +217,10 @@ fn read_ascii(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<()
                     None => *part.insert(soup.begin_part(default_name)),
                 };
                 soup.push_polygon(part, &loop_corners);
+                facets += 1;
+                if soup.spills() && facets % soup.spill_rows() == 0 {
+                    soup.spill_now();
+                }
             }
             "facet" | "endfacet" | "endsolid" => {}
             other => {
@@ -209,10 +230,11 @@ fn read_ascii(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<()
                 ));
             }
         }
+        start = next;
     }
     if in_loop {
         return Err(FormatError::syntax(
-            Location::Line(text.lines().count() as u64),
+            Location::Line(line_number),
             "file ends inside 'outer loop'",
         ));
     }
