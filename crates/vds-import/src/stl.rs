@@ -218,7 +218,7 @@ fn read_ascii(data: &[u8], default_name: &str, soup: &mut MeshSoup) -> Result<()
                 };
                 soup.push_polygon(part, &loop_corners);
                 facets += 1;
-                if soup.spills() && facets % soup.spill_rows() == 0 {
+                if soup.spills() && facets.is_multiple_of(soup.spill_rows()) {
                     soup.spill_now();
                 }
             }
