@@ -318,12 +318,26 @@ fn build_shard_with(
         owners[run[0].0 as usize].push((run[0].1, run.len() as u32));
     }
     drop(owned);
-    let roots = subtrees.into_iter().zip(pure).zip(completed).zip(owners);
-    for ((((root, subtree), triangles), completed), owners) in roots {
-        let records = subtree.into_records(triangles);
-        each_root(super::seal::seal_root(
-            plan, root, records, completed, &owners,
-        )?)?;
+    // Roots are sealed a window at a time, as many as there are threads, side by side (a
+    // root's regions are few pages each, too little to fill the threads alone), and handed on
+    // in plan order; a window's records are what is held beside the subtrees.
+    let mut roots = subtrees.into_iter().zip(pure).zip(completed).zip(owners);
+    let window = rayon::current_num_threads().max(1);
+    loop {
+        let batch: Vec<_> = roots.by_ref().take(window).collect();
+        if batch.is_empty() {
+            break;
+        }
+        let sealed: Vec<Result<RootPart, ShardError>> = batch
+            .into_par_iter()
+            .map(|((((root, subtree), triangles), completed), owners)| {
+                let records = subtree.into_records(triangles);
+                super::seal::seal_root(plan, root, records, completed, &owners)
+            })
+            .collect();
+        for part in sealed {
+            each_root(part?)?;
+        }
     }
     Ok(cross)
 }
@@ -367,13 +381,16 @@ impl LocalScene {
         global_id.dedup();
         let local_of = |v: u32| global_id.binary_search(&v).expect("listed above") as u32;
         let mut positions = vec![None; global_id.len()];
-        let mut triangles = Vec::with_capacity(input.len());
         let ids: Vec<(u64, u32)> = input
             .iter()
             .map(|t| (t.triangle.get(), t.part.get()))
             .collect();
-        for t in &input {
-            let corners = t.vertices.map(|v| local_of(v.get()));
+        // The searches on every thread; the positions, which must agree, then in order.
+        let triangles: Vec<[u32; 3]> = input
+            .par_iter()
+            .map(|t| t.vertices.map(|v| local_of(v.get())))
+            .collect();
+        for (t, corners) in input.iter().zip(&triangles) {
             for k in 0..3 {
                 let p = t.positions[k].map(|c| c.get());
                 match &mut positions[corners[k] as usize] {
@@ -382,7 +399,6 @@ impl LocalScene {
                     Some(_) => return changed("one vertex at two positions"),
                 }
             }
-            triangles.push(corners);
         }
         drop(input);
         let scene = Scene {
@@ -436,14 +452,21 @@ impl LocalScene {
                 members[(root - first) as usize].push(v as u32);
             }
         }
+        // Side by side: each build is parallel within, but a root's is too small to keep
+        // every thread busy through its clustering and top levels.
+        let subtrees: Vec<(u32, Subtree)> = members
+            .par_iter()
+            .enumerate()
+            .map(|(k, vertices)| {
+                let subtree = Subtree::build(&self.scene, adjacency, vertices, isa);
+                (first + k as u32, subtree)
+            })
+            .collect();
         let mut rank_of = vec![u32::MAX; self.scene.positions.len()];
-        let mut subtrees = Vec::with_capacity(members.len());
-        for (k, vertices) in members.iter().enumerate() {
-            let subtree = Subtree::build(&self.scene, adjacency, vertices, isa);
+        for (_, subtree) in &subtrees {
             for (rank, &v) in subtree.leaf_vertex.iter().enumerate() {
                 rank_of[v as usize] = rank as u32;
             }
-            subtrees.push((first + k as u32, subtree));
         }
         (subtrees, rank_of)
     }
