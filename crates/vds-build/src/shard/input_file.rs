@@ -85,10 +85,11 @@ pub fn write_shard_inputs(
             .clone()
             .map(|k| BodyWriter::create(&paths[k], INPUT_MAGIC, k as u32, plan.id))
             .collect::<Result<Vec<_>, _>>()?;
-        // A run of triangles at a time: gathered per file on this thread, then each file
-        // compresses its share on its own task (the files are independent streams, each
-        // still written in scene order).
-        let mut gathered: Vec<Vec<u8>> = vec![Vec::new(); batch.len()];
+        // A run of triangles at a time: gathered per file, a piece of the run on each thread,
+        // then each file compresses its share on its own task (the files are independent
+        // streams, each still written in scene order: its pieces one after the other).
+        let pieces = rayon::current_num_threads().max(1);
+        let mut gathered: Vec<Vec<Vec<u8>>> = vec![vec![Vec::new(); batch.len()]; pieces];
         scene.for_each_triangle_run(&mut |run_first, triangles, parts| {
             for (sub, (triangles, parts)) in triangles
                 .chunks(TRIANGLES_PER_RUN)
@@ -96,22 +97,33 @@ pub fn write_shard_inputs(
                 .enumerate()
             {
                 let sub_first = run_first + (sub * TRIANGLES_PER_RUN) as u64;
-                for (i, (&t, &part)) in triangles.iter().zip(parts).enumerate() {
-                    for_each_shard(&t, root_of, &shard_of_root, |k| {
-                        if batch.contains(&k) {
-                            let record = input_triangle(sub_first + i as u64, part, t, positions);
-                            gathered[k - first].extend_from_slice(record.as_bytes());
+                let piece = triangles.len().div_ceil(pieces);
+                gathered
+                    .par_iter_mut()
+                    .enumerate()
+                    .for_each(|(p, gathered)| {
+                        let start = (p * piece).min(triangles.len());
+                        let end = (start + piece).min(triangles.len());
+                        for i in start..end {
+                            let (t, part) = (triangles[i], parts[i]);
+                            for_each_shard(&t, root_of, &shard_of_root, |k| {
+                                if batch.contains(&k) {
+                                    let id = sub_first + i as u64;
+                                    let record = input_triangle(id, part, t, positions);
+                                    gathered[k - first].extend_from_slice(record.as_bytes());
+                                }
+                            });
                         }
                     });
+                files.par_iter_mut().enumerate().try_for_each(|(j, file)| {
+                    for piece in &gathered {
+                        file.put(&piece[j])?;
+                    }
+                    Ok::<(), ShardError>(())
+                })?;
+                for piece in &mut gathered {
+                    piece.iter_mut().for_each(Vec::clear);
                 }
-                files
-                    .par_iter_mut()
-                    .zip(&mut gathered)
-                    .try_for_each(|(file, bytes)| {
-                        let written = file.put(bytes);
-                        bytes.clear();
-                        written
-                    })?;
                 done += triangles.len() as u64;
                 on_progress(done, total);
             }
