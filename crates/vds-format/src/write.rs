@@ -649,21 +649,28 @@ pub fn attach_region(
     {
         return Err(bad("a first page larger than a page can be".into()));
     }
-    let raw = zstd::bulk::decompress(&first_page.frame, first_page.raw_length as usize)
-        .map_err(|e| bad(format!("its first page does not decompress: {e}")))?;
-    if raw.len() != first_page.raw_length as usize {
-        return Err(bad("its first page decompresses to another length".into()));
-    }
-    let mut rebased = Vec::new();
-    crate::codec::rebase_first_parent(
-        &raw,
-        u64::from(DETACHED_FIRST - DETACHED_ROOT),
-        u64::from(first_node - root),
-        &mut rebased,
-    )
-    .map_err(bad)?;
-    let frame = PageWork::with(zstd_level, |work| work.compressor.compress(&rebased))
-        .map_err(|e| bad(format!("zstd: {e}")))?;
+    let (rebased, frame) = PageWork::with(zstd_level, |work| {
+        let raw = work
+            .decompressor
+            .decompress(&first_page.frame, first_page.raw_length as usize)
+            .map_err(|e| bad(format!("its first page does not decompress: {e}")))?;
+        if raw.len() != first_page.raw_length as usize {
+            return Err(bad("its first page decompresses to another length".into()));
+        }
+        let mut rebased = Vec::new();
+        crate::codec::rebase_first_parent(
+            &raw,
+            u64::from(DETACHED_FIRST - DETACHED_ROOT),
+            u64::from(first_node - root),
+            &mut rebased,
+        )
+        .map_err(bad)?;
+        let frame = work
+            .compressor
+            .compress(&rebased)
+            .map_err(|e| bad(format!("zstd: {e}")))?;
+        Ok((rebased, frame))
+    })?;
     if rebased.len() as u64 > crate::read::MAX_COMPRESSION_RATIO * frame.len() as u64 {
         return Err(bad(
             "its first page compresses beyond the ratio readers accept".into(),
@@ -774,11 +781,13 @@ pub fn encode<N: NodeSource>(
     Ok((out, report))
 }
 
-/// What a writing thread keeps from page to page: a zstd context, the encoder's working
+/// What a writing thread keeps from page to page: zstd contexts, the encoder's working
 /// arrays, and the page's gathered records and encoding (see `PAGE_WORK`).
 struct PageWork {
     level: i32,
     compressor: zstd::bulk::Compressor<'static>,
+    /// For the pages [`attach_region`] rewrites (a context per call was 1 % of a merge).
+    decompressor: zstd::bulk::Decompressor<'static>,
     scratch: crate::codec::EncodeScratch,
     records: Vec<NodeRecord>,
     triangles: Vec<TriangleRecord>,
@@ -802,6 +811,8 @@ impl PageWork {
                     level: zstd_level,
                     compressor: zstd::bulk::Compressor::new(zstd_level)
                         .expect("a zstd context at a level zstd accepts"),
+                    decompressor: zstd::bulk::Decompressor::new()
+                        .expect("a zstd decompression context"),
                     scratch: Default::default(),
                     records: Vec::new(),
                     triangles: Vec::new(),
