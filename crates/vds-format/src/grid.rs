@@ -12,7 +12,7 @@
 pub const GRID_STEPS: u32 = 1 << 18;
 
 /// How near a half step a quotient by multiplication must be for [`Grid::quantize`] to divide
-/// instead (six times the multiplication's largest error in the grid's range).
+/// instead (over four times the multiplication's largest error in the grid's range, 2⁻³²).
 const NEAR_HALF_STEP: f64 = 1e-9;
 
 /// A uniform grid: `position = origin + step * coordinate` (per axis, in `f32`).

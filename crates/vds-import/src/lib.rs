@@ -28,7 +28,7 @@ use std::path::Path;
 
 pub use error::{FormatError, ImportError, Location, Problem};
 pub use soup::{MeshSoup, SPILL_ROWS};
-pub use source::{Format, format_of};
+pub use source::{Format, format_of, open_regular_file};
 pub use spill::{SoupFiles, SpilledScene};
 pub use weld::{Weld, weld};
 

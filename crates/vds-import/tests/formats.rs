@@ -409,6 +409,26 @@ fn stl_ascii_rejects_bad_vertex_with_line() {
     assert_eq!(error.location, Location::Line(4));
 }
 
+#[test]
+fn stl_ascii_names_the_byte_of_bad_utf8_and_the_last_line_of_an_open_loop() {
+    // A CRLF file whose third line holds a byte that is not UTF-8.
+    let mut bytes = b"solid s\r\nfacet normal 0 0 1\r\nouter lo".to_vec();
+    let bad_at = bytes.len();
+    bytes.extend_from_slice(b"\xffop\r\n");
+    let error = read(&bytes, Format::Stl).unwrap_err();
+    assert_eq!(error.location, Location::Byte(bad_at as u64));
+    // A loop still open at the end: the last line is named, with or without its newline.
+    for ending in ["\n", ""] {
+        let text = format!("solid s\nfacet normal 0 0 1\nouter loop\n\nvertex 0 0 0{ending}");
+        let error = read(text.as_bytes(), Format::Stl).unwrap_err();
+        assert_eq!(error.location, Location::Line(5), "ending {ending:?}");
+        assert!(
+            format!("{:?}", error.problem).contains("outer loop"),
+            "{error:?}"
+        );
+    }
+}
+
 // ---------- glTF ----------
 
 /// A glTF JSON document with one embedded buffer holding `positions` then `indices`.

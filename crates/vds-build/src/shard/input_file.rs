@@ -97,6 +97,9 @@ pub fn write_shard_inputs(
                 .enumerate()
             {
                 let sub_first = run_first + (sub * TRIANGLES_PER_RUN) as u64;
+                // Triangles with a part each (as the zip of the two would take them).
+                let n = triangles.len().min(parts.len());
+                let (triangles, parts) = (&triangles[..n], &parts[..n]);
                 let piece = triangles.len().div_ceil(pieces);
                 gathered
                     .par_iter_mut()
@@ -104,8 +107,8 @@ pub fn write_shard_inputs(
                     .for_each(|(p, gathered)| {
                         let start = (p * piece).min(triangles.len());
                         let end = (start + piece).min(triangles.len());
-                        for i in start..end {
-                            let (t, part) = (triangles[i], parts[i]);
+                        let mine = triangles[start..end].iter().zip(&parts[start..end]);
+                        for (i, (&t, &part)) in (start..).zip(mine) {
                             for_each_shard(&t, root_of, &shard_of_root, |k| {
                                 if batch.contains(&k) {
                                     let id = sub_first + i as u64;

@@ -318,13 +318,32 @@ fn build_shard_with(
         owners[run[0].0 as usize].push((run[0].1, run.len() as u32));
     }
     drop(owned);
-    // Roots are sealed a window at a time, as many as there are threads, side by side (a
-    // root's regions are few pages each, too little to fill the threads alone), and handed on
-    // in plan order; a window's records are what is held beside the subtrees.
-    let mut roots = subtrees.into_iter().zip(pure).zip(completed).zip(owners);
-    let window = rayon::current_num_threads().max(1);
+    // Roots are sealed a window at a time side by side (a root's regions are few pages each,
+    // too little to fill the threads alone), and handed on in plan order. A window holds at
+    // most as many roots as there are threads and, past its first root, an eighth of the
+    // shard's triangles: the records it holds beside the subtrees stay a small share of a
+    // shard's memory however many threads a job has.
+    let window_triangles = pure.iter().map(Vec::len).sum::<usize>().div_ceil(8);
+    let threads = rayon::current_num_threads().max(1);
+    let mut roots = subtrees
+        .into_iter()
+        .zip(pure)
+        .zip(completed)
+        .zip(owners)
+        .peekable();
     loop {
-        let batch: Vec<_> = roots.by_ref().take(window).collect();
+        let mut batch = Vec::new();
+        let mut held = 0;
+        while batch.len() < threads {
+            let Some(size) = roots.peek().map(|(((_, triangles), _), _)| triangles.len()) else {
+                break;
+            };
+            if !batch.is_empty() && held + size > window_triangles {
+                break;
+            }
+            held += size;
+            batch.extend(roots.next());
+        }
         if batch.is_empty() {
             break;
         }

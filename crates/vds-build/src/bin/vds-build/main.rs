@@ -438,11 +438,12 @@ fn run_batch(args: &Args) -> Result<()> {
     Ok(())
 }
 
-/// XXH3-64 and size of a file, streamed.
+/// XXH3-64 and size of a file, streamed. Only a regular file is read (as the importer
+/// reads), so a FIFO or device among the inputs never blocks or spins the hashing thread.
 fn hash_file(path: &std::path::Path) -> Result<(u64, u64)> {
     use std::io::Read;
-    let mut file =
-        std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut file = vds_import::open_regular_file(path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     let mut hasher = xxhash_rust::xxh3::Xxh3::new();
     let mut buffer = vec![0u8; 1 << 18];
     let mut total = 0u64;
