@@ -320,11 +320,12 @@ fn build_shard_with(
     drop(owned);
     // Roots are sealed a window at a time side by side (a root's regions are few pages each,
     // too little to fill the threads alone), and handed on in plan order. A window holds at
-    // most as many roots as there are threads and, past its first root, an eighth of the
-    // shard's triangles: the records it holds beside the subtrees stay a small share of a
-    // shard's memory however many threads a job has.
-    let window_triangles = pure.iter().map(Vec::len).sum::<usize>().div_ceil(8);
+    // most as many roots as there are threads and, past its first root, twice the shard's
+    // triangles over the threads: with two threads any two roots (capping at an eighth of
+    // the shard serialised its large roots, +6 % time), with sixteen an eighth of the shard,
+    // so the records a window holds beside the subtrees stay a small share of its memory.
     let threads = rayon::current_num_threads().max(1);
+    let window_triangles = (2 * pure.iter().map(Vec::len).sum::<usize>()).div_ceil(threads);
     let mut roots = subtrees
         .into_iter()
         .zip(pure)
