@@ -356,13 +356,7 @@ pub fn encode_page_into(
         let mut q = [0u32; 3];
         for a in 0..3 {
             let exact = i64::from(exact_q[a]);
-            // With a unit of one step (every leaf), the step is the exact difference and the
-            // stored coordinate the exact one, on the grid: no division, rounding or clamp.
-            let steps = if unit == 1 {
-                exact - prediction[a]
-            } else {
-                proxy_steps(exact, prediction[a], unit as i64)
-            };
+            let steps = position_steps(exact, prediction[a], unit as i64);
             let step = zigzag(steps);
             if n.child_count == 0 {
                 s[LEAF_LOW].push(step as u8);
@@ -480,7 +474,12 @@ pub fn encode_page_into(
 }
 
 /// The steps of `unit` from `prediction` that come nearest `exact`, kept on the grid.
-fn proxy_steps(exact: i64, prediction: i64, unit: i64) -> i64 {
+fn position_steps(exact: i64, prediction: i64, unit: i64) -> i64 {
+    // With a unit of one step (every leaf), the step is the exact difference and the stored
+    // coordinate the exact one, on the grid: no division, rounding or clamp.
+    if unit == 1 {
+        return exact - prediction;
+    }
     let steps = crate::grid::round_half_away((exact - prediction) as f64 / unit as f64);
     if (0..=i64::from(crate::grid::GRID_STEPS)).contains(&(prediction + steps * unit)) {
         steps
@@ -490,7 +489,7 @@ fn proxy_steps(exact: i64, prediction: i64, unit: i64) -> i64 {
 }
 
 /// Steps back towards the grid from a rounding that left it. (Apart and cold: as loops in
-/// [`proxy_steps`], the compiler made them one division per coordinate of every node.)
+/// [`position_steps`], the compiler made them one division per coordinate of every node.)
 #[cold]
 fn back_on_grid(prediction: i64, mut steps: i64, unit: i64) -> i64 {
     while prediction + steps * unit > i64::from(crate::grid::GRID_STEPS) {

@@ -321,9 +321,8 @@ fn build_shard_with(
     // Roots are sealed a window at a time side by side (a root's regions are few pages each,
     // too little to fill the threads alone), and handed on in plan order. A window holds at
     // most as many roots as there are threads and, past its first root, twice the shard's
-    // triangles over the threads: with two threads any two roots (capping at an eighth of
-    // the shard serialised its large roots, +6 % time), with sixteen an eighth of the shard,
-    // so the records a window holds beside the subtrees stay a small share of its memory.
+    // triangles over the threads: any two roots with two threads, an eighth of the shard
+    // with sixteen, so the records a window holds stay a small share of a job's memory.
     let threads = rayon::current_num_threads().max(1);
     let window_triangles = (2 * pure.iter().map(Vec::len).sum::<usize>()).div_ceil(threads);
     let mut roots = subtrees
