@@ -61,6 +61,9 @@ pub struct AdjustStats {
     /// Groups not tested because their last test still holds for this camera
     /// ([`crate::reuse`]).
     pub groups_reused: u32,
+    /// Fold candidates (active nodes whose children are all on the boundary) whose own test
+    /// was not made because its last outcome still holds ([`crate::reuse`]).
+    pub candidates_reused: u32,
     /// Nodes unfolded.
     pub unfolds: u32,
     /// Nodes folded.
@@ -236,7 +239,6 @@ impl Adjuster {
                 return Ok(self.stats);
             }
         }
-        let tight = judge.tightest(t);
         let prefetching = cut.store().loads_in_background() && t > 0.0;
         // Pages are fetched for where the camera is heading too, not only where it is.
         let ahead = prefetching
@@ -251,6 +253,33 @@ impl Adjuster {
         if now.is_some_and(|now| now.fresh) {
             cut.clear_reuse();
         }
+        // Margins beyond the cheap ones are worked out only for a still camera: compiled
+        // apart, so that a moving camera's pass carries none of that code.
+        if now.is_some_and(|now| now.still) {
+            self.threshold_pass::<true>(cut, judge, t, prevent_flips, &sight, now)?;
+        } else {
+            self.threshold_pass::<false>(cut, judge, t, prevent_flips, &sight, now)?;
+        }
+        self.prefetch_deeper(cut, &sight);
+        self.retry_refused_folds(cut, judge, t, prevent_flips);
+        Ok(self.stats)
+    }
+
+    /// The threshold traversal's pass over the active list (see [`Adjuster::adjust_threshold`]);
+    /// `STILL`: the camera has not moved since the last adjust ([`crate::reuse`]). Not
+    /// inlined: the two passes stay apart, each with its tests inlined into its loop.
+    #[inline(never)]
+    fn threshold_pass<const STILL: bool>(
+        &mut self,
+        cut: &mut Cut,
+        judge: &Judge,
+        t: f32,
+        prevent_flips: bool,
+        sight: &Sight,
+        now: Option<crate::reuse::Now>,
+    ) -> Result<(), VdtError> {
+        let tight = judge.tightest(t);
+        let prefetching = cut.store().loads_in_background() && t > 0.0;
         // Backwards through the dense active list: an unfold appends nodes whose children
         // it has just tested, so they need no visit now; a fold moves the last entry (already
         // visited) into the folded node's place, so nothing unvisited is skipped.
@@ -275,16 +304,41 @@ impl Adjuster {
                 continue;
             };
             let hot = entry.hot;
-            if entry.active_children < hot.child_count {
-                if now.as_ref().is_some_and(|now| entry.reuse.holds(now)) {
-                    self.stats.groups_reused += 1;
-                } else {
-                    self.stats.visited += 1;
-                    self.stats.groups += 1;
-                    // The group's margin, or the least of its children's when each had to be
-                    // tested and none unfolded.
-                    let mut margin = judge.group_margin(&hot, tight);
-                    if margin.is_none() {
+            // An entry whose children are all active has nothing to test: its children's own
+            // entries hold their groups, and it cannot fold.
+            if entry.active_children >= hot.child_count {
+                continue;
+            }
+            // A record covers the group and, beside it, a fold candidate's own test (made
+            // and used by still passes only).
+            let record = entry.reuse;
+            let candidate = entry.active_children == 0;
+            let group_holds = now.as_ref().is_some_and(|now| record.holds(now));
+            let own_holds =
+                STILL && candidate && now.as_ref().is_some_and(|now| record.own_holds(now));
+            if group_holds {
+                self.stats.groups_reused += 1;
+                if !candidate {
+                    continue;
+                }
+            }
+            if own_holds {
+                self.stats.candidates_reused += 1;
+                if group_holds {
+                    continue;
+                }
+            }
+            // The group's margin and reach: its bound's, or the least margin and farthest
+            // reach of its children's when each had to be tested and none unfolded.
+            // `reach`: the children's beyond the group's own, which is found only for a
+            // record (a square root).
+            let (mut margin, mut reach) = (0.0f32, 0.0f32);
+            if !group_holds {
+                self.stats.visited += 1;
+                self.stats.groups += 1;
+                margin = match judge.group_margin(&hot, tight) {
+                    Some(margin) => margin,
+                    None => {
                         self.stats.groups_failed += 1;
                         let mut least = f32::INFINITY;
                         for c in hot.first_child..hot.first_child + hot.child_count {
@@ -293,53 +347,81 @@ impl Adjuster {
                                 continue;
                             }
                             self.stats.visited += 1;
-                            let (decision, child_margin) = judge.decide_with_margin(tested, t);
+                            let (decision, child_margin, child_reach) =
+                                judge.decide_with_margin(tested, t, STILL);
                             if decision == Decision::Unfold {
                                 least = 0.0;
                                 self.refine(cut, judge, t, c)?;
                             } else {
                                 least = least.min(child_margin);
-                                // Near its threshold: its children's pages are fetched
-                                // ahead of need, the nearest first.
+                                reach = reach.max(child_reach);
+                                // Near its threshold: its children's pages are fetched ahead
+                                // of need, the nearest first.
                                 if prefetching {
                                     // Cheap test first: most nodes are far from it.
                                     let hot = *tested.hot;
                                     let now = sight.now(&hot);
                                     if now > PREFETCH_RATIO * 0.5 {
                                         let deeper = &mut self.deeper;
-                                        prefetch_below(cut, &sight, c, hot, now, 0, deeper);
+                                        prefetch_below(cut, sight, c, hot, now, 0, deeper);
                                     }
                                 }
                             }
                         }
-                        margin = Some(least);
+                        least
                     }
-                    // Still at index `i`: refinement only appended entries (and an unfold
-                    // cleared this entry's record, which stays cleared with a zero margin).
-                    if let (Some(now), Some(margin)) = (&now, margin)
-                        && margin > 0.0
-                    {
-                        cut.set_reuse(i, Reuse::new(now, judge.group_reach(&hot), margin));
-                    }
-                }
+                };
             }
             // Still at index `i` (refinement above only appended entries, and an unfolded
-            // child shows in the count): the entry itself says whether `p` may fold, without
-            // a look-up by node id, which would miss the cache on every entry.
+            // child shows in the count, having cleared the record): the entry itself says
+            // whether `p` may fold, without a look-up by node id, which would miss the cache
+            // on every entry.
             let Some(&entry) = cut.active_entries().get(i) else {
                 continue;
             };
-            let p = entry.id;
-            if entry.active_children == 0 {
+            let mut own = None;
+            if entry.active_children == 0 && !own_holds {
                 self.stats.visited += 1;
-                if judge.decide(cut.active_tested(i), t) == Decision::Fold {
-                    self.coarsen(cut, judge, t, p, prevent_flips);
+                let (decision, staying, staying_reach) =
+                    judge.decide_staying(cut.active_tested(i), t, STILL);
+                if decision == Decision::Fold {
+                    // The entry leaves (or, refused, is tested again next frame).
+                    self.coarsen(cut, judge, t, entry.id, prevent_flips);
+                    continue;
+                }
+                if staying > 0.0 {
+                    own = Some((staying, staying_reach));
                 }
             }
+            let Some(now) = &now else {
+                continue;
+            };
+            // The record made now: the group's (kept, or found now), and the own test's
+            // (found now, or what is left of the kept one's while the node is a candidate).
+            // Nothing is written when neither part holds: the old record has run out.
+            let kept_own = own_holds && !group_holds && entry.active_children == 0;
+            if group_holds && own.is_none()
+                || !group_holds && margin <= 0.0 && own.is_none() && !kept_own
+            {
+                continue;
+            }
+            let mut made = if group_holds {
+                record
+            } else if margin > 0.0 {
+                Reuse::new(now, reach.max(judge.group_reach(&hot)), margin)
+            } else {
+                Reuse::new(now, 0.0, 0.0)
+            };
+            if entry.active_children == 0 {
+                if let Some((staying, staying_reach)) = own {
+                    made = made.with_own(now, staying_reach, staying);
+                } else if kept_own {
+                    made = made.with_own(now, record.reach(), record.own_left(now));
+                }
+            }
+            cut.set_reuse(i, made);
         }
-        self.prefetch_deeper(cut, &sight);
-        self.retry_refused_folds(cut, judge, t, prevent_flips);
-        Ok(self.stats)
+        Ok(())
     }
 
     /// Looks below the [`DEEPER_PER_FRAME`] candidates nearest to their threshold for pages

@@ -583,3 +583,66 @@ fn a_second_adjust_for_the_same_camera_and_goal_changes_nothing() {
         }
     }
 }
+
+/// Tests reused while the camera pauses ([`vds_runtime`]'s margins for fold candidates and
+/// folded children, worked out only for a camera still for two frames) decide as the tests
+/// would: a runtime that adjusts four times at each camera of a path (the third works the
+/// margins out, the fourth reuses them, the records live on when the camera moves) keeps the
+/// same cut
+/// as one that adjusts once, frame after frame, under each kind of criteria, and the
+/// threshold holds on every adjust (measured where backfaces stay, which the measure counts
+/// as visible).
+#[test]
+fn tests_reused_while_the_camera_pauses_decide_as_the_tests_would() {
+    let settings = [
+        Criteria::default(),
+        Criteria {
+            frustum: FrustumMode::Ignore,
+            ..Criteria::default()
+        },
+        Criteria {
+            silhouette_factor: None,
+            ..no_backface()
+        },
+    ];
+    for name in ["bunny.obj", "as1_assembly.obj"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let path = vds_runtime::CameraPath::fly_through(center, radius * 1.5, 60, 480, 320);
+        for (setting, criteria) in settings.iter().enumerate() {
+            let mut once = runtime(&bytes, CornerTracking::Ranks);
+            let mut paused = runtime(&bytes, CornerTracking::Ranks);
+            let positions = paused.leaf_positions().unwrap();
+            let mut reused = 0;
+            for (frame, camera) in path.cameras.iter().enumerate() {
+                let t = [1.0, 2.0][frame / 40];
+                once.adjust(&Viewpoint::Camera(*camera), criteria, Goal::Threshold(t))
+                    .unwrap();
+                for _ in 0..4 {
+                    let stats = if criteria.backface {
+                        let view = Viewpoint::Camera(*camera);
+                        paused
+                            .adjust(&view, criteria, Goal::Threshold(t))
+                            .unwrap()
+                            .stats
+                    } else {
+                        let what = format!("{name}, criteria {setting}, frame {frame}");
+                        adjust_within(&mut paused, camera, criteria, t, &positions, &what)
+                    };
+                    reused += stats.candidates_reused;
+                }
+                assert_eq!(
+                    once.cut().boundary(),
+                    paused.cut().boundary(),
+                    "{name}, criteria {setting}, frame {frame}: the cuts differ"
+                );
+            }
+            paused.cut_mut().check().unwrap();
+            assert!(
+                reused > 1000,
+                "{name}, criteria {setting}: {reused} fold tests reused"
+            );
+        }
+    }
+}

@@ -44,6 +44,26 @@ enum Timed {
     /// no change costs. A run of its own, so that the extra adjusts do not warm the cache
     /// for the frames timed by [`Timed::Adjusts`].
     SettledChecks,
+    /// A third adjust of each frame for the same camera: the first that works out a margin
+    /// for each test it makes ([`vds_runtime`]'s reuse of tests: a camera still for two
+    /// frames).
+    MarginPasses,
+    /// A fourth adjust of each frame for the same camera: what each further adjust of a
+    /// still camera costs (a viewer adjusting again while pages arrive), reusing the
+    /// margins.
+    Readjusts,
+}
+
+impl Timed {
+    /// Untimed adjusts for the same camera before the timed one.
+    fn before(self) -> usize {
+        match self {
+            Timed::Adjusts => 0,
+            Timed::SettledChecks => 1,
+            Timed::MarginPasses => 2,
+            Timed::Readjusts => 3,
+        }
+    }
 }
 
 /// Plays `path` through a fresh runtime and prints one line of figures. `resident`: every
@@ -57,7 +77,7 @@ fn play(
     resident: bool,
     timed: Timed,
 ) -> Result<()> {
-    let settled = timed == Timed::SettledChecks;
+    let settled = timed != Timed::Adjusts;
     let file = VdtFile::from_bytes(bytes.to_vec())?;
     let mut runtime = Runtime::new(Box::new(file), tracking)?;
     if resident {
@@ -67,7 +87,7 @@ fn play(
     let criteria = Criteria::default();
     let (mut ms, mut visited, mut added, mut removed, mut changed, mut active) =
         (vec![], vec![], vec![], vec![], vec![], vec![]);
-    let (mut groups, mut failed, mut reused) = (vec![], vec![], vec![]);
+    let (mut groups, mut failed, mut reused, mut own) = (vec![], vec![], vec![], vec![]);
     let mut active_nodes = vec![];
     // What a frame costs per active triangle, and per node folded or unfolded (frames with
     // changes only): the two costs the per-frame-work issue sets out to separate.
@@ -76,7 +96,7 @@ fn play(
     // Folds and unfolds of the timed adjusts: none when each first adjust settled its cut.
     let mut settled_changes = 0u64;
     for (i, camera) in path.cameras.iter().enumerate() {
-        if settled {
+        for _ in 0..timed.before() {
             runtime.adjust(&Viewpoint::Camera(*camera), &criteria, goal)?;
         }
         let start = Instant::now();
@@ -98,6 +118,7 @@ fn play(
         groups.push(f64::from(frame.stats.groups));
         failed.push(f64::from(frame.stats.groups_failed));
         reused.push(f64::from(frame.stats.groups_reused));
+        own.push(f64::from(frame.stats.candidates_reused));
         added.push(f64::from(frame.changes.added) / n * 100.0);
         removed.push(f64::from(frame.changes.removed) / n * 100.0);
         changed.push(f64::from(frame.changes.changed) / n * 100.0);
@@ -110,12 +131,17 @@ fn play(
         Goal::Budget(n) => format!("n={n}"),
     };
     if settled {
-        // The first adjust of each frame above was not timed; `frame` counts the second.
+        // The first adjusts of each frame above were not timed; `frame` counts the last.
         println!(
-            "  {t:<8} {:<9} {:<8} settled check median {:6.3} ms  p99 {:6.3} ms | visited {:>7.0} \
+            "  {t:<8} {:<9} {:<8} {} median {:6.3} ms  p99 {:6.3} ms | visited {:>7.0} \
              | folds and unfolds in the checks {} (0: the cut was settled)",
             format!("{tracking:?}"),
             if resident { "resident" } else { "cold" },
+            match timed {
+                Timed::MarginPasses => "margin pass",
+                Timed::Readjusts => "re-adjust",
+                _ => "settled check",
+            },
             median(&ms),
             percentile(&ms, 0.99),
             median(&visited),
@@ -125,7 +151,7 @@ fn play(
     }
     println!(
         "  {t:<8} {:<9} {:<8} adjust median {:6.3} ms  p99 {:6.3} ms  (first {:7.1} ms) | \
-         visited {:>7.0} (groups {:.0}, failed {:.0}, reused {:.0}) | active {:>8.0} (nodes {:.0}) | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
+         visited {:>7.0} (groups {:.0}, failed {:.0}, reused {:.0}; fold tests reused {:.0}) | active {:>8.0} (nodes {:.0}) | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
         format!("{tracking:?}"),
         if resident { "resident" } else { "cold" },
         median(&ms),
@@ -135,6 +161,7 @@ fn play(
         median(&groups),
         median(&failed),
         median(&reused),
+        median(&own),
         median(&active),
         median(&active_nodes),
         median(&added),
@@ -173,8 +200,9 @@ pub struct Runs {
     pub resident_only: bool,
     /// Only rank tracking, resident (implies `resident_only`).
     pub ranks_only: bool,
-    /// Also time settled checks (a second adjust for each frame's camera) of the resident
-    /// runs, which full runs do for incidence lists only.
+    /// Also time settled checks (a second adjust for each frame's camera), margin passes (a
+    /// third) and re-adjusts (a fourth) of the resident runs; full runs time settled checks
+    /// for incidence lists only.
     pub settled: bool,
 }
 
@@ -239,8 +267,9 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
                 Timed::Adjusts,
             )?;
             if runs.settled {
-                let settled = Timed::SettledChecks;
-                play(bytes, &path, Goal::Threshold(t), tracking, true, settled)?;
+                for timed in [Timed::SettledChecks, Timed::MarginPasses, Timed::Readjusts] {
+                    play(bytes, &path, Goal::Threshold(t), tracking, true, timed)?;
+                }
             }
         }
         if resident_only {
