@@ -804,6 +804,42 @@ mod tests {
     use crate::reuse::turn_bound;
     use crate::store::{Hot, Shape};
 
+    /// Silhouettes (none, tighter, or at the threshold), backfacing (mostly on) and one of
+    /// `frusta`, at random.
+    fn random_criteria(next: &mut impl FnMut() -> f32, frusta: &[FrustumMode]) -> Criteria {
+        Criteria {
+            silhouette_factor: [None, Some(0.25), Some(1.0)][(next() * 3.0) as usize % 3],
+            backface: next() < 0.7,
+            frustum: frusta[(next() * frusta.len() as f32) as usize % frusta.len()],
+            ..Criteria::default()
+        }
+    }
+
+    /// The test data of a node without children.
+    fn childless(proxy: [f32; 3], error_radius: f32) -> Hot {
+        Hot {
+            proxy,
+            error_radius,
+            group_radius: 0.0,
+            group_error: 0.0,
+            first_child: 0,
+            child_count: 0,
+        }
+    }
+
+    /// A camera near the origin, looking at a point near it, of a random field of view.
+    fn random_camera(next: &mut impl FnMut() -> f32) -> Camera {
+        Camera {
+            eye: [next() * 4.0 - 2.0, next() * 4.0 - 2.0, next() * 4.0 - 2.0],
+            target: [next() - 0.5, next() - 0.5, next() - 0.5],
+            up: [0.0, 1.0, 0.0],
+            fov_y_degrees: 30.0 + 60.0 * next(),
+            width: 640,
+            height: 480,
+            near: 0.01,
+        }
+    }
+
     /// The shortcut for nodes whose error exceeds the loosest threshold and that cannot face
     /// away gives the decision the full evaluation gives, on random nodes, cameras and
     /// criteria.
@@ -812,34 +848,14 @@ mod tests {
         let mut next = crate::unit_random(0x9E37_79B9_7F4A_7C15u64);
         let (mut shortcut_taken, mut cases) = (0, 0);
         for _ in 0..50_000 {
-            let camera = Camera {
-                eye: [next() * 4.0 - 2.0, next() * 4.0 - 2.0, next() * 4.0 - 2.0],
-                target: [next() - 0.5, next() - 0.5, next() - 0.5],
-                up: [0.0, 1.0, 0.0],
-                fov_y_degrees: 30.0 + 60.0 * next(),
-                width: 640,
-                height: 480,
-                near: 0.01,
-            };
-            let criteria = Criteria {
-                silhouette_factor: [None, Some(0.25), Some(1.0)][(next() * 3.0) as usize % 3],
-                backface: next() < 0.7,
-                frustum: [FrustumMode::Fold, FrustumMode::Off][(next() * 2.0) as usize % 2],
-                ..Criteria::default()
-            };
+            let camera = random_camera(&mut next);
+            let criteria = random_criteria(&mut next, &[FrustumMode::Fold, FrustumMode::Off]);
             let judge = Judge::new(&Viewpoint::Camera(camera), &criteria);
             let view = judge.view().unwrap();
             let axis = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize_or(Vec3::Z);
             let proxy = [next() - 0.5, next() - 0.5, next() - 0.5];
             let r = 0.001 + 0.05 * next();
-            let hot = Hot {
-                proxy,
-                error_radius: r,
-                group_radius: 0.0,
-                group_error: 0.0,
-                first_child: 0,
-                child_count: 0,
-            };
+            let hot = childless(proxy, r);
             let shape = Shape {
                 center: proxy,
                 radius: r * (1.0 + next()),
@@ -887,35 +903,17 @@ mod tests {
         let mut next = crate::unit_random(0x51_7CC1_B727_220Au64);
         let (mut checked_folded, mut checked_staying) = (0, 0);
         for _ in 0..40_000 {
-            let camera = Camera {
-                eye: [next() * 4.0 - 2.0, next() * 4.0 - 2.0, next() * 4.0 - 2.0],
-                target: [next() - 0.5, next() - 0.5, next() - 0.5],
-                up: [0.0, 1.0, 0.0],
-                fov_y_degrees: 30.0 + 60.0 * next(),
-                width: 640,
-                height: 480,
-                near: 0.01,
-            };
-            let criteria = Criteria {
-                silhouette_factor: [None, Some(0.25), Some(1.0)][(next() * 3.0) as usize % 3],
-                backface: next() < 0.7,
-                frustum: [FrustumMode::Fold, FrustumMode::Off, FrustumMode::Ignore]
-                    [(next() * 3.0) as usize % 3],
-                ..Criteria::default()
-            };
+            let camera = random_camera(&mut next);
+            let criteria = random_criteria(
+                &mut next,
+                &[FrustumMode::Fold, FrustumMode::Off, FrustumMode::Ignore],
+            );
             let judge = Judge::new(&Viewpoint::Camera(camera), &criteria);
             let view = *judge.view().unwrap();
             let axis = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize_or(Vec3::Z);
             let proxy = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 3.0;
             let r = 0.001 + 0.1 * next();
-            let hot = Hot {
-                proxy: proxy.into(),
-                error_radius: r,
-                group_radius: 0.0,
-                group_error: 0.0,
-                first_child: 0,
-                child_count: 0,
-            };
+            let hot = childless(proxy.into(), r);
             let shape = Shape {
                 center: (proxy + Vec3::new(next(), next(), next()) * r * 0.5).into(),
                 radius: r * (1.5 + next()),

@@ -33,11 +33,13 @@
 use crate::criteria::{Criteria, Judge};
 use crate::view::View;
 
-/// How far (camera coordinates) the centre of a ball test may move before the test could
-/// fail: `focal` in pixels, error radius `r`, centre depth `z` and distance from the view
-/// axis `rho`, extent `s` of the ball, threshold `tight`. Zero when the test does not pass
-/// with room to spare.
-pub(crate) fn pass_margin(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> f32 {
+/// The ball test's sides at the margin, in double precision: the depth `d = z − s` of the
+/// ball's near side now, the depth `u` at which the bound meets the threshold `tight` (the
+/// positive root of `T·u² + b·u − (b·d + k)` with `b = √2·f·r`, `k = f·r·L`; see the module
+/// documentation), and the room left for rounding (the single-precision inputs' relative
+/// 1e-7 is far inside it). `None` when the ball reaches the eye plane or `tight` is not
+/// positive.
+fn meeting_depth(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> Option<[f64; 3]> {
     let (focal, r, z, rho, s, tight) = (
         f64::from(focal),
         f64::from(r),
@@ -48,16 +50,25 @@ pub(crate) fn pass_margin(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f
     );
     let d = z - s;
     if d <= 0.0 || tight <= 0.0 {
-        return 0.0;
+        return None;
     }
     let b = std::f64::consts::SQRT_2 * focal * r;
     let k = focal * r * (d * d + (rho + s) * (rho + s)).sqrt();
-    // The root of T·u² + b·u − (b·d + k), in the form without cancellation: the depth at
-    // which the bound meets the threshold.
+    // The root in the form without cancellation.
     let c = b * d + k;
     let u = 2.0 * c / (b + (b * b + 4.0 * tight * c).sqrt());
-    // Rounding of the single-precision inputs (relative 1e-7) is far inside this slack.
-    let margin = d - u - 1e-4 * (z.abs() + rho + s);
+    Some([d, u, 1e-4 * (z.abs() + rho + s)])
+}
+
+/// How far (camera coordinates) the centre of a ball test may move before the test could
+/// fail: `focal` in pixels, error radius `r`, centre depth `z` and distance from the view
+/// axis `rho`, extent `s` of the ball, threshold `tight`. Zero when the test does not pass
+/// with room to spare.
+pub(crate) fn pass_margin(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> f32 {
+    let Some([d, u, slack]) = meeting_depth(focal, r, z, rho, s, tight) else {
+        return 0.0;
+    };
+    let margin = d - u - slack;
     if margin > 0.0 { margin as f32 } else { 0.0 }
 }
 
@@ -73,23 +84,11 @@ pub(crate) fn pass_margin(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f
 /// grows, which cannot both happen near the view axis; there `L ≥ d` gives the other: the
 /// test fails while `f·r > T·(d + δ)`.
 pub(crate) fn fail_margin(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> f32 {
-    let (focal, r, z, rho, s, tight) = (
-        f64::from(focal),
-        f64::from(r),
-        f64::from(z),
-        f64::from(rho),
-        f64::from(s),
-        f64::from(tight),
-    );
-    let d = z - s;
-    if d <= 0.0 || tight <= 0.0 {
+    let Some([d, u, slack]) = meeting_depth(focal, r, z, rho, s, tight) else {
         return 0.0;
-    }
-    let b = std::f64::consts::SQRT_2 * focal * r;
-    let k = focal * r * (d * d + (rho + s) * (rho + s)).sqrt();
-    let c = b * d + k;
-    let u = 2.0 * c / (b + (b * b + 4.0 * tight * c).sqrt());
-    let margin = (u - d).max(focal * r / tight - d) - 1e-4 * (z.abs() + rho + s);
+    };
+    let near_axis = f64::from(focal) * f64::from(r) / f64::from(tight);
+    let margin = (u - d).max(near_axis - d) - slack;
     if margin > 0.0 { margin as f32 } else { 0.0 }
 }
 
