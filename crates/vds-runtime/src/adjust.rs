@@ -146,6 +146,20 @@ fn prefetch_below(
 }
 
 /// What [`prefetch_below`] judges by: the view now, the view ahead, the threshold.
+/// What every entry of one threshold pass is visited with ([`Adjuster::visit_entry`]).
+struct Pass<'a> {
+    judge: &'a Judge,
+    sight: &'a Sight<'a>,
+    /// The threshold, and the tightest any node gets from it ([`Judge::tightest`]).
+    t: f32,
+    tight: f32,
+    prevent_flips: bool,
+    /// Pages load in the background: nodes near their threshold fetch their children's.
+    prefetching: bool,
+    /// The motion log at this frame (`None` without a camera).
+    now: Option<crate::reuse::Now>,
+}
+
 struct Sight<'a> {
     judge: &'a Judge,
     ahead: Option<&'a Judge>,
@@ -278,8 +292,30 @@ impl Adjuster {
         sight: &Sight,
         now: Option<crate::reuse::Now>,
     ) -> Result<(), VdtError> {
-        let tight = judge.tightest(t);
-        let prefetching = cut.store().loads_in_background() && t > 0.0;
+        let pass = Pass {
+            judge,
+            sight,
+            t,
+            tight: judge.tightest(t),
+            prevent_flips,
+            prefetching: cut.store().loads_in_background() && t > 0.0,
+            now,
+        };
+        if !STILL {
+            cut.forget_revisits();
+        } else if let Some(mut listed) = cut.begin_still_pass() {
+            // Only the entries the last still pass listed (their records did not hold whole,
+            // or changed since): every other record holds, the camera being where it was.
+            listed.sort_unstable();
+            listed.dedup();
+            for id in listed {
+                if let Some(i) = cut.active_index(id) {
+                    self.visit_entry::<STILL>(cut, &pass, i)?;
+                    self.list_unsettled(cut, &pass, i, id);
+                }
+            }
+            return Ok(());
+        }
         // Backwards through the dense active list: an unfold appends nodes whose children
         // it has just tested, so they need no visit now; a fold moves the last entry (already
         // visited) into the folded node's place, so nothing unvisited is skipped.
@@ -300,127 +336,173 @@ impl Adjuster {
             {
                 cut.prefetch_children(ahead);
             }
-            let Some(&entry) = cut.active_entries().get(i) else {
-                continue;
-            };
-            let hot = entry.hot;
-            // An entry whose children are all active has nothing to test: its children's own
-            // entries hold their groups, and it cannot fold.
-            if entry.active_children >= hot.child_count {
-                continue;
+            let id = cut.active_entries().get(i).map_or(NIL, |entry| entry.id);
+            self.visit_entry::<STILL>(cut, &pass, i)?;
+            if STILL {
+                self.list_unsettled(cut, &pass, i, id);
             }
-            // A record covers the group and, beside it, a fold candidate's own test (made
-            // and used by still passes only).
-            let record = entry.reuse;
-            let candidate = entry.active_children == 0;
-            let group_holds = now.as_ref().is_some_and(|now| record.holds(now));
-            let own_holds =
-                STILL && candidate && now.as_ref().is_some_and(|now| record.own_holds(now));
+        }
+        Ok(())
+    }
+
+    /// After a still pass visited node `id` at index `i`: lists it for the next still pass
+    /// unless its record holds whole (the group's and, for a fold candidate, its own) or it
+    /// has nothing to test. A node that left index `i` folded; its parent's record was
+    /// cleared, which listed the parent.
+    fn list_unsettled(&self, cut: &mut Cut, pass: &Pass, i: usize, id: u32) {
+        let Some(entry) = cut.active_entries().get(i) else {
+            return;
+        };
+        if entry.id != id || entry.active_children >= entry.hot.child_count {
+            return;
+        }
+        let record = entry.reuse;
+        let whole = pass.now.as_ref().is_some_and(|now| {
+            record.holds(now) && (entry.active_children > 0 || record.own_holds(now))
+        });
+        if !whole {
+            cut.revisit(id);
+        }
+    }
+
+    /// One entry of the threshold pass: its boundary children's group and, for a fold
+    /// candidate, its own test, each skipped while its record holds
+    /// ([`Adjuster::threshold_pass`]).
+    #[inline(always)]
+    fn visit_entry<const STILL: bool>(
+        &mut self,
+        cut: &mut Cut,
+        pass: &Pass,
+        i: usize,
+    ) -> Result<(), VdtError> {
+        let Pass {
+            judge,
+            sight,
+            t,
+            tight,
+            prevent_flips,
+            prefetching,
+            ref now,
+        } = *pass;
+        let Some(&entry) = cut.active_entries().get(i) else {
+            return Ok(());
+        };
+        let hot = entry.hot;
+        // An entry whose children are all active has nothing to test: its children's own
+        // entries hold their groups, and it cannot fold.
+        if entry.active_children >= hot.child_count {
+            return Ok(());
+        }
+        // A record covers the group and, beside it, a fold candidate's own test (made
+        // and used by still passes only).
+        let record = entry.reuse;
+        let candidate = entry.active_children == 0;
+        let group_holds = now.as_ref().is_some_and(|now| record.holds(now));
+        let own_holds = STILL && candidate && now.as_ref().is_some_and(|now| record.own_holds(now));
+        if group_holds {
+            self.stats.groups_reused += 1;
+            if !candidate {
+                return Ok(());
+            }
+        }
+        if own_holds {
+            self.stats.candidates_reused += 1;
             if group_holds {
-                self.stats.groups_reused += 1;
-                if !candidate {
-                    continue;
-                }
+                return Ok(());
             }
-            if own_holds {
-                self.stats.candidates_reused += 1;
-                if group_holds {
-                    continue;
-                }
-            }
-            // The group's margin and reach: its bound's, or the least margin and farthest
-            // reach of its children's when each had to be tested and none unfolded.
-            // `reach`: the children's beyond the group's own, which is found only for a
-            // record (a square root).
-            let (mut margin, mut reach) = (0.0f32, 0.0f32);
-            if !group_holds {
-                self.stats.visited += 1;
-                self.stats.groups += 1;
-                margin = match judge.group_margin(&hot, tight) {
-                    Some(margin) => margin,
-                    None => {
-                        self.stats.groups_failed += 1;
-                        let mut least = f32::INFINITY;
-                        for c in hot.first_child..hot.first_child + hot.child_count {
-                            let (label, tested) = cut.store().labelled(c);
-                            if label.state != NodeState::Boundary {
-                                continue;
-                            }
-                            self.stats.visited += 1;
-                            let (decision, child_margin, child_reach) =
-                                judge.decide_with_margin(tested, t, STILL);
-                            if decision == Decision::Unfold {
-                                least = 0.0;
-                                self.refine(cut, judge, t, c)?;
-                            } else {
-                                least = least.min(child_margin);
-                                reach = reach.max(child_reach);
-                                // Near its threshold: its children's pages are fetched ahead
-                                // of need, the nearest first.
-                                if prefetching {
-                                    // Cheap test first: most nodes are far from it.
-                                    let hot = *tested.hot;
-                                    let now = sight.now(&hot);
-                                    if now > PREFETCH_RATIO * 0.5 {
-                                        let deeper = &mut self.deeper;
-                                        prefetch_below(cut, sight, c, hot, now, 0, deeper);
-                                    }
+        }
+        // The group's margin and reach: its bound's, or the least margin and farthest
+        // reach of its children's when each had to be tested and none unfolded.
+        // `reach`: the children's beyond the group's own, which is found only for a
+        // record (a square root).
+        let (mut margin, mut reach) = (0.0f32, 0.0f32);
+        if !group_holds {
+            self.stats.visited += 1;
+            self.stats.groups += 1;
+            margin = match judge.group_margin(&hot, tight) {
+                Some(margin) => margin,
+                None => {
+                    self.stats.groups_failed += 1;
+                    let mut least = f32::INFINITY;
+                    for c in hot.first_child..hot.first_child + hot.child_count {
+                        let (label, tested) = cut.store().labelled(c);
+                        if label.state != NodeState::Boundary {
+                            continue;
+                        }
+                        self.stats.visited += 1;
+                        let (decision, child_margin, child_reach) =
+                            judge.decide_with_margin(tested, t, STILL);
+                        if decision == Decision::Unfold {
+                            least = 0.0;
+                            self.refine(cut, judge, t, c)?;
+                        } else {
+                            least = least.min(child_margin);
+                            reach = reach.max(child_reach);
+                            // Near its threshold: its children's pages are fetched ahead
+                            // of need, the nearest first.
+                            if prefetching {
+                                // Cheap test first: most nodes are far from it.
+                                let hot = *tested.hot;
+                                let now = sight.now(&hot);
+                                if now > PREFETCH_RATIO * 0.5 {
+                                    let deeper = &mut self.deeper;
+                                    prefetch_below(cut, sight, c, hot, now, 0, deeper);
                                 }
                             }
                         }
-                        least
                     }
-                };
-            }
-            // Still at index `i` (refinement above only appended entries, and an unfolded
-            // child shows in the count, having cleared the record): the entry itself says
-            // whether `p` may fold, without a look-up by node id, which would miss the cache
-            // on every entry.
-            let Some(&entry) = cut.active_entries().get(i) else {
-                continue;
-            };
-            let mut own = None;
-            if entry.active_children == 0 && !own_holds {
-                self.stats.visited += 1;
-                let (decision, staying, staying_reach) =
-                    judge.decide_staying(cut.active_tested(i), t, STILL);
-                if decision == Decision::Fold {
-                    // The entry leaves (or, refused, is tested again next frame).
-                    self.coarsen(cut, judge, t, entry.id, prevent_flips);
-                    continue;
+                    least
                 }
-                if staying > 0.0 {
-                    own = Some((staying, staying_reach));
-                }
-            }
-            let Some(now) = &now else {
-                continue;
             };
-            // The record made now: the group's (kept, or found now), and the own test's
-            // (found now, or what is left of the kept one's while the node is a candidate).
-            // Nothing is written when neither part holds: the old record has run out.
-            let kept_own = own_holds && !group_holds && entry.active_children == 0;
-            if group_holds && own.is_none()
-                || !group_holds && margin <= 0.0 && own.is_none() && !kept_own
-            {
-                continue;
-            }
-            let mut made = if group_holds {
-                record
-            } else if margin > 0.0 {
-                Reuse::new(now, reach.max(judge.group_reach(&hot)), margin)
-            } else {
-                Reuse::new(now, 0.0, 0.0)
-            };
-            if entry.active_children == 0 {
-                if let Some((staying, staying_reach)) = own {
-                    made = made.with_own(now, staying_reach, staying);
-                } else if kept_own {
-                    made = made.with_own(now, record.reach(), record.own_left(now));
-                }
-            }
-            cut.set_reuse(i, made);
         }
+        // Still at index `i` (refinement above only appended entries, and an unfolded
+        // child shows in the count, having cleared the record): the entry itself says
+        // whether `p` may fold, without a look-up by node id, which would miss the cache
+        // on every entry.
+        let Some(&entry) = cut.active_entries().get(i) else {
+            return Ok(());
+        };
+        let mut own = None;
+        if entry.active_children == 0 && !own_holds {
+            self.stats.visited += 1;
+            let (decision, staying, staying_reach) =
+                judge.decide_staying(cut.active_tested(i), t, STILL);
+            if decision == Decision::Fold {
+                // The entry leaves (or, refused, is tested again next frame).
+                self.coarsen(cut, judge, t, entry.id, prevent_flips);
+                return Ok(());
+            }
+            if staying > 0.0 {
+                own = Some((staying, staying_reach));
+            }
+        }
+        let Some(now) = &now else {
+            return Ok(());
+        };
+        // The record made now: the group's (kept, or found now), and the own test's
+        // (found now, or what is left of the kept one's while the node is a candidate).
+        // Nothing is written when neither part holds: the old record has run out.
+        let kept_own = own_holds && !group_holds && entry.active_children == 0;
+        if group_holds && own.is_none()
+            || !group_holds && margin <= 0.0 && own.is_none() && !kept_own
+        {
+            return Ok(());
+        }
+        let mut made = if group_holds {
+            record
+        } else if margin > 0.0 {
+            Reuse::new(now, reach.max(judge.group_reach(&hot)), margin)
+        } else {
+            Reuse::new(now, 0.0, 0.0)
+        };
+        if entry.active_children == 0 {
+            if let Some((staying, staying_reach)) = own {
+                made = made.with_own(now, staying_reach, staying);
+            } else if kept_own {
+                made = made.with_own(now, record.reach(), record.own_left(now));
+            }
+        }
+        cut.set_reuse(i, made);
         Ok(())
     }
 

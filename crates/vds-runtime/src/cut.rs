@@ -249,6 +249,12 @@ pub struct Cut {
     /// Rank tracking: triangles added and removed since the last `take_changes`, net.
     net_added: i64,
     net_removed: i64,
+    /// Still passes of the threshold traversal ([`crate::adjust`]): the active nodes the next
+    /// still pass must visit, those whose records did not hold whole at the last one and
+    /// those whose records were made or cleared since (duplicates allowed). `None` while no
+    /// still pass has run since the camera last moved or the records were cleared: the next
+    /// still pass then visits every entry.
+    revisit: Option<Vec<u32>>,
 }
 
 impl Cut {
@@ -286,6 +292,7 @@ impl Cut {
             hidden_was: Default::default(),
             net_added: 0,
             net_removed: 0,
+            revisit: None,
         }
     }
 
@@ -378,6 +385,33 @@ impl Cut {
         for entry in &mut self.active_list {
             entry.reuse = Reuse::NONE;
         }
+        self.revisit = None;
+    }
+
+    /// Starts a still pass: the nodes it must visit (`None`: every entry), and from now on
+    /// the list for the next one, which [`Cut::revisit`] and the cut's own changes fill.
+    pub(crate) fn begin_still_pass(&mut self) -> Option<Vec<u32>> {
+        self.revisit.replace(Vec::new())
+    }
+
+    /// Ends the lists of still passes: the camera moved, so the next still pass visits every
+    /// entry.
+    pub(crate) fn forget_revisits(&mut self) {
+        self.revisit = None;
+    }
+
+    /// Marks active node `id` for a visit by the next still pass (while one is listing).
+    #[inline]
+    pub(crate) fn revisit(&mut self, id: u32) {
+        if let Some(list) = &mut self.revisit {
+            list.push(id);
+        }
+    }
+
+    /// The index in [`Cut::active_entries`] of node `id`, if it is active.
+    pub(crate) fn active_index(&self, id: u32) -> Option<usize> {
+        let label = self.store.label(id);
+        (label.state == NodeState::Active).then_some(label.active_index as usize)
     }
 
     /// What the criteria read of the active node at `index` of [`Cut::active_entries`],
@@ -831,6 +865,7 @@ impl Cut {
             + held(&self.journal)
             + held(&self.dirty_bits)
             + held(&self.node_journal)
+            + self.revisit.as_ref().map_or(0, held)
             + hashed) as u64
     }
 
@@ -1426,6 +1461,7 @@ impl Cut {
             let entry = &mut self.active_list[index as usize];
             entry.active_children = u32::from(count);
             entry.reuse = Reuse::NONE;
+            self.revisit(parent);
         }
     }
 
@@ -1468,6 +1504,7 @@ impl Cut {
                 reuse: Reuse::NONE,
             });
             self.active_shapes.push(*self.store.tested(id).shape);
+            self.revisit(id);
         } else if was == NodeState::Active && state != NodeState::Active {
             let index = std::mem::replace(&mut self.store.label_mut(id).active_index, NIL) as usize;
             self.active_list.swap_remove(index);

@@ -614,12 +614,13 @@ fn tests_reused_while_the_camera_pauses_decide_as_the_tests_would() {
             let mut once = runtime(&bytes, CornerTracking::Ranks);
             let mut paused = runtime(&bytes, CornerTracking::Ranks);
             let positions = paused.leaf_positions().unwrap();
-            let mut reused = 0;
+            // Tests made by each of the four adjusts at a camera, summed over the path.
+            let mut tests = [0u64; 4];
             for (frame, camera) in path.cameras.iter().enumerate() {
                 let t = [1.0, 2.0][frame / 40];
                 once.adjust(&Viewpoint::Camera(*camera), criteria, Goal::Threshold(t))
                     .unwrap();
-                for _ in 0..4 {
+                for made in &mut tests {
                     let stats = if criteria.backface {
                         let view = Viewpoint::Camera(*camera);
                         paused
@@ -630,7 +631,7 @@ fn tests_reused_while_the_camera_pauses_decide_as_the_tests_would() {
                         let what = format!("{name}, criteria {setting}, frame {frame}");
                         adjust_within(&mut paused, camera, criteria, t, &positions, &what)
                     };
-                    reused += stats.candidates_reused;
+                    *made += u64::from(stats.visited);
                 }
                 assert_eq!(
                     once.cut().boundary(),
@@ -640,8 +641,59 @@ fn tests_reused_while_the_camera_pauses_decide_as_the_tests_would() {
             }
             paused.cut_mut().check().unwrap();
             assert!(
-                reused > 1000,
-                "{name}, criteria {setting}: {reused} fold tests reused"
+                tests[3] * 2 < tests[1],
+                "{name}, criteria {setting}: tests made by the four adjusts {tests:?}"
+            );
+        }
+    }
+}
+
+/// A still pass visits only what the last one listed and what changed since
+/// ([`vds_runtime`]'s re-adjusts): a budget adjust between threshold adjusts for the same
+/// camera changes the cut under the records (coarser: nodes to unfold again; finer: new
+/// active nodes to fold), and the threshold adjust after it must end where a runtime without
+/// the still passes before it ends.
+#[test]
+fn a_still_pass_visits_what_changed_since_the_last() {
+    for name in ["bunny.obj", "as1_assembly.obj"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let mut rng = Rng(11);
+        let criteria = Criteria::default();
+        for step in 0..8 {
+            let view = Viewpoint::Camera(random_camera(&mut rng, center, radius));
+            let t = Goal::Threshold([1.0, 2.0][step % 2]);
+            let (mut plain, mut still) = (
+                runtime(&bytes, CornerTracking::Ranks),
+                runtime(&bytes, CornerTracking::Ranks),
+            );
+            plain.adjust(&view, &criteria, t).unwrap();
+            for _ in 0..3 {
+                still.adjust(&view, &criteria, t).unwrap();
+            }
+            let threshold_count = plain.cut().active_triangle_count();
+            let finer = step % 2 == 1;
+            let budget = Goal::Budget(if finer {
+                threshold_count * 3
+            } else {
+                threshold_count / 3
+            });
+            plain.adjust(&view, &criteria, budget).unwrap();
+            still.adjust(&view, &criteria, budget).unwrap();
+            let again = plain.adjust(&view, &criteria, t).unwrap();
+            let listed = still.adjust(&view, &criteria, t).unwrap();
+            let back = if finer {
+                again.stats.folds
+            } else {
+                again.stats.unfolds
+            };
+            assert!(back > 0, "{name} step {step}: the budget changed nothing");
+            assert_eq!(
+                plain.cut().boundary(),
+                still.cut().boundary(),
+                "{name} step {step}: the still pass missed a change ({:?})",
+                listed.stats
             );
         }
     }
