@@ -61,9 +61,6 @@ pub struct AdjustStats {
     /// Groups not tested because their last test still holds for this camera
     /// ([`crate::reuse`]).
     pub groups_reused: u32,
-    /// Fold candidates (active nodes whose children are all on the boundary) whose own test
-    /// was not made because its last outcome still holds ([`crate::reuse`]).
-    pub candidates_reused: u32,
     /// Nodes unfolded.
     pub unfolds: u32,
     /// Nodes folded.
@@ -75,6 +72,20 @@ pub struct AdjustStats {
     /// loading only): their pages are asked for. Nodes whose pages failed to load are not
     /// counted: they stay folded for good.
     pub deferred_unfolds: u32,
+}
+
+/// After a still pass (or the full pass that starts a run of them) visited node `id` at
+/// index `i`: lists it for the next still pass unless it `settled`. A node that left index
+/// `i` folded: its parent's record was cleared, which listed the parent.
+fn list_unsettled(cut: &mut Cut, i: usize, id: u32, settled: bool) {
+    if !settled
+        && cut
+            .active_entries()
+            .get(i)
+            .is_some_and(|entry| entry.id == id)
+    {
+        cut.revisit(id);
+    }
 }
 
 /// A boundary node whose screen-space error is past this share of the threshold has its
@@ -267,55 +278,49 @@ impl Adjuster {
         if now.is_some_and(|now| now.fresh) {
             cut.clear_reuse();
         }
-        // Margins beyond the cheap ones are worked out only for a still camera: compiled
-        // apart, so that a moving camera's pass carries none of that code.
+        let pass = Pass {
+            judge,
+            sight: &sight,
+            t,
+            tight: judge.tightest(t),
+            prevent_flips,
+            prefetching,
+            now,
+        };
         if now.is_some_and(|now| now.still) {
-            self.threshold_pass::<true>(cut, judge, t, prevent_flips, &sight, now)?;
+            self.still_pass(cut, &pass)?;
         } else {
-            self.threshold_pass::<false>(cut, judge, t, prevent_flips, &sight, now)?;
+            // A moving camera: the next still pass starts from a full pass again.
+            cut.forget_revisits();
+            self.full_pass(cut, &pass, false)?;
         }
         self.prefetch_deeper(cut, &sight);
         self.retry_refused_folds(cut, judge, t, prevent_flips);
         Ok(self.stats)
     }
 
-    /// The threshold traversal's pass over the active list (see [`Adjuster::adjust_threshold`]);
-    /// `STILL`: the camera has not moved since the last adjust ([`crate::reuse`]). Not
-    /// inlined: the two passes stay apart, each with its tests inlined into its loop.
-    #[inline(never)]
-    fn threshold_pass<const STILL: bool>(
-        &mut self,
-        cut: &mut Cut,
-        judge: &Judge,
-        t: f32,
-        prevent_flips: bool,
-        sight: &Sight,
-        now: Option<crate::reuse::Now>,
-    ) -> Result<(), VdtError> {
-        let pass = Pass {
-            judge,
-            sight,
-            t,
-            tight: judge.tightest(t),
-            prevent_flips,
-            prefetching: cut.store().loads_in_background() && t > 0.0,
-            now,
+    /// The threshold pass for a camera where it was at the previous adjust: every test gives
+    /// what it gave then, so only entries that did not settle then, and those the cut changed
+    /// since, are visited (the list the previous still pass left, [`Cut::begin_still_pass`]);
+    /// a full pass that lists them when there is none.
+    fn still_pass(&mut self, cut: &mut Cut, pass: &Pass) -> Result<(), VdtError> {
+        let Some(mut listed) = cut.begin_still_pass() else {
+            return self.full_pass(cut, pass, true);
         };
-        if !STILL {
-            cut.forget_revisits();
-        } else if let Some(mut listed) = cut.begin_still_pass() {
-            // Only the entries the last still pass listed (their records did not hold whole,
-            // or changed since): every other record holds, the camera being where it was.
-            listed.sort_unstable();
-            listed.dedup();
-            for id in listed {
-                if let Some(i) = cut.active_index(id) {
-                    self.visit_entry::<STILL>(cut, &pass, i)?;
-                    self.list_unsettled(cut, &pass, i, id);
-                }
+        listed.sort_unstable();
+        listed.dedup();
+        for id in listed {
+            if let Some(i) = cut.active_index(id) {
+                let settled = self.visit_entry(cut, pass, i)?;
+                list_unsettled(cut, i, id, settled);
             }
-            return Ok(());
         }
+        Ok(())
+    }
+
+    /// The threshold pass over the whole active list; `listing`: each entry that does not
+    /// settle is listed for the next still pass ([`Cut::revisit`]).
+    fn full_pass(&mut self, cut: &mut Cut, pass: &Pass, listing: bool) -> Result<(), VdtError> {
         // Backwards through the dense active list: an unfold appends nodes whose children
         // it has just tested, so they need no visit now; a fold moves the last entry (already
         // visited) into the folded node's place, so nothing unvisited is skipped.
@@ -332,49 +337,27 @@ impl Adjuster {
             if let Some(ahead) = i.checked_sub(LOOKAHEAD)
                 && let Some(entry) = cut.active_entries().get(ahead)
                 && entry.active_children < entry.hot.child_count
-                && !now.as_ref().is_some_and(|now| entry.reuse.holds(now))
+                && !pass.now.as_ref().is_some_and(|now| entry.reuse.holds(now))
             {
                 cut.prefetch_children(ahead);
             }
-            let id = cut.active_entries().get(i).map_or(NIL, |entry| entry.id);
-            self.visit_entry::<STILL>(cut, &pass, i)?;
-            if STILL {
-                self.list_unsettled(cut, &pass, i, id);
+            if listing {
+                let id = cut.active_entries().get(i).map_or(NIL, |entry| entry.id);
+                let settled = self.visit_entry(cut, pass, i)?;
+                list_unsettled(cut, i, id, settled);
+            } else {
+                self.visit_entry(cut, pass, i)?;
             }
         }
         Ok(())
     }
 
-    /// After a still pass visited node `id` at index `i`: lists it for the next still pass
-    /// unless its record holds whole (the group's and, for a fold candidate, its own) or it
-    /// has nothing to test. A node that left index `i` folded; its parent's record was
-    /// cleared, which listed the parent.
-    fn list_unsettled(&self, cut: &mut Cut, pass: &Pass, i: usize, id: u32) {
-        let Some(entry) = cut.active_entries().get(i) else {
-            return;
-        };
-        if entry.id != id || entry.active_children >= entry.hot.child_count {
-            return;
-        }
-        let record = entry.reuse;
-        let whole = pass.now.as_ref().is_some_and(|now| {
-            record.holds(now) && (entry.active_children > 0 || record.own_holds(now))
-        });
-        if !whole {
-            cut.revisit(id);
-        }
-    }
-
-    /// One entry of the threshold pass: its boundary children's group and, for a fold
-    /// candidate, its own test, each skipped while its record holds
-    /// ([`Adjuster::threshold_pass`]).
+    /// One entry of the threshold pass: its boundary children's group (skipped while its
+    /// record holds, [`crate::reuse`]) and, for a fold candidate, its own test. Returns
+    /// whether the entry settled: nothing in it unfolded or waits for a page, and it did not
+    /// try to fold.
     #[inline(always)]
-    fn visit_entry<const STILL: bool>(
-        &mut self,
-        cut: &mut Cut,
-        pass: &Pass,
-        i: usize,
-    ) -> Result<(), VdtError> {
+    fn visit_entry(&mut self, cut: &mut Cut, pass: &Pass, i: usize) -> Result<bool, VdtError> {
         let Pass {
             judge,
             sight,
@@ -385,43 +368,20 @@ impl Adjuster {
             ref now,
         } = *pass;
         let Some(&entry) = cut.active_entries().get(i) else {
-            return Ok(());
+            return Ok(true);
         };
         let hot = entry.hot;
-        // An entry whose children are all active has nothing to test: its children's own
-        // entries hold their groups, and it cannot fold.
-        if entry.active_children >= hot.child_count {
-            return Ok(());
-        }
-        // A record covers the group and, beside it, a fold candidate's own test (made
-        // and used by still passes only).
-        let record = entry.reuse;
-        let candidate = entry.active_children == 0;
-        let group_holds = now.as_ref().is_some_and(|now| record.holds(now));
-        let own_holds = STILL && candidate && now.as_ref().is_some_and(|now| record.own_holds(now));
-        if group_holds {
-            self.stats.groups_reused += 1;
-            if !candidate {
-                return Ok(());
-            }
-        }
-        if own_holds {
-            self.stats.candidates_reused += 1;
-            if group_holds {
-                return Ok(());
-            }
-        }
-        // The group's margin and reach: its bound's, or the least margin and farthest
-        // reach of its children's when each had to be tested and none unfolded.
-        // `reach`: the children's beyond the group's own, which is found only for a
-        // record (a square root).
-        let (mut margin, mut reach) = (0.0f32, 0.0f32);
-        if !group_holds {
-            self.stats.visited += 1;
-            self.stats.groups += 1;
-            margin = match judge.group_margin(&hot, tight) {
-                Some(margin) => margin,
-                None => {
+        let mut settled = true;
+        if entry.active_children < hot.child_count {
+            if now.as_ref().is_some_and(|now| entry.reuse.holds(now)) {
+                self.stats.groups_reused += 1;
+            } else {
+                self.stats.visited += 1;
+                self.stats.groups += 1;
+                // The group's margin, or the least of its children's when each had to be
+                // tested and none unfolded.
+                let mut margin = judge.group_margin(&hot, tight);
+                if margin.is_none() {
                     self.stats.groups_failed += 1;
                     let mut least = f32::INFINITY;
                     for c in hot.first_child..hot.first_child + hot.child_count {
@@ -430,16 +390,15 @@ impl Adjuster {
                             continue;
                         }
                         self.stats.visited += 1;
-                        let (decision, child_margin, child_reach) =
-                            judge.decide_with_margin(tested, t, STILL);
+                        let (decision, child_margin) = judge.decide_with_margin(tested, t);
                         if decision == Decision::Unfold {
                             least = 0.0;
+                            settled = false;
                             self.refine(cut, judge, t, c)?;
                         } else {
                             least = least.min(child_margin);
-                            reach = reach.max(child_reach);
-                            // Near its threshold: its children's pages are fetched ahead
-                            // of need, the nearest first.
+                            // Near its threshold: its children's pages are fetched
+                            // ahead of need, the nearest first.
                             if prefetching {
                                 // Cheap test first: most nodes are far from it.
                                 let hot = *tested.hot;
@@ -451,59 +410,32 @@ impl Adjuster {
                             }
                         }
                     }
-                    least
+                    margin = Some(least);
                 }
-            };
+                // Still at index `i`: refinement only appended entries (and an unfold
+                // cleared this entry's record, which stays cleared with a zero margin).
+                if let (Some(now), Some(margin)) = (now, margin)
+                    && margin > 0.0
+                {
+                    cut.set_reuse(i, Reuse::new(now, judge.group_reach(&hot), margin));
+                }
+            }
         }
-        // Still at index `i` (refinement above only appended entries, and an unfolded
-        // child shows in the count, having cleared the record): the entry itself says
-        // whether `p` may fold, without a look-up by node id, which would miss the cache
-        // on every entry.
+        // Still at index `i` (refinement above only appended entries, and an unfolded child
+        // shows in the count): the entry itself says whether `p` may fold, without a look-up
+        // by node id, which would miss the cache on every entry.
         let Some(&entry) = cut.active_entries().get(i) else {
-            return Ok(());
+            return Ok(settled);
         };
-        let mut own = None;
-        if entry.active_children == 0 && !own_holds {
-            self.stats.visited += 1;
-            let (decision, staying, staying_reach) =
-                judge.decide_staying(cut.active_tested(i), t, STILL);
-            if decision == Decision::Fold {
-                // The entry leaves (or, refused, is tested again next frame).
-                self.coarsen(cut, judge, t, entry.id, prevent_flips);
-                return Ok(());
-            }
-            if staying > 0.0 {
-                own = Some((staying, staying_reach));
-            }
-        }
-        let Some(now) = &now else {
-            return Ok(());
-        };
-        // The record made now: the group's (kept, or found now), and the own test's
-        // (found now, or what is left of the kept one's while the node is a candidate).
-        // Nothing is written when neither part holds: the old record has run out.
-        let kept_own = own_holds && !group_holds && entry.active_children == 0;
-        if group_holds && own.is_none()
-            || !group_holds && margin <= 0.0 && own.is_none() && !kept_own
-        {
-            return Ok(());
-        }
-        let mut made = if group_holds {
-            record
-        } else if margin > 0.0 {
-            Reuse::new(now, reach.max(judge.group_reach(&hot)), margin)
-        } else {
-            Reuse::new(now, 0.0, 0.0)
-        };
+        let p = entry.id;
         if entry.active_children == 0 {
-            if let Some((staying, staying_reach)) = own {
-                made = made.with_own(now, staying_reach, staying);
-            } else if kept_own {
-                made = made.with_own(now, record.reach(), record.own_left(now));
+            self.stats.visited += 1;
+            if judge.decide(cut.active_tested(i), t) == Decision::Fold {
+                settled = false;
+                self.coarsen(cut, judge, t, p, prevent_flips);
             }
         }
-        cut.set_reuse(i, made);
-        Ok(())
+        Ok(settled)
     }
 
     /// Looks below the [`DEEPER_PER_FRAME`] candidates nearest to their threshold for pages

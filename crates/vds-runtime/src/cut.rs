@@ -249,11 +249,11 @@ pub struct Cut {
     /// Rank tracking: triangles added and removed since the last `take_changes`, net.
     net_added: i64,
     net_removed: i64,
-    /// Still passes of the threshold traversal ([`crate::adjust`]): the active nodes the next
-    /// still pass must visit, those whose records did not hold whole at the last one and
-    /// those whose records were made or cleared since (duplicates allowed). `None` while no
-    /// still pass has run since the camera last moved or the records were cleared: the next
-    /// still pass then visits every entry.
+    /// Still passes of the threshold traversal ([`crate::adjust`]: the camera where it was at
+    /// the last adjust): the active nodes the next still pass must visit, those that did not
+    /// settle at the last one and those the cut created or cleared the record of since
+    /// (duplicates allowed). `None` while no still pass has run since the camera last moved or
+    /// the records were cleared: the next still pass then visits every entry.
     revisit: Option<Vec<u32>>,
 }
 

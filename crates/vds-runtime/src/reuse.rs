@@ -14,10 +14,7 @@
 //! by at most `δ`, then `z` and `ρ` each change by at most `δ`, so the left side is at most
 //! `f·r·(L + √2·δ)` with `L = √(d² + (ρ + s)²)` (triangle inequality) and the right side at
 //! least `T·(d − δ)²`. The test therefore still passes while `T·(d − δ)² − √2·f·r·δ − f·r·L ≥ 0`,
-//! a quadratic in `u = d − δ` whose root gives the largest such `δ`. A failing test has the
-//! mirror margin (`fail_margin`), and the frustum and cone tests theirs
-//! ([`crate::criteria`]); a record may hold two outcomes, a group's and its parent's own fold
-//! test (`Reuse::with_own`).
+//! a quadratic in `u = d − δ` whose root gives the largest such `δ`.
 //!
 //! ## Camera motion
 //! A world point `p` sits at `c = R·(p − e)` in camera coordinates (`R` the rows right, up,
@@ -33,13 +30,11 @@
 use crate::criteria::{Criteria, Judge};
 use crate::view::View;
 
-/// The ball test's sides at the margin, in double precision: the depth `d = z − s` of the
-/// ball's near side now, the depth `u` at which the bound meets the threshold `tight` (the
-/// positive root of `T·u² + b·u − (b·d + k)` with `b = √2·f·r`, `k = f·r·L`; see the module
-/// documentation), and the room left for rounding (the single-precision inputs' relative
-/// 1e-7 is far inside it). `None` when the ball reaches the eye plane or `tight` is not
-/// positive.
-fn meeting_depth(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> Option<[f64; 3]> {
+/// How far (camera coordinates) the centre of a ball test may move before the test could
+/// fail: `focal` in pixels, error radius `r`, centre depth `z` and distance from the view
+/// axis `rho`, extent `s` of the ball, threshold `tight`. Zero when the test does not pass
+/// with room to spare.
+pub(crate) fn pass_margin(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> f32 {
     let (focal, r, z, rho, s, tight) = (
         f64::from(focal),
         f64::from(r),
@@ -50,45 +45,16 @@ fn meeting_depth(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> Op
     );
     let d = z - s;
     if d <= 0.0 || tight <= 0.0 {
-        return None;
+        return 0.0;
     }
     let b = std::f64::consts::SQRT_2 * focal * r;
     let k = focal * r * (d * d + (rho + s) * (rho + s)).sqrt();
-    // The root in the form without cancellation.
+    // The root of T·u² + b·u − (b·d + k), in the form without cancellation: the depth at
+    // which the bound meets the threshold.
     let c = b * d + k;
     let u = 2.0 * c / (b + (b * b + 4.0 * tight * c).sqrt());
-    Some([d, u, 1e-4 * (z.abs() + rho + s)])
-}
-
-/// How far (camera coordinates) the centre of a ball test may move before the test could
-/// fail: `focal` in pixels, error radius `r`, centre depth `z` and distance from the view
-/// axis `rho`, extent `s` of the ball, threshold `tight`. Zero when the test does not pass
-/// with room to spare.
-pub(crate) fn pass_margin(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> f32 {
-    let Some([d, u, slack]) = meeting_depth(focal, r, z, rho, s, tight) else {
-        return 0.0;
-    };
-    let margin = d - u - slack;
-    if margin > 0.0 { margin as f32 } else { 0.0 }
-}
-
-/// How far (camera coordinates) the centre of a ball test may move before the test could
-/// pass: the counterpart of [`pass_margin`] for a test that fails now, with the same
-/// arguments. Zero when the test does not fail with room to spare, or the ball reaches the
-/// eye plane.
-///
-/// Two bounds, each sufficient, the larger taken. Under a move of at most `δ` the left side
-/// is at least `f·r·(L − √2·δ)` and the depth `d + δ` at most, so the test still fails
-/// while `T·(d + δ)² + √2·f·r·δ − f·r·L < 0`: with `u = d + δ` the same quadratic as
-/// [`pass_margin`]'s, whose root now lies beyond `d`. That bound lets `L` shrink as `d`
-/// grows, which cannot both happen near the view axis; there `L ≥ d` gives the other: the
-/// test fails while `f·r > T·(d + δ)`.
-pub(crate) fn fail_margin(focal: f32, r: f32, z: f32, rho: f32, s: f32, tight: f32) -> f32 {
-    let Some([d, u, slack]) = meeting_depth(focal, r, z, rho, s, tight) else {
-        return 0.0;
-    };
-    let near_axis = f64::from(focal) * f64::from(r) / f64::from(tight);
-    let margin = (u - d).max(near_axis - d) - slack;
+    // Rounding of the single-precision inputs (relative 1e-7) is far inside this slack.
+    let margin = d - u - 1e-4 * (z.abs() + rho + s);
     if margin > 0.0 { margin as f32 } else { 0.0 }
 }
 
@@ -109,15 +75,7 @@ pub(crate) struct MotionLog {
     previous: Option<(View, Setting)>,
     travel: f64,
     turn: f64,
-    /// How many frames in a row the camera has not moved.
-    still_frames: u32,
 }
-
-/// How many frames in a row the camera must have stayed where it is before tests get every
-/// margin ([`Now::still`]). A viewer adjusts again after the camera stops only while the cut
-/// changes or pages arrive; the first still frame usually finds the cut settled, and working
-/// the margins out there would cost a frame that rarely has a successor.
-const STILL_FRAMES: u32 = 2;
 
 /// The motion log at the current frame.
 #[derive(Debug, Clone, Copy)]
@@ -126,9 +84,8 @@ pub(crate) struct Now {
     turn: f64,
     /// A new generation starts with this frame: every earlier record must be cleared.
     pub(crate) fresh: bool,
-    /// The camera is where it was for the last [`STILL_FRAMES`] frames of the same
-    /// generation: tests made now hold until it moves, and frames for it keep coming, so
-    /// they are worth a margin each ([`crate::adjust`]).
+    /// The camera is where it was at the previous frame of the same generation: every test
+    /// gives what it gave then, for the same node ([`crate::adjust`], still passes).
     pub(crate) still: bool,
 }
 
@@ -162,7 +119,7 @@ impl MotionLog {
             tan_y: view.tan_y,
             near: view.near,
         };
-        let mut moved = true;
+        let mut still = false;
         let fresh = match self.previous {
             Some((before, same)) if same == setting => {
                 let (travel, turn) = (
@@ -171,7 +128,7 @@ impl MotionLog {
                 );
                 self.travel += travel;
                 self.turn += turn;
-                moved = travel != 0.0 || turn != 0.0;
+                still = travel == 0.0 && turn == 0.0;
                 false
             }
             _ => {
@@ -181,12 +138,11 @@ impl MotionLog {
             }
         };
         self.previous = Some((*view, setting));
-        self.still_frames = if moved { 0 } else { self.still_frames + 1 };
         Some(Now {
             travel: self.travel,
             turn: self.turn,
             fresh,
-            still: self.still_frames >= STILL_FRAMES,
+            still,
         })
     }
 }
@@ -199,7 +155,7 @@ fn distance(a: [f32; 3], b: [f32; 3]) -> f64 {
 }
 
 /// An upper bound of the operator norm of the change of the camera basis between two views.
-pub(crate) fn turn_bound(before: &View, after: &View) -> f64 {
+fn turn_bound(before: &View, after: &View) -> f64 {
     let rows = |v: &View| [v.right, v.up, v.forward].map(|r| r.to_array());
     let (b, a) = (rows(before), rows(after));
     let m: [[f64; 3]; 3] =
@@ -221,10 +177,6 @@ pub(crate) fn turn_bound(before: &View, after: &View) -> f64 {
 pub struct Reuse {
     /// Distance from the eye, at the test, of the farthest point the test depends on.
     reach: f32,
-    /// How much sooner than `until` a second outcome held with it ends: an active node's own
-    /// fold test beside its boundary children's ([`crate::adjust`]); infinite when there is
-    /// none. It fills what would be padding.
-    own_sooner: f32,
     /// The value of `turn·reach + travel` up to which the outcome holds.
     until: f64,
 }
@@ -233,7 +185,6 @@ impl Reuse {
     /// No test to reuse.
     pub(crate) const NONE: Reuse = Reuse {
         reach: 0.0,
-        own_sooner: f32::INFINITY,
         until: f64::NEG_INFINITY,
     };
 
@@ -241,58 +192,8 @@ impl Reuse {
     pub(crate) fn new(now: &Now, reach: f32, margin: f32) -> Reuse {
         Reuse {
             reach,
-            own_sooner: f32::INFINITY,
             until: now.turn * f64::from(reach) + now.travel + f64::from(margin),
         }
-    }
-
-    /// This outcome (holding now) with a second one found now with a finite `margin`, for
-    /// points within `reach` of the eye ([`Reuse::own_holds`]). A larger reach than this
-    /// one's widens both: the first then holds while the motion at the larger reach stays
-    /// below what was left of its margin, which bounds the motion at its own reach.
-    pub(crate) fn with_own(self, now: &Now, reach: f32, margin: f32) -> Reuse {
-        let at = |reach: f32| now.turn * f64::from(reach) + now.travel;
-        let mut widened = self;
-        if reach > self.reach {
-            widened.reach = reach;
-            widened.until = at(reach) + (self.until - at(self.reach));
-        }
-        let own_until = at(widened.reach) + f64::from(margin);
-        if widened.until == f64::INFINITY {
-            // A first outcome that holds for good (children of zero error) is cut short to
-            // end with the second: the difference must be finite.
-            widened.until = own_until;
-            return Reuse {
-                own_sooner: 0.0,
-                ..widened
-            };
-        }
-        Reuse {
-            // Rounded up, so the second outcome never outlasts its margin.
-            own_sooner: ((widened.until - own_until) as f32).next_up(),
-            ..widened
-        }
-    }
-
-    /// Distance from the eye, at the test, of the farthest point the outcome depends on.
-    pub(crate) fn reach(&self) -> f32 {
-        self.reach
-    }
-
-    /// How much of the second outcome's margin is left now (negative once it no longer
-    /// holds).
-    pub(crate) fn own_left(&self, now: &Now) -> f32 {
-        let at = now.turn * f64::from(self.reach) + now.travel;
-        (self.until - f64::from(self.own_sooner) - at) as f32
-    }
-
-    /// True when the second outcome ([`Reuse::with_own`]) still holds.
-    #[inline]
-    pub(crate) fn own_holds(&self, now: &Now) -> bool {
-        // Most records have no second outcome: one comparison says so.
-        self.own_sooner < f32::INFINITY
-            && now.turn * f64::from(self.reach) + now.travel
-                < self.until - f64::from(self.own_sooner)
     }
 
     /// True when the outcome still holds.
@@ -349,97 +250,6 @@ mod tests {
             }
         }
         assert!(positive > 1000, "only {positive} tests had a margin");
-    }
-
-    #[test]
-    fn the_test_fails_everywhere_within_the_fail_margin() {
-        let mut next = crate::unit_random(0x1405_7B7E_F767_814Fu64);
-        let mut positive = 0;
-        for _ in 0..20_000 {
-            let focal = 200.0 + 2000.0 * next();
-            let r = 0.001 + 0.05 * next();
-            let s = r * (1.0 + 3.0 * next());
-            let z = s + 0.01 + 2.0 * next();
-            let rho = 2.0 * next();
-            let tight = 0.25 + 5.0 * next();
-            let margin = fail_margin(focal, r, z, rho, s, tight);
-            if margin == 0.0 {
-                continue;
-            }
-            positive += 1;
-            assert!(!passes(focal, r, z, rho, s, tight));
-            // The worst moves take depth up and the distance from the axis down by the whole
-            // margin, each; try those and others.
-            for (dz, drho) in [
-                (1.0, -1.0),
-                (1.0, 0.0),
-                (0.0, -1.0),
-                (0.7, -0.7),
-                (-1.0, 1.0),
-            ] {
-                let (z2, rho2) = (z + dz * margin, (rho + drho * margin).max(0.0));
-                assert!(
-                    !passes(focal, r, z2, rho2, s, tight),
-                    "margin {margin} at z {z} rho {rho} r {r} s {s} t {tight}"
-                );
-            }
-        }
-        assert!(positive > 1000, "only {positive} tests had a margin");
-    }
-
-    #[test]
-    fn a_fail_margin_is_close_to_the_largest_move_that_keeps_the_test() {
-        // On the view axis, moving straight away from the eye: the test passes at some depth,
-        // and the margin should reach a good part of the way there.
-        let (focal, r, s, tight, rho) = (1000.0f32, 0.01f32, 0.01f32, 1.0f32, 0.0f32);
-        let z = 5.0f32;
-        let margin = fail_margin(focal, r, z, rho, s, tight);
-        let mut passes_at = z;
-        while !passes(focal, r, passes_at, rho, s, tight) {
-            passes_at += 0.01;
-        }
-        let room = passes_at - z;
-        assert!(margin > 0.5 * room && margin <= room, "{margin} of {room}");
-    }
-
-    /// Two outcomes in one record: each holds exactly as long as its own record would (up
-    /// to rounding, on the safe side), whichever ends first and whatever the reaches.
-    #[test]
-    fn a_second_outcome_holds_as_long_as_its_own_record() {
-        let at = |travel: f64, turn: f64| Now {
-            travel,
-            turn,
-            fresh: false,
-            still: false,
-        };
-        let start = at(5.0, 0.25);
-        for (first_reach, first_margin) in [(10.0f32, 3.0f32), (30.0, 0.5), (10.0, f32::INFINITY)] {
-            for (own_reach, own_margin) in [(10.0f32, 1.0f32), (40.0, 2.0), (5.0, 6.0)] {
-                let first = Reuse::new(&start, first_reach, first_margin);
-                let both = first.with_own(&start, own_reach, own_margin);
-                let own = Reuse::new(&start, own_reach, own_margin);
-                for step in 0..400 {
-                    let later = at(
-                        5.0 + 0.01 * f64::from(step),
-                        0.25 + 0.0005 * f64::from(step),
-                    );
-                    // Never longer than alone; and the first exactly as long, unless it was
-                    // widened to a longer reach or cut short to end with the second.
-                    assert!(!both.own_holds(&later) || own.holds(&later));
-                    assert!(!both.holds(&later) || first.holds(&later));
-                    if own_reach <= first_reach && first_margin.is_finite() {
-                        assert_eq!(both.holds(&later), first.holds(&later));
-                    }
-                    let close = |a: Reuse| {
-                        let near = at(later.travel + 1e-3, later.turn);
-                        a.holds(&later) != a.holds(&near)
-                    };
-                    if own_reach == first_reach && !close(own) {
-                        assert_eq!(both.own_holds(&later), own.holds(&later), "{step}");
-                    }
-                }
-            }
-        }
     }
 
     #[test]

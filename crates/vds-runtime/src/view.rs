@@ -160,21 +160,6 @@ impl View {
         c.z >= self.near && c.x.abs() <= c.z * self.tan_x && c.y.abs() <= c.z * self.tan_y
     }
 
-    /// How far a sphere given in camera coordinates reaches past the frustum's planes: the
-    /// largest of its distances beyond the near plane and each side plane, less its radius.
-    /// Positive exactly when [`View::sphere_outside`] holds. Each distance changes by at
-    /// most as much as the centre moves (the side planes' distances are `(|x| − z·tan)`
-    /// over `√(1 + tan²)`, 1-Lipschitz), so the sign holds while the centre moves by less
-    /// than the absolute value ([`crate::reuse`]).
-    #[inline]
-    pub fn frustum_excess(&self, center: Vec3, radius: f32) -> f32 {
-        let Vec3 { x, y, z } = center;
-        (self.near - z)
-            .max((x.abs() - z * self.tan_x) * self.side_scale_x)
-            .max((y.abs() - z * self.tan_y) * self.side_scale_y)
-            - radius
-    }
-
     /// True when a sphere given in camera coordinates lies entirely outside the frustum:
     /// behind the near plane or beyond one side plane by more than its radius.
     #[inline]

@@ -445,3 +445,63 @@ fn pages_no_node_asks_for_any_more_are_not_read() {
     let read = reads.load(std::sync::atomic::Ordering::SeqCst) - read_before;
     assert!(read <= 1, "{read} pages read of the {asked} taken back");
 }
+
+/// A node whose unfold waits for a page while the camera stays still is visited again when
+/// the page arrives: still passes (threshold adjusts for an unmoved camera) visit only what
+/// did not settle, and a waiting unfold has not. The settled cut is the synchronous one.
+#[test]
+fn an_unfold_waiting_while_the_camera_is_still_happens_when_its_page_arrives() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let gate = Arc::new((Mutex::new(true), std::sync::Condvar::new()));
+    let source = Gated {
+        file: VdtFile::from_bytes(bytes.clone()).unwrap(),
+        gate: Arc::clone(&gate),
+        reads: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
+    };
+    let mut runtime = Runtime::with_loading(
+        Box::new(source),
+        CornerTracking::Ranks,
+        Loading::Background { threads: 1 },
+    )
+    .unwrap();
+    let _open_on_drop = OpenOnDrop(Arc::clone(&gate));
+    let camera = vds_runtime::Camera {
+        eye: [center[0], center[1], center[2] + 1.5 * radius],
+        target: center,
+        up: [0.0, 1.0, 0.0],
+        fov_y_degrees: 60.0,
+        width: 800,
+        height: 600,
+        near: 0.01 * radius,
+    };
+    let viewpoint = Viewpoint::Camera(camera);
+    let criteria = no_backface();
+    settle(&mut runtime, &viewpoint, &criteria, Goal::Threshold(8.0));
+    *gate.0.lock().unwrap() = false;
+    let goal = Goal::Threshold(0.5);
+    // A new threshold, then the same camera and threshold again while the pages wait: the
+    // second adjust is a still pass, and its nodes that wait have not settled.
+    for _ in 0..2 {
+        let frame = runtime.adjust(&viewpoint, &criteria, goal).unwrap();
+        assert!(
+            frame.stats.deferred_unfolds > 0,
+            "no unfold waits: the test shows nothing"
+        );
+    }
+    *gate.0.lock().unwrap() = true;
+    gate.1.notify_all();
+    runtime.wait_for_pages();
+    settle(&mut runtime, &viewpoint, &criteria, goal);
+    let mut synchronous = common::runtime(&bytes, CornerTracking::Ranks);
+    synchronous
+        .adjust(&viewpoint, &criteria, Goal::Threshold(8.0))
+        .unwrap();
+    synchronous.adjust(&viewpoint, &criteria, goal).unwrap();
+    assert_eq!(
+        runtime.cut().boundary(),
+        synchronous.cut().boundary(),
+        "the settled cut differs from the synchronous one"
+    );
+}

@@ -584,16 +584,15 @@ fn a_second_adjust_for_the_same_camera_and_goal_changes_nothing() {
     }
 }
 
-/// Tests reused while the camera pauses ([`vds_runtime`]'s margins for fold candidates and
-/// folded children, worked out only for a camera still for two frames) decide as the tests
-/// would: a runtime that adjusts four times at each camera of a path (the third works the
-/// margins out, the fourth reuses them, the records live on when the camera moves) keeps the
-/// same cut
-/// as one that adjusts once, frame after frame, under each kind of criteria, and the
-/// threshold holds on every adjust (measured where backfaces stay, which the measure counts
-/// as visible).
+/// Still passes ([`vds_runtime`]'s threshold adjusts for a camera where it was at the last
+/// adjust) visit only what did not settle and what changed: a runtime that adjusts four
+/// times at each camera of a path (the second adjust a full pass that lists what did not
+/// settle, the third and fourth visiting that list) keeps the same cut as one that adjusts
+/// once, frame after frame, under each kind of criteria; the threshold holds on every adjust
+/// (measured where backfaces stay, which the measure counts as visible); and the later
+/// adjusts make far fewer tests than the second.
 #[test]
-fn tests_reused_while_the_camera_pauses_decide_as_the_tests_would() {
+fn still_passes_keep_the_cut_of_single_adjusts() {
     let settings = [
         Criteria::default(),
         Criteria {

@@ -44,13 +44,9 @@ enum Timed {
     /// no change costs. A run of its own, so that the extra adjusts do not warm the cache
     /// for the frames timed by [`Timed::Adjusts`].
     SettledChecks,
-    /// A third adjust of each frame for the same camera: the first that works out a margin
-    /// for each test it makes ([`vds_runtime`]'s reuse of tests: a camera still for two
-    /// frames).
-    MarginPasses,
-    /// A fourth adjust of each frame for the same camera: what each further adjust of a
-    /// still camera costs (a viewer adjusting again while pages arrive), reusing the
-    /// margins.
+    /// A third adjust of each frame for the same camera: what each further adjust of a still
+    /// camera costs (a viewer adjusting again while pages arrive), visiting only what the
+    /// settled check left unsettled (`vds_runtime`'s still passes).
     Readjusts,
 }
 
@@ -60,8 +56,7 @@ impl Timed {
         match self {
             Timed::Adjusts => 0,
             Timed::SettledChecks => 1,
-            Timed::MarginPasses => 2,
-            Timed::Readjusts => 3,
+            Timed::Readjusts => 2,
         }
     }
 }
@@ -87,7 +82,7 @@ fn play(
     let criteria = Criteria::default();
     let (mut ms, mut visited, mut added, mut removed, mut changed, mut active) =
         (vec![], vec![], vec![], vec![], vec![], vec![]);
-    let (mut groups, mut failed, mut reused, mut own) = (vec![], vec![], vec![], vec![]);
+    let (mut groups, mut failed, mut reused) = (vec![], vec![], vec![]);
     let mut active_nodes = vec![];
     // What a frame costs per active triangle, and per node folded or unfolded (frames with
     // changes only): the two costs the per-frame-work issue sets out to separate.
@@ -118,7 +113,6 @@ fn play(
         groups.push(f64::from(frame.stats.groups));
         failed.push(f64::from(frame.stats.groups_failed));
         reused.push(f64::from(frame.stats.groups_reused));
-        own.push(f64::from(frame.stats.candidates_reused));
         added.push(f64::from(frame.changes.added) / n * 100.0);
         removed.push(f64::from(frame.changes.removed) / n * 100.0);
         changed.push(f64::from(frame.changes.changed) / n * 100.0);
@@ -138,7 +132,6 @@ fn play(
             format!("{tracking:?}"),
             if resident { "resident" } else { "cold" },
             match timed {
-                Timed::MarginPasses => "margin pass",
                 Timed::Readjusts => "re-adjust",
                 _ => "settled check",
             },
@@ -151,7 +144,7 @@ fn play(
     }
     println!(
         "  {t:<8} {:<9} {:<8} adjust median {:6.3} ms  p99 {:6.3} ms  (first {:7.1} ms) | \
-         visited {:>7.0} (groups {:.0}, failed {:.0}, reused {:.0}; fold tests reused {:.0}) | active {:>8.0} (nodes {:.0}) | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
+         visited {:>7.0} (groups {:.0}, failed {:.0}, reused {:.0}) | active {:>8.0} (nodes {:.0}) | added {:5.2}% removed {:5.2}% changed {:5.2}% (medians; p99 sum {:5.2}%)",
         format!("{tracking:?}"),
         if resident { "resident" } else { "cold" },
         median(&ms),
@@ -161,7 +154,6 @@ fn play(
         median(&groups),
         median(&failed),
         median(&reused),
-        median(&own),
         median(&active),
         median(&active_nodes),
         median(&added),
@@ -200,9 +192,8 @@ pub struct Runs {
     pub resident_only: bool,
     /// Only rank tracking, resident (implies `resident_only`).
     pub ranks_only: bool,
-    /// Also time settled checks (a second adjust for each frame's camera), margin passes (a
-    /// third) and re-adjusts (a fourth) of the resident runs; full runs time settled checks
-    /// for incidence lists only.
+    /// Also time settled checks (a second adjust for each frame's camera) and re-adjusts (a
+    /// third) of the resident runs; full runs time settled checks for incidence lists only.
     pub settled: bool,
 }
 
@@ -267,7 +258,7 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
                 Timed::Adjusts,
             )?;
             if runs.settled {
-                for timed in [Timed::SettledChecks, Timed::MarginPasses, Timed::Readjusts] {
+                for timed in [Timed::SettledChecks, Timed::Readjusts] {
                     play(bytes, &path, Goal::Threshold(t), tracking, true, timed)?;
                 }
             }

@@ -137,8 +137,8 @@ enum Commands {
         /// Only rank tracking with resident pages.
         #[arg(long)]
         ranks_only: bool,
-        /// Also time a settled check (a second adjust for the same camera), a margin pass (a
-        /// third) and a re-adjust (a fourth) after each resident run.
+        /// Also time a settled check (a second adjust for the same camera) and a re-adjust (a
+        /// third) after each resident run.
         #[arg(long)]
         settled: bool,
         /// Fly through this `.vdt` file instead of the bunny and the generated scenes: nothing
