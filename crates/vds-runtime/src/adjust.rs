@@ -156,7 +156,6 @@ fn prefetch_below(
     }
 }
 
-/// What [`prefetch_below`] judges by: the view now, the view ahead, the threshold.
 /// What every entry of one threshold pass is visited with ([`Adjuster::visit_entry`]).
 struct Pass<'a> {
     judge: &'a Judge,
@@ -171,6 +170,7 @@ struct Pass<'a> {
     now: Option<crate::reuse::Now>,
 }
 
+/// What [`prefetch_below`] judges by: the view now, the view ahead, the threshold.
 struct Sight<'a> {
     judge: &'a Judge,
     ahead: Option<&'a Judge>,
