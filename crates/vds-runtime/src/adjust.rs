@@ -523,7 +523,7 @@ impl Adjuster {
             }
             return Ok(false);
         }
-        cut.unfold_node(id)?;
+        cut.unfold_available(id);
         self.stats.unfolds += 1;
         Ok(true)
     }

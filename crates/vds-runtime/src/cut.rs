@@ -535,6 +535,16 @@ impl Cut {
                 "its children's pages do not fit in the memory budget",
             ),
         })?;
+        self.unfold_available(id);
+        Ok(())
+    }
+
+    /// [`Cut::unfold_node`] for a node that can unfold and whose children
+    /// [`Cut::children_available`] has just found loaded and checked: the adjuster's unfold,
+    /// without asking the store again.
+    pub(crate) fn unfold_available(&mut self, id: u32) {
+        debug_assert!(self.can_unfold(id), "node {id} cannot unfold");
+        debug_assert!(self.store.children_resident(id));
         let node = self.store.node(id);
         self.set_state(id, NodeState::Active);
         self.set_children_state(&node, NodeState::Boundary);
@@ -551,7 +561,7 @@ impl Cut {
             {
                 self.store.mark_unrepeated(id);
             }
-            return Ok(());
+            return;
         }
         // The children's first leaf ranks, once: every corner that moves down, and every
         // subtri corner under `id`, picks its child from them without a look-up per corner.
@@ -618,7 +628,6 @@ impl Cut {
         self.child_starts = starts;
         self.subtri_scratch = subtris;
         self.settle_repeats();
-        Ok(())
     }
 
     /// Folds active node `id`: its subtris are removed and every corner held by a child moves
