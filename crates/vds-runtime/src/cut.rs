@@ -1493,29 +1493,36 @@ impl Cut {
     }
 
     fn set_state(&mut self, id: u32, state: NodeState) {
-        let was = self.store.set_state(id, state);
-        if self.tracking == CornerTracking::Ranks {
-            let label = self.store.label_mut(id);
-            if label.journaled.is_none() {
-                label.journaled = Some(was);
-                self.node_journal.push((id, was));
+        let journal = self.tracking == CornerTracking::Ranks;
+        let node_journal = &mut self.node_journal;
+        let next_index = self.active_list.len() as u32;
+        let (mut was, mut active_children, mut left_index) = (state, 0, NIL);
+        // One page look-up for the label's state, journal entry and place in the active list.
+        self.store.set_run_state(id, 1, state, |_, before, label| {
+            was = before;
+            if journal && label.journaled.is_none() {
+                label.journaled = Some(before);
+                node_journal.push((id, before));
             }
-        }
+            if state == NodeState::Active && before != NodeState::Active {
+                label.active_index = next_index;
+                active_children = u32::from(label.active_children);
+            } else if before == NodeState::Active && state != NodeState::Active {
+                left_index = std::mem::replace(&mut label.active_index, NIL);
+            }
+        });
         if state == NodeState::Active && was != NodeState::Active {
-            let index = self.active_list.len() as u32;
-            let label = self.store.label_mut(id);
-            label.active_index = index;
-            let active_children = u32::from(label.active_children);
+            let tested = self.store.tested(id);
             self.active_list.push(ActiveEntry {
-                hot: *self.store.hot(id),
+                hot: *tested.hot,
                 id,
                 active_children,
                 reuse: Reuse::NONE,
             });
-            self.active_shapes.push(*self.store.tested(id).shape);
+            self.active_shapes.push(*tested.shape);
             self.revisit(id);
         } else if was == NodeState::Active && state != NodeState::Active {
-            let index = std::mem::replace(&mut self.store.label_mut(id).active_index, NIL) as usize;
+            let index = left_index as usize;
             self.active_list.swap_remove(index);
             self.active_shapes.swap_remove(index);
             if let Some(moved) = self.active_list.get(index) {
