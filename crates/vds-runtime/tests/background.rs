@@ -377,13 +377,12 @@ impl PageSource for Gated {
     }
 }
 
-/// A page asked for by a node that no longer asks for it (the camera turned away) is taken
-/// back before a worker reaches it: it is not pending any more, and it is never read.
-#[test]
-fn pages_no_node_asks_for_any_more_are_not_read() {
-    let mut scene = load("bunny.obj");
-    let bytes = vdt_bytes(&mut scene);
-    let (center, radius) = bounds(&scene.positions);
+/// A [`Gated`] source's gate: open while true.
+type Gate = Arc<(Mutex<bool>, std::sync::Condvar)>;
+
+/// A rank-tracking runtime loading `bytes` on one background thread through a [`Gated`]
+/// source, with its gate and its count of reads.
+fn gated(bytes: Vec<u8>) -> (Runtime, Gate, Arc<std::sync::atomic::AtomicUsize>) {
     let gate = Arc::new((Mutex::new(true), std::sync::Condvar::new()));
     let reads = Arc::new(std::sync::atomic::AtomicUsize::new(0));
     let source = Gated {
@@ -391,14 +390,18 @@ fn pages_no_node_asks_for_any_more_are_not_read() {
         gate: Arc::clone(&gate),
         reads: Arc::clone(&reads),
     };
-    let mut runtime = Runtime::with_loading(
+    let runtime = Runtime::with_loading(
         Box::new(source),
         CornerTracking::Ranks,
         Loading::Background { threads: 1 },
     )
     .unwrap();
-    let _open_on_drop = OpenOnDrop(Arc::clone(&gate));
-    let close = vds_runtime::Camera {
+    (runtime, gate, reads)
+}
+
+/// A camera close in front of a model of `center` and `radius`, looking at it.
+fn close_up(center: [f32; 3], radius: f32) -> vds_runtime::Camera {
+    vds_runtime::Camera {
         eye: [center[0], center[1], center[2] + 1.5 * radius],
         target: center,
         up: [0.0, 1.0, 0.0],
@@ -406,7 +409,19 @@ fn pages_no_node_asks_for_any_more_are_not_read() {
         width: 800,
         height: 600,
         near: 0.01 * radius,
-    };
+    }
+}
+
+/// A page asked for by a node that no longer asks for it (the camera turned away) is taken
+/// back before a worker reaches it: it is not pending any more, and it is never read.
+#[test]
+fn pages_no_node_asks_for_any_more_are_not_read() {
+    let mut scene = load("bunny.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let (mut runtime, gate, reads) = gated(bytes);
+    let _open_on_drop = OpenOnDrop(Arc::clone(&gate));
+    let close = close_up(center, radius);
     let viewpoint = Viewpoint::Camera(close);
     // A coarse cut first, spread over several pages, so that refining it asks for many.
     settle(
@@ -454,28 +469,9 @@ fn an_unfold_waiting_while_the_camera_is_still_happens_when_its_page_arrives() {
     let mut scene = load("bunny.obj");
     let bytes = vdt_bytes(&mut scene);
     let (center, radius) = bounds(&scene.positions);
-    let gate = Arc::new((Mutex::new(true), std::sync::Condvar::new()));
-    let source = Gated {
-        file: VdtFile::from_bytes(bytes.clone()).unwrap(),
-        gate: Arc::clone(&gate),
-        reads: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
-    };
-    let mut runtime = Runtime::with_loading(
-        Box::new(source),
-        CornerTracking::Ranks,
-        Loading::Background { threads: 1 },
-    )
-    .unwrap();
+    let (mut runtime, gate, _) = gated(bytes.clone());
     let _open_on_drop = OpenOnDrop(Arc::clone(&gate));
-    let camera = vds_runtime::Camera {
-        eye: [center[0], center[1], center[2] + 1.5 * radius],
-        target: center,
-        up: [0.0, 1.0, 0.0],
-        fov_y_degrees: 60.0,
-        width: 800,
-        height: 600,
-        near: 0.01 * radius,
-    };
+    let camera = close_up(center, radius);
     let viewpoint = Viewpoint::Camera(camera);
     let criteria = no_backface();
     settle(&mut runtime, &viewpoint, &criteria, Goal::Threshold(8.0));
