@@ -158,10 +158,9 @@ fn prefetch_below(
 
 /// What every entry of one threshold pass is visited with ([`Adjuster::visit_entry`]).
 struct Pass<'a> {
-    judge: &'a Judge,
+    /// The judge and threshold (`sight.judge`, `sight.t`), and the view ahead.
     sight: &'a Sight<'a>,
-    /// The threshold, and the tightest any node gets from it ([`Judge::tightest`]).
-    t: f32,
+    /// The tightest threshold any node gets ([`Judge::tightest`]).
     tight: f32,
     prevent_flips: bool,
     /// Pages load in the background: nodes near their threshold fetch their children's.
@@ -279,9 +278,7 @@ impl Adjuster {
             cut.clear_reuse();
         }
         let pass = Pass {
-            judge,
             sight: &sight,
-            t,
             tight: judge.tightest(t),
             prevent_flips,
             prefetching,
@@ -359,14 +356,13 @@ impl Adjuster {
     #[inline(always)]
     fn visit_entry(&mut self, cut: &mut Cut, pass: &Pass, i: usize) -> Result<bool, VdtError> {
         let Pass {
-            judge,
             sight,
-            t,
             tight,
             prevent_flips,
             prefetching,
             ref now,
         } = *pass;
+        let (judge, t) = (sight.judge, sight.t);
         let Some(&entry) = cut.active_entries().get(i) else {
             return Ok(true);
         };
