@@ -45,9 +45,9 @@ use std::collections::BinaryHeap;
 use vds_format::VdtError;
 
 use crate::criteria::{Decision, Judge};
-use crate::cut::{Cut, NIL, NodeState};
+use crate::cut::{ActiveEntry, Cut, NIL, NodeState};
 use crate::reuse::{MotionLog, Reuse};
-use crate::store::Hot;
+use crate::store::{Hot, NodeStore, Shape, Tested};
 
 /// Work done by one adjust.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -74,6 +74,30 @@ pub struct AdjustStats {
     pub deferred_unfolds: u32,
 }
 
+impl AdjustStats {
+    /// Adds the counts of `other`, work done on another thread for the same adjust.
+    fn add(&mut self, other: &AdjustStats) {
+        let AdjustStats {
+            visited,
+            groups,
+            groups_failed,
+            groups_reused,
+            unfolds,
+            folds,
+            refused_folds,
+            deferred_unfolds,
+        } = *other;
+        self.visited += visited;
+        self.groups += groups;
+        self.groups_failed += groups_failed;
+        self.groups_reused += groups_reused;
+        self.unfolds += unfolds;
+        self.folds += folds;
+        self.refused_folds += refused_folds;
+        self.deferred_unfolds += deferred_unfolds;
+    }
+}
+
 /// After a still pass (or the full pass that starts a run of them) visited node `id` at
 /// index `i`: lists it for the next still pass unless it `settled`. A node that left index
 /// `i` folded: its parent's record was cleared, which listed the parent.
@@ -88,6 +112,177 @@ fn list_unsettled(cut: &mut Cut, i: usize, id: u32, settled: bool) {
     }
 }
 
+/// [`ActiveEntry::pending`]: its group's bound failed, so its children are to be tested one
+/// by one.
+const GROUP_FAILED: u16 = 1;
+/// [`ActiveEntry::pending`]: it has no active child and its test says fold.
+const MAY_FOLD: u16 = 2;
+
+/// The tests of one active entry for a threshold pass, on the entry alone (its dense
+/// record and shape): whether its boundary children's group still holds its record or
+/// passes its bound (recording the margin it passed with), and, when it has no active child,
+/// whether it may fold. Returns what is pending for it ([`GROUP_FAILED`], [`MAY_FOLD`]).
+#[inline]
+fn test_entry(entry: &mut ActiveEntry, shape: &Shape, pass: &Pass, stats: &mut AdjustStats) -> u16 {
+    let (judge, t) = (pass.sight.judge, pass.sight.t);
+    let mut pending = 0;
+    if u32::from(entry.active_children) < entry.hot.child_count {
+        if pass.now.as_ref().is_some_and(|now| entry.reuse.holds(now)) {
+            stats.groups_reused += 1;
+        } else {
+            stats.visited += 1;
+            stats.groups += 1;
+            match judge.group_margin(&entry.hot, pass.tight) {
+                Some(margin) => {
+                    if let Some(now) = &pass.now
+                        && margin > 0.0
+                    {
+                        entry.reuse = Reuse::new(now, judge.group_reach(&entry.hot), margin);
+                    }
+                }
+                None => pending |= GROUP_FAILED,
+            }
+        }
+    }
+    if entry.active_children == 0 {
+        stats.visited += 1;
+        let tested = Tested {
+            hot: &entry.hot,
+            shape,
+        };
+        if judge.decide(tested, t) == Decision::Fold {
+            pending |= MAY_FOLD;
+        }
+    }
+    pending
+}
+
+/// Entries tested in one run on a thread: about 230 KB of entries and shapes, a few
+/// microseconds of tests, so that handing a run to a thread costs little beside it.
+const TEST_RUN: usize = 4096;
+
+/// What the tests of a threshold pass found, for the pass to act on ([`Adjuster::full_pass`]):
+/// the entries with something pending, by index ascending, and for each one whose group's
+/// bound failed, its children's tests.
+#[derive(Debug, Default)]
+struct Findings {
+    stats: AdjustStats,
+    /// Indices of the entries with something pending, ascending.
+    marked: Vec<u32>,
+    /// Beside each marked entry: its children's tests when its group's bound failed.
+    groups: Vec<Option<GroupFindings>>,
+    /// The children that need unfolding, of every group in `groups`.
+    unfold: Vec<u32>,
+    /// The children near their threshold, whose pages are to be fetched ahead of need, and
+    /// their share of it (background loading only).
+    near: Vec<(u32, f32)>,
+}
+
+/// The children of one group whose bound failed, tested one by one.
+#[derive(Debug, Clone, Copy)]
+struct GroupFindings {
+    /// The node whose children were tested: a fold moves another entry into a folded one's
+    /// place, where findings made for the folded one do not apply.
+    id: u32,
+    /// The node's count of active children when they were tested: a fold since, which puts
+    /// a child back on the boundary, makes the tests stale.
+    active_children: u16,
+    /// The least margin the children passed with; zero when one needs unfolding.
+    least: f32,
+    /// Its children in [`Findings::unfold`] and [`Findings::near`].
+    unfold: (u32, u32),
+    near: (u32, u32),
+}
+
+impl Findings {
+    fn clear(&mut self) {
+        self.stats = AdjustStats::default();
+        self.marked.clear();
+        self.groups.clear();
+        self.unfold.clear();
+        self.near.clear();
+    }
+
+    /// Appends `other` (the findings of the entries after this one's).
+    fn append(&mut self, mut other: Findings) {
+        let (unfold, near) = (self.unfold.len() as u32, self.near.len() as u32);
+        self.stats.add(&other.stats);
+        self.marked.append(&mut other.marked);
+        self.groups.extend(other.groups.into_iter().map(|group| {
+            group.map(|g| GroupFindings {
+                unfold: (g.unfold.0 + unfold, g.unfold.1 + unfold),
+                near: (g.near.0 + near, g.near.1 + near),
+                ..g
+            })
+        }));
+        self.unfold.append(&mut other.unfold);
+        self.near.append(&mut other.near);
+    }
+}
+
+/// [`test_entry`] on a run of entries starting at index `first`, and the children of each
+/// whose group's bound failed ([`test_children`]), into `findings`.
+fn test_run(
+    entries: &mut [ActiveEntry],
+    shapes: &[Shape],
+    store: &NodeStore,
+    first: usize,
+    pass: &Pass,
+    findings: &mut Findings,
+) {
+    for (i, (entry, shape)) in entries.iter_mut().zip(shapes).enumerate() {
+        entry.pending = test_entry(entry, shape, pass, &mut findings.stats);
+        if entry.pending != 0 {
+            findings.marked.push((first + i) as u32);
+            let group = (entry.pending & GROUP_FAILED != 0)
+                .then(|| test_children(entry, store, pass, findings));
+            findings.groups.push(group);
+        }
+    }
+}
+
+/// Tests one by one the boundary children of the active `entry`, whose group's bound failed.
+fn test_children(
+    entry: &ActiveEntry,
+    store: &NodeStore,
+    pass: &Pass,
+    findings: &mut Findings,
+) -> GroupFindings {
+    let hot = &entry.hot;
+    let (judge, t) = (pass.sight.judge, pass.sight.t);
+    let (unfold, near) = (findings.unfold.len() as u32, findings.near.len() as u32);
+    let mut least = f32::INFINITY;
+    for c in hot.first_child..hot.first_child + hot.child_count {
+        let (label, tested) = store.labelled(c);
+        if label.state != NodeState::Boundary {
+            continue;
+        }
+        findings.stats.visited += 1;
+        let (decision, margin) = judge.decide_with_margin(tested, t);
+        if decision == Decision::Unfold {
+            least = 0.0;
+            findings.unfold.push(c);
+        } else {
+            least = least.min(margin);
+            // Near its threshold: its children's pages are fetched ahead of need, the
+            // nearest first. Cheap test first: most nodes are far from it.
+            if pass.prefetching {
+                let now = pass.sight.now(tested.hot);
+                if now > PREFETCH_RATIO * 0.5 {
+                    findings.near.push((c, now));
+                }
+            }
+        }
+    }
+    GroupFindings {
+        id: entry.id,
+        active_children: entry.active_children,
+        least,
+        unfold: (unfold, findings.unfold.len() as u32),
+        near: (near, findings.near.len() as u32),
+    }
+}
+
 /// A boundary node whose screen-space error is past this share of the threshold has its
 /// children's pages fetched ahead of need (background loading): a camera closing in by less
 /// than half the distance makes it unfold.
@@ -99,9 +294,6 @@ const LEAD_FRAMES: f32 = 8.0;
 
 /// How many entries ahead of the threshold traversal its children's data is prefetched.
 const LOOKAHEAD: usize = 8;
-
-/// How many entries ahead the traversal prefetches the active list itself.
-const STREAM_AHEAD: usize = 32;
 
 /// How many levels below a folded node pages are fetched ahead of need when the node is
 /// about to unfold: a camera closing in fast unfolds several levels in one frame, and each
@@ -227,6 +419,17 @@ pub struct Adjuster {
     /// Folded nodes near their threshold whose children are resident, with their share of
     /// the threshold: this frame's candidates for [`Adjuster::prefetch_deeper`].
     deeper: Vec<(f32, u32)>,
+    /// What the threshold pass's tests found ([`Adjuster::test_entries`]), kept for reuse.
+    findings: Findings,
+    /// Scratch of [`Adjuster::act_on`] for children tested on the spot.
+    spot: Findings,
+    /// Scratch of the threshold pass: entries moved with something pending.
+    moved: Vec<u32>,
+    /// The threshold pass tests and acts on one entry at a time
+    /// ([`Adjuster::set_one_step_pass`]).
+    one_step: bool,
+    /// The threads the threshold pass tests entries on, when more than the calling one.
+    threads: usize,
     stats: AdjustStats,
 }
 
@@ -317,50 +520,178 @@ impl Adjuster {
 
     /// The threshold pass over the whole active list; `listing`: each entry that does not
     /// settle is listed for the next still pass ([`Cut::revisit`]).
+    ///
+    /// Two steps. First every entry is tested as the cut stands ([`test_entry`]: its group,
+    /// and whether it may fold), which reads only the dense arrays and marks what is pending.
+    /// Then the marked entries are acted on, from the last to the first: an unfold appends
+    /// entries whose children it has just tested, and a fold moves the last entry (acted on
+    /// already, or appended, so nothing is pending for it) into the folded node's place.
+    ///
+    /// Acting on one entry changes what the first step saw of another in two ways only, and
+    /// neither needs a test the first step did not make. A fold that leaves its parent with
+    /// no active child tests the parent at once ([`Adjuster::coarsen`]). A fold that puts a
+    /// child back on the boundary adds to its parent's group a child that has just passed.
     fn full_pass(&mut self, cut: &mut Cut, pass: &Pass, listing: bool) -> Result<(), VdtError> {
-        // Backwards through the dense active list: an unfold appends nodes whose children
-        // it has just tested, so they need no visit now; a fold moves the last entry (already
-        // visited) into the folded node's place, so nothing unvisited is skipped.
+        if self.one_step {
+            return self.one_step_pass(cut, pass, listing);
+        }
+        self.test_entries(cut, pass);
+        let mut findings = std::mem::take(&mut self.findings);
+        let mut moved = std::mem::take(&mut self.moved);
+        while let (Some(i), Some(group)) = (findings.marked.pop(), findings.groups.pop()) {
+            // An unfold reads the node's children again: a few misses, started here for an
+            // entry a few ahead.
+            if let Some(k) = findings.marked.len().checked_sub(LOOKAHEAD)
+                && findings.groups[k].is_some_and(|g| g.unfold.0 < g.unfold.1)
+            {
+                let ahead = findings.marked[k] as usize;
+                cut.prefetch_entry(ahead);
+                cut.prefetch_children(ahead);
+            }
+            let i = i as usize;
+            let pending = cut.take_pending(i);
+            if pending == 0 {
+                continue;
+            }
+            let id = cut.active_entries()[i].id;
+            let settled = match group {
+                Some(group) => self.act_on(cut, pass, i, pending, Some((group, &findings)))?,
+                None => self.act_on(cut, pass, i, pending, None)?,
+            };
+            if listing {
+                list_unsettled(cut, i, id, settled);
+            }
+            // A fold moves the last entry into the folded one's place. That entry is pending
+            // only when folds shortened the list past this one; it is then acted on where it
+            // landed, in turn, its children tested then.
+            cut.take_moved_pending(&mut moved);
+            for j in moved.drain(..) {
+                match findings.marked.binary_search(&j) {
+                    Ok(at) => findings.groups[at] = None,
+                    Err(at) => {
+                        findings.marked.insert(at, j);
+                        findings.groups.insert(at, None);
+                    }
+                }
+            }
+        }
+        debug_assert!(
+            cut.active_entries().iter().all(|entry| entry.pending == 0),
+            "an entry's pending test outcome was not acted on"
+        );
+        self.findings = findings;
+        self.moved = moved;
+        Ok(())
+    }
+
+    /// [`Adjuster::full_pass`] one entry at a time: each tested and acted on in turn, from the
+    /// last to the first ([`Adjuster::set_one_step_pass`]).
+    fn one_step_pass(&mut self, cut: &mut Cut, pass: &Pass, listing: bool) -> Result<(), VdtError> {
         let mut i = cut.active_entries().len();
         while i > 0 {
             i -= 1;
-            // The list is read backwards, which the hardware prefetchers follow poorly.
-            if let Some(far) = i.checked_sub(STREAM_AHEAD) {
-                cut.prefetch_entry(far);
-            }
-            // A group whose test is not reused nearly always fails it (the margin keeps the
-            // others), and then its children's labels and test data are read: a few misses
-            // per group, started here for a group a few entries ahead so they overlap.
-            if let Some(ahead) = i.checked_sub(LOOKAHEAD)
-                && let Some(entry) = cut.active_entries().get(ahead)
-                && entry.active_children < entry.hot.child_count
-                && !pass.now.as_ref().is_some_and(|now| entry.reuse.holds(now))
-            {
-                cut.prefetch_children(ahead);
-            }
+            let id = cut.active_entries().get(i).map_or(NIL, |entry| entry.id);
+            let settled = self.visit_entry(cut, pass, i)?;
             if listing {
-                let id = cut.active_entries().get(i).map_or(NIL, |entry| entry.id);
-                let settled = self.visit_entry(cut, pass, i)?;
                 list_unsettled(cut, i, id, settled);
-            } else {
-                self.visit_entry(cut, pass, i)?;
             }
         }
         Ok(())
     }
 
-    /// One entry of the threshold pass: its boundary children's group (skipped while its
-    /// record holds, [`crate::reuse`]) and, for a fold candidate, its own test. Returns
-    /// whether the entry settled: nothing in it unfolded or waits for a page, and it did not
-    /// try to fold.
-    #[inline(always)]
+    /// Makes the threshold pass test and act on each active entry in turn, on the calling
+    /// thread, instead of testing them all first. Slower, and the same cut: the reference the
+    /// two-step pass is checked against.
+    pub fn set_one_step_pass(&mut self, on: bool) {
+        self.one_step = on;
+    }
+
+    /// The first step of [`Adjuster::full_pass`]: every active entry tested, what is pending
+    /// marked in it, and the children of the groups whose bound failed tested one by one,
+    /// into `self.findings`. The tests read the store and write each entry's own record
+    /// alone, so shares of the entries are tested on several threads when the adjuster has
+    /// them ([`Adjuster::set_threads`]); the findings are the same.
+    fn test_entries(&mut self, cut: &mut Cut, pass: &Pass) {
+        let mut findings = std::mem::take(&mut self.findings);
+        findings.clear();
+        let (entries, shapes, store) = cut.active_entries_mut();
+        let threads = self.threads.min(entries.len() / TEST_RUN).max(1);
+        if threads == 1 {
+            test_run(entries, shapes, store, 0, pass, &mut findings);
+        } else {
+            // Equal shares, one per thread, the calling thread taking the first. Threads
+            // started for the pass cost tens of microseconds; a pool's sleeping workers took
+            // milliseconds to wake on the 2-core VM.
+            let share = entries.len().div_ceil(threads);
+            let mut parts = entries.chunks_mut(share).zip(shapes.chunks(share));
+            let (first_entries, first_shapes) = parts.next().expect("entries to test");
+            let others = std::thread::scope(|scope| {
+                let others: Vec<_> = parts
+                    .enumerate()
+                    .map(|(k, (entries, shapes))| {
+                        scope.spawn(move || {
+                            let mut findings = Findings::default();
+                            let first = (k + 1) * share;
+                            test_run(entries, shapes, store, first, pass, &mut findings);
+                            findings
+                        })
+                    })
+                    .collect();
+                test_run(first_entries, first_shapes, store, 0, pass, &mut findings);
+                others
+                    .into_iter()
+                    .map(|h| h.join().expect("a test run does not panic"))
+                    .collect::<Vec<_>>()
+            });
+            for other in others {
+                findings.append(other);
+            }
+        }
+        self.stats.add(&findings.stats);
+        self.findings = findings;
+    }
+
+    /// Tests the threshold pass's entries on `threads` threads (1: on the calling thread,
+    /// the default). The cut is the same whatever the number.
+    pub fn set_threads(&mut self, threads: usize) {
+        self.threads = threads.max(1);
+    }
+
+    /// The number of threads the threshold pass tests entries on.
+    pub fn threads(&self) -> usize {
+        self.threads.max(1)
+    }
+
+    /// One entry of a still pass: tested ([`test_entry`]) and acted on. Returns whether it
+    /// settled: nothing in it unfolded or waits for a page, and it did not try to fold.
     fn visit_entry(&mut self, cut: &mut Cut, pass: &Pass, i: usize) -> Result<bool, VdtError> {
+        let (entries, shapes, _) = cut.active_entries_mut();
+        let (Some(entry), Some(shape)) = (entries.get_mut(i), shapes.get(i)) else {
+            return Ok(true);
+        };
+        let pending = test_entry(entry, shape, pass, &mut self.stats);
+        self.act_on(cut, pass, i, pending, None)
+    }
+
+    /// Acts on what [`test_entry`] found pending for the active entry at `i`: the children of
+    /// a group whose bound failed that need it are unfolded (and those near their threshold
+    /// have their children's pages fetched ahead of need), and an entry that may fold folds
+    /// if it still can. `group`: its children's tests ([`test_children`]), made with the
+    /// entry's; they are made again now when there are none or a child folded since. Returns whether the entry settled: nothing in it
+    /// unfolded or waits for a page, and it did not try to fold.
+    fn act_on(
+        &mut self,
+        cut: &mut Cut,
+        pass: &Pass,
+        i: usize,
+        pending: u16,
+        group: Option<(GroupFindings, &Findings)>,
+    ) -> Result<bool, VdtError> {
         let Pass {
             sight,
-            tight,
             prevent_flips,
-            prefetching,
             ref now,
+            ..
         } = *pass;
         let (judge, t) = (sight.judge, sight.t);
         let Some(&entry) = cut.active_entries().get(i) else {
@@ -368,68 +699,48 @@ impl Adjuster {
         };
         let hot = entry.hot;
         let mut settled = true;
-        if entry.active_children < hot.child_count {
-            if now.as_ref().is_some_and(|now| entry.reuse.holds(now)) {
-                self.stats.groups_reused += 1;
-            } else {
-                self.stats.visited += 1;
-                self.stats.groups += 1;
-                // The group's margin, or the least of its children's when each had to be
-                // tested and none unfolded.
-                let mut margin = judge.group_margin(&hot, tight);
-                if margin.is_none() {
-                    self.stats.groups_failed += 1;
-                    let mut least = f32::INFINITY;
-                    for c in hot.first_child..hot.first_child + hot.child_count {
-                        let (label, tested) = cut.store().labelled(c);
-                        if label.state != NodeState::Boundary {
-                            continue;
-                        }
-                        self.stats.visited += 1;
-                        let (decision, child_margin) = judge.decide_with_margin(tested, t);
-                        if decision == Decision::Unfold {
-                            least = 0.0;
-                            settled = false;
-                            self.refine(cut, judge, t, c)?;
-                        } else {
-                            least = least.min(child_margin);
-                            // Near its threshold: its children's pages are fetched
-                            // ahead of need, the nearest first.
-                            if prefetching {
-                                // Cheap test first: most nodes are far from it.
-                                let hot = *tested.hot;
-                                let now = sight.now(&hot);
-                                if now > PREFETCH_RATIO * 0.5 {
-                                    let deeper = &mut self.deeper;
-                                    prefetch_below(cut, sight, c, hot, now, 0, deeper);
-                                }
-                            }
-                        }
-                    }
-                    margin = Some(least);
-                }
-                // Still at index `i`: refinement only appended entries (and an unfold
-                // cleared this entry's record, which stays cleared with a zero margin).
-                if let (Some(now), Some(margin)) = (now, margin)
-                    && margin > 0.0
+        if pending & GROUP_FAILED != 0 && u32::from(entry.active_children) < hot.child_count {
+            self.stats.groups_failed += 1;
+            let mut spot = std::mem::take(&mut self.spot);
+            let (group, findings) = match group {
+                Some((group, findings))
+                    if (group.id, group.active_children) == (entry.id, entry.active_children) =>
                 {
-                    cut.set_reuse(i, Reuse::new(now, judge.group_reach(&hot), margin));
+                    (group, findings)
                 }
+                _ => {
+                    spot.clear();
+                    let group = test_children(&entry, cut.store(), pass, &mut spot);
+                    self.stats.add(&spot.stats);
+                    (group, &spot)
+                }
+            };
+            let (begin, end) = group.unfold;
+            for &c in &findings.unfold[begin as usize..end as usize] {
+                settled = false;
+                self.refine(cut, judge, t, c)?;
+            }
+            let (begin, end) = group.near;
+            for &(c, share) in &findings.near[begin as usize..end as usize] {
+                let hot = *cut.store().tested(c).hot;
+                prefetch_below(cut, sight, c, hot, share, 0, &mut self.deeper);
+            }
+            self.spot = spot;
+            // Still at index `i`: refinement only appended entries (and an unfold cleared
+            // this entry's record, which stays cleared with a zero margin).
+            if let Some(now) = now
+                && group.least > 0.0
+            {
+                cut.set_reuse(i, Reuse::new(now, judge.group_reach(&hot), group.least));
             }
         }
-        // Still at index `i` (refinement above only appended entries, and an unfolded child
-        // shows in the count): the entry itself says whether `p` may fold, without a look-up
-        // by node id, which would miss the cache on every entry.
+        // Still at index `i`, and an unfolded child shows in the count.
         let Some(&entry) = cut.active_entries().get(i) else {
             return Ok(settled);
         };
-        let p = entry.id;
-        if entry.active_children == 0 {
-            self.stats.visited += 1;
-            if judge.decide(cut.active_tested(i), t) == Decision::Fold {
-                settled = false;
-                self.coarsen(cut, judge, t, p, prevent_flips);
-            }
+        if pending & MAY_FOLD != 0 && entry.active_children == 0 {
+            settled = false;
+            self.coarsen(cut, judge, t, entry.id, prevent_flips);
         }
         Ok(settled)
     }

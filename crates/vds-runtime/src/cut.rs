@@ -189,7 +189,10 @@ pub struct ActiveEntry {
     /// The node id.
     pub id: u32,
     /// How many of its children are active (it may fold when none is).
-    pub active_children: u32,
+    pub active_children: u16,
+    /// What the threshold pass's tests found for it and its unfolds and folds have yet to
+    /// act on ([`crate::adjust`]); zero outside a pass.
+    pub(crate) pending: u16,
     /// Its boundary children's last threshold test, while the camera has moved too little to
     /// change it ([`crate::reuse`]); cleared whenever a child folds or unfolds.
     pub(crate) reuse: Reuse,
@@ -255,6 +258,9 @@ pub struct Cut {
     /// (duplicates allowed). `None` while no still pass has run since the camera last moved or
     /// the records were cleared: the next still pass then visits every entry.
     revisit: Option<Vec<u32>>,
+    /// The threshold pass ([`crate::adjust`]): indices to which a fold moved an entry with
+    /// something still pending.
+    moved_pending: Vec<u32>,
 }
 
 impl Cut {
@@ -293,6 +299,7 @@ impl Cut {
             net_added: 0,
             net_removed: 0,
             revisit: None,
+            moved_pending: Vec::new(),
         }
     }
 
@@ -412,6 +419,27 @@ impl Cut {
     pub(crate) fn active_index(&self, id: u32) -> Option<usize> {
         let label = self.store.label(id);
         (label.state == NodeState::Active).then_some(label.active_index as usize)
+    }
+
+    /// The active entries to change in place, their shapes beside them and the store, for the
+    /// threshold pass's tests (which set each entry's record and what is pending for it).
+    #[inline]
+    pub(crate) fn active_entries_mut(&mut self) -> (&mut [ActiveEntry], &[Shape], &NodeStore) {
+        (&mut self.active_list, &self.active_shapes, &self.store)
+    }
+
+    /// The indices to which folds moved entries with something pending, since the last call.
+    #[inline]
+    pub(crate) fn take_moved_pending(&mut self, into: &mut Vec<u32>) {
+        into.append(&mut self.moved_pending);
+    }
+
+    /// What is pending for the active entry at `index` ([`ActiveEntry`]), cleared.
+    #[inline]
+    pub(crate) fn take_pending(&mut self, index: usize) -> u16 {
+        self.active_list
+            .get_mut(index)
+            .map_or(0, |entry| std::mem::take(&mut entry.pending))
     }
 
     /// What the criteria read of the active node at `index` of [`Cut::active_entries`],
@@ -1468,7 +1496,7 @@ impl Cut {
             label.active_children = (i32::from(label.active_children) + change) as u8;
             let (count, index) = (label.active_children, label.active_index);
             let entry = &mut self.active_list[index as usize];
-            entry.active_children = u32::from(count);
+            entry.active_children = u16::from(count);
             entry.reuse = Reuse::NONE;
             self.revisit(parent);
         }
@@ -1506,7 +1534,7 @@ impl Cut {
             }
             if state == NodeState::Active && before != NodeState::Active {
                 label.active_index = next_index;
-                active_children = u32::from(label.active_children);
+                active_children = u16::from(label.active_children);
             } else if before == NodeState::Active && state != NodeState::Active {
                 left_index = std::mem::replace(&mut label.active_index, NIL);
             }
@@ -1517,6 +1545,7 @@ impl Cut {
                 hot: *tested.hot,
                 id,
                 active_children,
+                pending: 0,
                 reuse: Reuse::NONE,
             });
             self.active_shapes.push(*tested.shape);
@@ -1527,6 +1556,9 @@ impl Cut {
             self.active_shapes.swap_remove(index);
             if let Some(moved) = self.active_list.get(index) {
                 self.store.label_mut(moved.id).active_index = index as u32;
+                if moved.pending != 0 {
+                    self.moved_pending.push(index as u32);
+                }
             }
         }
     }
@@ -1592,7 +1624,7 @@ impl Cut {
                     match self.active_list.get(index) {
                         Some(e)
                             if e.id == id
-                                && e.active_children == u32::from(label.active_children) => {}
+                                && e.active_children == u16::from(label.active_children) => {}
                         _ => {
                             return Err(format!(
                                 "active node {id} is missing from the active list"

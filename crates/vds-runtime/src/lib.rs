@@ -134,6 +134,24 @@ impl Runtime {
         })
     }
 
+    /// Tests the threshold pass's active entries on `threads` threads (1, the default: on the
+    /// calling thread). The cut is the same whatever the number; folds and unfolds stay on
+    /// the calling thread.
+    pub fn set_adjust_threads(&mut self, threads: usize) {
+        self.adjuster.set_threads(threads);
+    }
+
+    /// The number of threads the threshold pass tests entries on.
+    pub fn adjust_threads(&self) -> usize {
+        self.adjuster.threads()
+    }
+
+    /// The threshold pass one entry at a time ([`Adjuster::set_one_step_pass`]): the
+    /// reference its two-step form is checked against.
+    pub fn set_one_step_pass(&mut self, on: bool) {
+        self.adjuster.set_one_step_pass(on);
+    }
+
     /// Sets the memory budget in bytes for the decoded tree and the cut
     /// ([`default_memory_budget`] until set; [`u64::MAX`] for none). The store never holds
     /// more: pages below the boundary are evicted, and when the cut itself does not fit, the

@@ -53,8 +53,10 @@ pub(crate) type Loaded = (u32, Result<Page, VdtError>);
 /// The worker threads and the two ends of their queue.
 pub(crate) struct Loader {
     shared: Arc<Shared>,
-    /// `None` only while dropping: closing it first unblocks a worker waiting to send.
-    results: Option<Receiver<Loaded>>,
+    /// `None` only while dropping: closing it first unblocks a worker waiting to send. In a
+    /// mutex only so that the store can be read from several threads (the threshold pass's
+    /// tests, which never touch the loader): its owner alone locks it, uncontended.
+    results: Option<Mutex<Receiver<Loaded>>>,
     workers: Vec<JoinHandle<()>>,
 }
 
@@ -137,7 +139,7 @@ impl Loader {
         let (sender, results) = sync_channel(waiting.max(WAITING * threads));
         let mut loader = Loader {
             shared,
-            results: Some(results),
+            results: Some(Mutex::new(results)),
             workers: Vec::new(),
         };
         for k in 0..threads {
@@ -226,13 +228,23 @@ impl Loader {
 
     /// A page a worker has finished since the last call, if any; never blocks.
     pub(crate) fn try_next(&self) -> Option<Loaded> {
-        self.results.as_ref()?.try_recv().ok()
+        self.receiver()?.try_recv().ok()
     }
 
     /// The next page a worker finishes, waiting for it (for callers that want loading to
     /// settle: tests, batch replays). `None` if every worker has stopped.
     pub(crate) fn wait_next(&self) -> Option<Loaded> {
-        self.results.as_ref()?.recv().ok()
+        self.receiver()?.recv().ok()
+    }
+
+    fn receiver(&self) -> Option<std::sync::MutexGuard<'_, Receiver<Loaded>>> {
+        // Receiving never panics while the lock is held, so a poisoned lock is still sound.
+        let results = self.results.as_ref()?;
+        Some(
+            results
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner),
+        )
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Queue> {

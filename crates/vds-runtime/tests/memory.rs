@@ -17,22 +17,6 @@ use vds_runtime::{
     CameraPath, CornerTracking, Criteria, Goal, Loading, PageSource, Runtime, Viewpoint, measure,
 };
 
-/// A generated CAD-like scene of about `triangles` triangles, built into `.vdt` bytes.
-fn generated(triangles: u64) -> (Vec<u8>, [f32; 3], f32) {
-    let g = vds_gen::generate(triangles);
-    let mut scene = vds_import::Scene {
-        positions: g.positions,
-        triangles: g.triangles,
-        triangle_parts: g.triangle_parts,
-        part_names: (0..g.part_count).map(|p| format!("part{p}")).collect(),
-        parts: Vec::new(),
-        stats: Default::default(),
-        warnings: Vec::new(),
-    };
-    let (center, radius) = bounds(&scene.positions);
-    (vdt_bytes(&mut scene), center, radius)
-}
-
 /// Bytes the store holds with every page of `bytes` resident.
 fn decoded_size(bytes: &[u8]) -> u64 {
     let mut full = runtime(bytes, CornerTracking::Incidence);

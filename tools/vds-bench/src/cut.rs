@@ -71,10 +71,12 @@ fn play(
     tracking: CornerTracking,
     resident: bool,
     timed: Timed,
+    threads: usize,
 ) -> Result<()> {
     let settled = timed != Timed::Adjusts;
     let file = VdtFile::from_bytes(bytes.to_vec())?;
     let mut runtime = Runtime::new(Box::new(file), tracking)?;
+    runtime.set_adjust_threads(threads);
     if resident {
         runtime.set_memory_budget(u64::MAX);
         runtime.load_every_page()?;
@@ -195,6 +197,8 @@ pub struct Runs {
     /// Also time settled checks (a second adjust for each frame's camera) and re-adjusts (a
     /// third) of the resident runs; full runs time settled checks for incidence lists only.
     pub settled: bool,
+    /// Threads the threshold pass tests entries on ([`Runtime::set_adjust_threads`]).
+    pub threads: usize,
 }
 
 /// Runtime figures for one mesh along `path`, at t = 1 and 5 px: every corner strategy with
@@ -231,10 +235,14 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
         )
     };
     println!(
-        "{name} ({} triangles), {} frames {} at {width}x{height}, one thread",
+        "{name} ({} triangles), {} frames {} at {width}x{height}, {}",
         probe.cut().store().triangle_count(),
         frames,
         if fly { "flying through" } else { "orbiting" },
+        match runs.threads {
+            0 | 1 => "one thread".to_string(),
+            n => format!("entries tested on {n} threads"),
+        },
     );
     let resident_trackings: &[CornerTracking] = if runs.ranks_only {
         &[CornerTracking::Ranks]
@@ -256,10 +264,12 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
                 tracking,
                 true,
                 Timed::Adjusts,
+                runs.threads,
             )?;
             if runs.settled {
                 for timed in [Timed::SettledChecks, Timed::Readjusts] {
-                    play(bytes, &path, Goal::Threshold(t), tracking, true, timed)?;
+                    let goal = Goal::Threshold(t);
+                    play(bytes, &path, goal, tracking, true, timed, runs.threads)?;
                 }
             }
         }
@@ -273,6 +283,7 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
             CornerTracking::Incidence,
             true,
             Timed::SettledChecks,
+            runs.threads,
         )?;
         play(
             bytes,
@@ -281,6 +292,7 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
             CornerTracking::Incidence,
             false,
             Timed::Adjusts,
+            runs.threads,
         )?;
     }
     println!();

@@ -145,6 +145,9 @@ enum Commands {
         /// is built in the process (quicker runs, and instruction counts of the runtime alone).
         #[arg(long)]
         vdt: Option<PathBuf>,
+        /// Threads the threshold pass tests active entries on (folds and unfolds stay on one).
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
     },
 }
 
@@ -293,11 +296,13 @@ fn main() -> Result<()> {
             ranks_only,
             settled,
             vdt,
+            threads,
         }) => {
             let runs = cut::Runs {
                 resident_only,
                 ranks_only,
                 settled,
+                threads,
             };
             let bunny = args.shared.join("bunny.obj");
             if let Some(vdt) = vdt {

@@ -135,3 +135,19 @@ pub fn random_camera(rng: &mut Rng, center: [f32; 3], radius: f32) -> Camera {
         near: radius * 1e-3,
     }
 }
+
+/// A generated CAD-like scene of about `triangles` triangles, built into `.vdt` bytes.
+pub fn generated(triangles: u64) -> (Vec<u8>, [f32; 3], f32) {
+    let g = vds_gen::generate(triangles);
+    let mut scene = vds_import::Scene {
+        positions: g.positions,
+        triangles: g.triangles,
+        triangle_parts: g.triangle_parts,
+        part_names: (0..g.part_count).map(|p| format!("part{p}")).collect(),
+        parts: Vec::new(),
+        stats: Default::default(),
+        warnings: Vec::new(),
+    };
+    let (center, radius) = bounds(&scene.positions);
+    (vdt_bytes(&mut scene), center, radius)
+}
