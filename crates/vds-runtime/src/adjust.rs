@@ -230,14 +230,29 @@ fn test_run(
     pass: &Pass,
     findings: &mut Findings,
 ) {
+    // A failed group's children are read from the store, a few misses each: they are asked
+    // for when the group fails and tested `LOOKAHEAD` failed groups later, so the misses
+    // overlap with the tests in between.
+    let mut waiting: std::collections::VecDeque<(usize, ActiveEntry)> =
+        std::collections::VecDeque::with_capacity(LOOKAHEAD + 1);
     for (i, (entry, shape)) in entries.iter_mut().zip(shapes).enumerate() {
         entry.pending = test_entry(entry, shape, pass, &mut findings.stats);
         if entry.pending != 0 {
             findings.marked.push((first + i) as u32);
-            let group = (entry.pending & GROUP_FAILED != 0)
-                .then(|| test_children(entry, store, pass, findings));
-            findings.groups.push(group);
+            findings.groups.push(None);
+            if entry.pending & GROUP_FAILED != 0 {
+                store.prefetch_tested(entry.hot.first_child, entry.hot.child_count);
+                waiting.push_back((findings.groups.len() - 1, *entry));
+                if waiting.len() > LOOKAHEAD
+                    && let Some((k, entry)) = waiting.pop_front()
+                {
+                    findings.groups[k] = Some(test_children(&entry, store, pass, findings));
+                }
+            }
         }
+    }
+    for (k, entry) in waiting {
+        findings.groups[k] = Some(test_children(&entry, store, pass, findings));
     }
 }
 
