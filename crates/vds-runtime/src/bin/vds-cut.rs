@@ -76,6 +76,10 @@ struct Args {
     /// Background loading threads, 1 to 64 (default: the cores but one, at most 4).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
     loading_threads: Option<u32>,
+    /// Threads the threshold pass tests active entries on, 1 to 256 (folds and unfolds stay
+    /// on one; the cut is the same whatever the number).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=256))]
+    adjust_threads: u32,
     /// Screen-space error threshold in pixels (scene units with --view-independent); a finite
     /// number, at least 0.
     #[arg(long, value_parser = non_negative)]
@@ -353,6 +357,7 @@ fn run(args: &Args) -> Result<()> {
     };
     let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
         .with_context(|| format!("{}", args.file.display()))?;
+    runtime.set_adjust_threads(args.adjust_threads as usize);
     runtime.set_memory_budget(
         args.memory_budget
             .unwrap_or_else(vds_runtime::default_memory_budget),
