@@ -19,6 +19,13 @@
 //! A group's test is not repeated while the camera has moved less than the margin it passed
 //! with ([`crate::reuse`]): along a smooth path most groups skip their bound.
 //!
+//! A pass asks both questions of every entry first (the tests read
+//! the store and write only each entry's own record, so shares of the list can be tested on
+//! several threads), then acts on the entries marked, from the last to the first, on the
+//! calling thread. Acting on one entry changes what was tested of another only in ways the
+//! acting step checks for; the one-step pass, which tests and acts on each entry in turn, is
+//! kept as the reference ([`Adjuster::set_one_step_pass`]).
+//!
 //! Work per frame is the active nodes (one 56-byte record each, and a bound for those whose
 //! last test no longer holds) plus the boundary nodes near the threshold plus what changes.
 //!
