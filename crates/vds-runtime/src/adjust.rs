@@ -239,27 +239,31 @@ fn test_run(
 ) {
     // A failed group's children are read from the store, a few misses each: they are asked
     // for when the group fails and tested `LOOKAHEAD` failed groups later, so the misses
-    // overlap with the tests in between.
-    let mut waiting: std::collections::VecDeque<(usize, ActiveEntry)> =
-        std::collections::VecDeque::with_capacity(LOOKAHEAD + 1);
-    for (i, (entry, shape)) in entries.iter_mut().zip(shapes).enumerate() {
-        entry.pending = test_entry(entry, shape, pass, &mut findings.stats);
-        if entry.pending != 0 {
-            findings.marked.push((first + i) as u32);
-            findings.groups.push(None);
-            if entry.pending & GROUP_FAILED != 0 {
-                store.prefetch_tested(entry.hot.first_child, entry.hot.child_count);
-                waiting.push_back((findings.groups.len() - 1, *entry));
-                if waiting.len() > LOOKAHEAD
-                    && let Some((k, entry)) = waiting.pop_front()
-                {
-                    findings.groups[k] = Some(test_children(&entry, store, pass, findings));
-                }
+    // overlap with the tests in between. The ring holds (place in `findings`, entry index).
+    let mut waiting = [(0usize, 0usize); LOOKAHEAD];
+    let mut waited = 0usize;
+    for i in 0..entries.len() {
+        let entry = &mut entries[i];
+        entry.pending = test_entry(entry, &shapes[i], pass, &mut findings.stats);
+        if entry.pending == 0 {
+            continue;
+        }
+        findings.marked.push((first + i) as u32);
+        findings.groups.push(None);
+        if entry.pending & GROUP_FAILED != 0 {
+            store.prefetch_tested(entry.hot.first_child, entry.hot.child_count);
+            let slot = &mut waiting[waited % LOOKAHEAD];
+            let (k, j) = std::mem::replace(slot, (findings.groups.len() - 1, i));
+            if waited >= LOOKAHEAD {
+                findings.groups[k] = Some(test_children(&entries[j], store, pass, findings));
             }
+            waited += 1;
         }
     }
-    for (k, entry) in waiting {
-        findings.groups[k] = Some(test_children(&entry, store, pass, findings));
+    // The last ones, oldest first.
+    for n in waited.saturating_sub(LOOKAHEAD)..waited {
+        let (k, j) = waiting[n % LOOKAHEAD];
+        findings.groups[k] = Some(test_children(&entries[j], store, pass, findings));
     }
 }
 
