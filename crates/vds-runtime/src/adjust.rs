@@ -164,9 +164,9 @@ fn test_entry(entry: &mut ActiveEntry, shape: &Shape, pass: &Pass, stats: &mut A
     pending
 }
 
-/// Entries tested in one run on a thread: about 230 KB of entries and shapes, a few
-/// microseconds of tests, so that handing a run to a thread costs little beside it.
-const TEST_RUN: usize = 4096;
+/// The fewest entries a thread is given to test: about 360 KB of entries and shapes and a few
+/// tens of microseconds of tests, beside which starting the thread costs little.
+const MIN_SHARE: usize = 4096;
 
 /// What the tests of a threshold pass found, for the pass to act on ([`Adjuster::full_pass`]):
 /// the entries with something pending, by index ascending, and for each one whose group's
@@ -196,12 +196,14 @@ struct GroupFindings {
     active_children: u16,
     /// The least margin the children passed with; zero when one needs unfolding.
     least: f32,
-    /// Its children in [`Findings::unfold`] and [`Findings::near`].
+    /// Its children that need unfolding: a range of [`Findings::unfold`].
     unfold: (u32, u32),
+    /// Its children near their threshold: a range of [`Findings::near`].
     near: (u32, u32),
 }
 
 impl Findings {
+    /// Empties the findings, keeping their memory for the next pass.
     fn clear(&mut self) {
         self.stats = AdjustStats::default();
         self.marked.clear();
@@ -318,7 +320,8 @@ const PREFETCH_RATIO: f32 = 0.5;
 /// what a page takes to arrive when a few are in flight (tens of milliseconds each).
 const LEAD_FRAMES: f32 = 8.0;
 
-/// How many entries ahead of the threshold traversal its children's data is prefetched.
+/// How far ahead the threshold pass asks for what it reads: the children of the failed group
+/// this many failed groups later, and the entry this many marked entries later.
 const LOOKAHEAD: usize = 8;
 
 /// How many levels below a folded node pages are fetched ahead of need when the node is
@@ -374,7 +377,7 @@ fn prefetch_below(
     }
 }
 
-/// What every entry of one threshold pass is visited with ([`Adjuster::visit_entry`]).
+/// What every entry of one threshold pass is tested and acted on with.
 struct Pass<'a> {
     /// The judge and threshold (`sight.judge`, `sight.t`), and the view ahead.
     sight: &'a Sight<'a>,
@@ -548,22 +551,57 @@ impl Adjuster {
     /// settle is listed for the next still pass ([`Cut::revisit`]).
     ///
     /// Two steps. First every entry is tested as the cut stands ([`test_entry`]: its group,
-    /// and whether it may fold), which reads only the dense arrays and marks what is pending.
-    /// Then the marked entries are acted on, from the last to the first: an unfold appends
-    /// entries whose children it has just tested, and a fold moves the last entry (acted on
-    /// already, or appended, so nothing is pending for it) into the folded node's place.
+    /// and whether it may fold), and the children of each group whose bound failed are read
+    /// from the store and tested ([`test_children`]); what is pending is marked in the entry.
+    /// Then the marked entries are acted on, from the last to the first, as the one-step pass
+    /// visits them: an unfold appends entries whose children it has just tested.
     ///
-    /// Acting on one entry changes what the first step saw of another in two ways only, and
-    /// neither needs a test the first step did not make. A fold that leaves its parent with
-    /// no active child tests the parent at once ([`Adjuster::coarsen`]). A fold that puts a
-    /// child back on the boundary adds to its parent's group a child that has just passed.
+    /// Acting on one entry changes what the first step saw of another in three ways, each
+    /// handled in [`Adjuster::act_marked`]. A fold that leaves its parent with no active
+    /// child tests the parent at once ([`Adjuster::coarsen`]). A fold that puts a child back
+    /// on the boundary makes its parent's findings stale: they are made again. A fold moves
+    /// the last entry into the folded one's place: an entry still pending is then acted on
+    /// where it lands, with findings made for it.
+    ///
+    /// The cut is the one-step pass's (`tests/two_step.rs`) as long as no fold is refused for
+    /// flipping a triangle: a refused fold may succeed later in the same pass, after the
+    /// folds and unfolds between, and the one-step pass tries again the parents it reaches
+    /// afterwards. With mesh-fold prevention the pass therefore runs one step at a time. (An
+    /// unfold the memory budget refuses, or a page fetched ahead of need, can also come out
+    /// differently: both depend on the order of what the pass does, and neither breaks the
+    /// threshold guarantee.)
     fn full_pass(&mut self, cut: &mut Cut, pass: &Pass, listing: bool) -> Result<(), VdtError> {
-        if self.one_step {
+        if self.one_step || pass.prevent_flips {
             return self.one_step_pass(cut, pass, listing);
         }
         self.test_entries(cut, pass);
         let mut findings = std::mem::take(&mut self.findings);
-        let mut moved = std::mem::take(&mut self.moved);
+        let acted = self.act_marked(cut, pass, listing, &mut findings);
+        if acted.is_err() {
+            // An unfold's page failed to load: the entries not reached keep nothing pending.
+            for &i in &findings.marked {
+                cut.take_pending(i as usize);
+            }
+            cut.take_moved_pending(&mut self.moved);
+            self.moved.clear();
+        }
+        debug_assert!(
+            cut.active_entries().iter().all(|entry| entry.pending == 0),
+            "an entry's pending test outcome was not acted on"
+        );
+        self.findings = findings;
+        acted
+    }
+
+    /// The second step of [`Adjuster::full_pass`]: the entries `findings` marked acted on,
+    /// from the last to the first.
+    fn act_marked(
+        &mut self,
+        cut: &mut Cut,
+        pass: &Pass,
+        listing: bool,
+        findings: &mut Findings,
+    ) -> Result<(), VdtError> {
         while let (Some(i), Some(group)) = (findings.marked.pop(), findings.groups.pop()) {
             // An unfold reads the node's children again: a few misses, started here for an
             // entry a few ahead.
@@ -580,18 +618,16 @@ impl Adjuster {
                 continue;
             }
             let id = cut.active_entries()[i].id;
-            let settled = match group {
-                Some(group) => self.act_on(cut, pass, i, pending, Some((group, &findings)))?,
-                None => self.act_on(cut, pass, i, pending, None)?,
-            };
+            let settled = self.act_on(cut, pass, i, pending, group.map(|g| (g, &*findings)))?;
             if listing {
                 list_unsettled(cut, i, id, settled);
             }
             // A fold moves the last entry into the folded one's place. That entry is pending
-            // only when folds shortened the list past this one; it is then acted on where it
-            // landed, in turn, its children tested then.
-            cut.take_moved_pending(&mut moved);
-            for j in moved.drain(..) {
+            // only when folds shortened the list past this one: it is acted on where it
+            // landed, in turn, with its children tested then (findings already marked at
+            // that index were made for the folded entry).
+            cut.take_moved_pending(&mut self.moved);
+            for j in self.moved.drain(..) {
                 match findings.marked.binary_search(&j) {
                     Ok(at) => findings.groups[at] = None,
                     Err(at) => {
@@ -601,12 +637,6 @@ impl Adjuster {
                 }
             }
         }
-        debug_assert!(
-            cut.active_entries().iter().all(|entry| entry.pending == 0),
-            "an entry's pending test outcome was not acted on"
-        );
-        self.findings = findings;
-        self.moved = moved;
         Ok(())
     }
 
@@ -641,7 +671,7 @@ impl Adjuster {
         let mut findings = std::mem::take(&mut self.findings);
         findings.clear();
         let (entries, shapes, store) = cut.active_entries_mut();
-        let threads = self.threads.min(entries.len() / TEST_RUN).max(1);
+        let threads = self.threads.min(entries.len() / MIN_SHARE).max(1);
         if threads == 1 {
             test_run(entries, shapes, store, 0, pass, &mut findings);
         } else {
@@ -688,8 +718,9 @@ impl Adjuster {
         self.threads.max(1)
     }
 
-    /// One entry of a still pass: tested ([`test_entry`]) and acted on. Returns whether it
-    /// settled: nothing in it unfolded or waits for a page, and it did not try to fold.
+    /// One entry tested ([`test_entry`]) and acted on at once, as still passes and the
+    /// one-step pass visit them. Returns whether it settled: nothing in it unfolded or waits
+    /// for a page, and it did not try to fold.
     fn visit_entry(&mut self, cut: &mut Cut, pass: &Pass, i: usize) -> Result<bool, VdtError> {
         let (entries, shapes, _) = cut.active_entries_mut();
         let (Some(entry), Some(shape)) = (entries.get_mut(i), shapes.get(i)) else {
@@ -703,7 +734,8 @@ impl Adjuster {
     /// a group whose bound failed that need it are unfolded (and those near their threshold
     /// have their children's pages fetched ahead of need), and an entry that may fold folds
     /// if it still can. `group`: its children's tests ([`test_children`]), made with the
-    /// entry's; they are made again now when there are none or a child folded since. Returns whether the entry settled: nothing in it
+    /// entry's; they are made again now when there are none, when they were made for another
+    /// entry, or when a child folded since. Returns whether the entry settled: nothing in it
     /// unfolded or waits for a page, and it did not try to fold.
     fn act_on(
         &mut self,

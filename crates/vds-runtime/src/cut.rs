@@ -53,7 +53,7 @@ use vds_format::VdtError;
 
 use crate::repeats::{Repeats, groups_of, hidden_members, key};
 use crate::reuse::Reuse;
-use crate::store::{Hot, Node, NodeStore, Shape, Tested};
+use crate::store::{Hot, Node, NodeStore, Shape};
 
 /// "None" for slot, list and node links.
 pub const NIL: u32 = u32::MAX;
@@ -440,16 +440,6 @@ impl Cut {
         self.active_list
             .get_mut(index)
             .map_or(0, |entry| std::mem::take(&mut entry.pending))
-    }
-
-    /// What the criteria read of the active node at `index` of [`Cut::active_entries`],
-    /// from the dense arrays.
-    #[inline]
-    pub fn active_tested(&self, index: usize) -> Tested<'_> {
-        Tested {
-            hot: &self.active_list[index].hot,
-            shape: &self.active_shapes[index],
-        }
     }
 
     /// Number of active children of node `id`.
@@ -1624,7 +1614,14 @@ impl Cut {
                     match self.active_list.get(index) {
                         Some(e)
                             if e.id == id
-                                && e.active_children == u16::from(label.active_children) => {}
+                                && e.active_children == u16::from(label.active_children) =>
+                        {
+                            if e.pending != 0 {
+                                return Err(format!(
+                                    "active node {id} has a test outcome left from a pass"
+                                ));
+                            }
+                        }
                         _ => {
                             return Err(format!(
                                 "active node {id} is missing from the active list"
