@@ -1,5 +1,5 @@
 //! Adjusting the cut for a new viewpoint: the threshold traversal along the boundary path
-//! (Luebke & Erikson 1997 §3.1, §4.1) and the triangle-budget exchange (§3.3).
+//! (Luebke & Erikson 1997 §3.1, §4.1) and the triangle-budget exchange (§3.3, in `budget.rs`).
 //!
 //! ## Threshold
 //! The paper's `adjust_tree` recurses through the active tree, and its §4.1 traversal follows
@@ -19,8 +19,8 @@
 //! A group's test is not repeated while the camera has moved less than the margin it passed
 //! with ([`crate::reuse`]): along a smooth path most groups skip their bound.
 //!
-//! A pass asks both questions of every entry first (the tests read
-//! the store and write only each entry's own record, so shares of the list can be tested on
+//! A pass asks both questions of every entry first (`findings.rs`: the tests read the
+//! store and write only each entry's own record, so shares of the list can be tested on
 //! several threads), then acts on the entries marked, from the last to the first, on the
 //! calling thread. Acting on one entry changes what was tested of another only in ways the
 //! acting step checks for; the one-step pass, which tests and acts on each entry in turn, is
@@ -32,29 +32,22 @@
 //! After the traversal every boundary node has passed the test for this frame — its group
 //! passed, or it was tested and stayed, or it folded because it passed — which is the
 //! threshold guarantee: no visible vertex is further than `t` pixels from its image.
-//!
-//! ## Budget
-//! A max-queue of boundary nodes by priority (screen-space error over the criteria's
-//! threshold scale) and a min-queue of *fold candidates* (active nodes whose children are all
-//! on the boundary). Starting from the current cut (coherence), the worst boundary node is
-//! unfolded while its subtris fit (counted as drawn: repeats once, see `repeats.rs`; an
-//! unfold that splits repeats past the budget is undone, and the node does not fit after
-//! all); when it does not fit and a fold candidate is cheaper, that
-//! candidate is folded to make room. A node's priority is clamped to its parent's, so a fold
-//! candidate is never the parent of the node it makes room for. Each exchange replaces lower
-//! priorities by a higher one, so the loop terminates; it stops when the worst boundary node
-//! does not fit and nothing cheaper can fold: unfolding the next node in the queue would
-//! exceed the budget, which is §3.3's stopping rule.
 
-use std::cmp::{Ordering, Reverse};
+mod budget;
+mod findings;
+
+use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
 use vds_format::VdtError;
 
+use budget::Priority;
+use findings::{Findings, GROUP_FAILED, GroupFindings, MAY_FOLD, test_children, test_entry};
+
 use crate::criteria::{Decision, Judge};
-use crate::cut::{ActiveEntry, Cut, NIL, NodeState};
+use crate::cut::{Cut, NIL, NodeState};
 use crate::reuse::{MotionLog, Reuse};
-use crate::store::{Hot, NodeStore, Shape, Tested};
+use crate::store::Hot;
 
 /// Work done by one adjust.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -116,198 +109,6 @@ fn list_unsettled(cut: &mut Cut, i: usize, id: u32, settled: bool) {
             .is_some_and(|entry| entry.id == id)
     {
         cut.revisit(id);
-    }
-}
-
-/// [`ActiveEntry::pending`]: its group's bound failed, so its children are to be tested one
-/// by one.
-const GROUP_FAILED: u16 = 1;
-/// [`ActiveEntry::pending`]: it has no active child and its test says fold.
-const MAY_FOLD: u16 = 2;
-
-/// The tests of one active entry for a threshold pass, on the entry alone (its dense
-/// record and shape): whether its boundary children's group still holds its record or
-/// passes its bound (recording the margin it passed with), and, when it has no active child,
-/// whether it may fold. Returns what is pending for it ([`GROUP_FAILED`], [`MAY_FOLD`]).
-#[inline]
-fn test_entry(entry: &mut ActiveEntry, shape: &Shape, pass: &Pass, stats: &mut AdjustStats) -> u16 {
-    let (judge, t) = (pass.sight.judge, pass.sight.t);
-    let mut pending = 0;
-    if u32::from(entry.active_children) < entry.hot.child_count {
-        if pass.now.as_ref().is_some_and(|now| entry.reuse.holds(now)) {
-            stats.groups_reused += 1;
-        } else {
-            stats.visited += 1;
-            stats.groups += 1;
-            match judge.group_margin(&entry.hot, pass.tight) {
-                Some(margin) => {
-                    if let Some(now) = &pass.now
-                        && margin > 0.0
-                    {
-                        entry.reuse = Reuse::new(now, judge.group_reach(&entry.hot), margin);
-                    }
-                }
-                None => pending |= GROUP_FAILED,
-            }
-        }
-    }
-    if entry.active_children == 0 {
-        stats.visited += 1;
-        let tested = Tested {
-            hot: &entry.hot,
-            shape,
-        };
-        if judge.decide(tested, t) == Decision::Fold {
-            pending |= MAY_FOLD;
-        }
-    }
-    pending
-}
-
-/// The fewest entries a thread is given to test: about 360 KB of entries and shapes and a few
-/// tens of microseconds of tests, beside which starting the thread costs little.
-const MIN_SHARE: usize = 4096;
-
-/// What the tests of a threshold pass found, for the pass to act on ([`Adjuster::full_pass`]):
-/// the entries with something pending, by index ascending, and for each one whose group's
-/// bound failed, its children's tests.
-#[derive(Debug, Default)]
-struct Findings {
-    stats: AdjustStats,
-    /// Indices of the entries with something pending, ascending.
-    marked: Vec<u32>,
-    /// Beside each marked entry: its children's tests when its group's bound failed.
-    groups: Vec<Option<GroupFindings>>,
-    /// The children that need unfolding, of every group in `groups`.
-    unfold: Vec<u32>,
-    /// The children near their threshold, whose pages are to be fetched ahead of need, and
-    /// their share of it (background loading only).
-    near: Vec<(u32, f32)>,
-}
-
-/// The children of one group whose bound failed, tested one by one.
-#[derive(Debug, Clone, Copy)]
-struct GroupFindings {
-    /// The node whose children were tested: a fold moves another entry into a folded one's
-    /// place, where findings made for the folded one do not apply.
-    id: u32,
-    /// The node's count of active children when they were tested: a fold since, which puts
-    /// a child back on the boundary, makes the tests stale.
-    active_children: u16,
-    /// The least margin the children passed with; zero when one needs unfolding.
-    least: f32,
-    /// Its children that need unfolding: a range of [`Findings::unfold`].
-    unfold: (u32, u32),
-    /// Its children near their threshold: a range of [`Findings::near`].
-    near: (u32, u32),
-}
-
-impl Findings {
-    /// Empties the findings, keeping their memory for the next pass.
-    fn clear(&mut self) {
-        self.stats = AdjustStats::default();
-        self.marked.clear();
-        self.groups.clear();
-        self.unfold.clear();
-        self.near.clear();
-    }
-
-    /// Appends `other` (the findings of the entries after this one's).
-    fn append(&mut self, mut other: Findings) {
-        let (unfold, near) = (self.unfold.len() as u32, self.near.len() as u32);
-        self.stats.add(&other.stats);
-        self.marked.append(&mut other.marked);
-        self.groups.extend(other.groups.into_iter().map(|group| {
-            group.map(|g| GroupFindings {
-                unfold: (g.unfold.0 + unfold, g.unfold.1 + unfold),
-                near: (g.near.0 + near, g.near.1 + near),
-                ..g
-            })
-        }));
-        self.unfold.append(&mut other.unfold);
-        self.near.append(&mut other.near);
-    }
-}
-
-/// [`test_entry`] on a run of entries starting at index `first`, and the children of each
-/// whose group's bound failed ([`test_children`]), into `findings`.
-fn test_run(
-    entries: &mut [ActiveEntry],
-    shapes: &[Shape],
-    store: &NodeStore,
-    first: usize,
-    pass: &Pass,
-    findings: &mut Findings,
-) {
-    // A failed group's children are read from the store, a few misses each: they are asked
-    // for when the group fails and tested `LOOKAHEAD` failed groups later, so the misses
-    // overlap with the tests in between. The ring holds (place in `findings`, entry index).
-    let mut waiting = [(0usize, 0usize); LOOKAHEAD];
-    let mut waited = 0usize;
-    for i in 0..entries.len() {
-        let entry = &mut entries[i];
-        entry.pending = test_entry(entry, &shapes[i], pass, &mut findings.stats);
-        if entry.pending == 0 {
-            continue;
-        }
-        findings.marked.push((first + i) as u32);
-        findings.groups.push(None);
-        if entry.pending & GROUP_FAILED != 0 {
-            store.prefetch_tested(entry.hot.first_child, entry.hot.child_count);
-            let slot = &mut waiting[waited % LOOKAHEAD];
-            let (k, j) = std::mem::replace(slot, (findings.groups.len() - 1, i));
-            if waited >= LOOKAHEAD {
-                findings.groups[k] = Some(test_children(&entries[j], store, pass, findings));
-            }
-            waited += 1;
-        }
-    }
-    // The last ones, oldest first.
-    for n in waited.saturating_sub(LOOKAHEAD)..waited {
-        let (k, j) = waiting[n % LOOKAHEAD];
-        findings.groups[k] = Some(test_children(&entries[j], store, pass, findings));
-    }
-}
-
-/// Tests one by one the boundary children of the active `entry`, whose group's bound failed.
-fn test_children(
-    entry: &ActiveEntry,
-    store: &NodeStore,
-    pass: &Pass,
-    findings: &mut Findings,
-) -> GroupFindings {
-    let hot = &entry.hot;
-    let (judge, t) = (pass.sight.judge, pass.sight.t);
-    let (unfold, near) = (findings.unfold.len() as u32, findings.near.len() as u32);
-    let mut least = f32::INFINITY;
-    for c in hot.first_child..hot.first_child + hot.child_count {
-        let (label, tested) = store.labelled(c);
-        if label.state != NodeState::Boundary {
-            continue;
-        }
-        findings.stats.visited += 1;
-        let (decision, margin) = judge.decide_with_margin(tested, t);
-        if decision == Decision::Unfold {
-            least = 0.0;
-            findings.unfold.push(c);
-        } else {
-            least = least.min(margin);
-            // Near its threshold: its children's pages are fetched ahead of need, the
-            // nearest first. Cheap test first: most nodes are far from it.
-            if pass.prefetching {
-                let now = pass.sight.now(tested.hot);
-                if now > PREFETCH_RATIO * 0.5 {
-                    findings.near.push((c, now));
-                }
-            }
-        }
-    }
-    GroupFindings {
-        id: entry.id,
-        active_children: entry.active_children,
-        least,
-        unfold: (unfold, findings.unfold.len() as u32),
-        near: (near, findings.near.len() as u32),
     }
 }
 
@@ -409,24 +210,6 @@ impl Sight<'_> {
             let child = *cut.store().tested(c).hot;
             prefetch_below(cut, self, c, child, self.now(&child), level, deeper);
         }
-    }
-}
-
-/// A float with a total order, for the priority queues.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Priority(f32);
-
-impl Eq for Priority {}
-
-impl PartialOrd for Priority {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
-}
-
-impl Ord for Priority {
-    fn cmp(&self, other: &Self) -> Ordering {
-        self.0.total_cmp(&other.0)
     }
 }
 
@@ -662,51 +445,6 @@ impl Adjuster {
         self.one_step = on;
     }
 
-    /// The first step of [`Adjuster::full_pass`]: every active entry tested, what is pending
-    /// marked in it, and the children of the groups whose bound failed tested one by one,
-    /// into `self.findings`. The tests read the store and write each entry's own record
-    /// alone, so shares of the entries are tested on several threads when the adjuster has
-    /// them ([`Adjuster::set_threads`]); the findings are the same.
-    fn test_entries(&mut self, cut: &mut Cut, pass: &Pass) {
-        let mut findings = std::mem::take(&mut self.findings);
-        findings.clear();
-        let (entries, shapes, store) = cut.active_entries_mut();
-        let threads = self.threads.min(entries.len() / MIN_SHARE).max(1);
-        if threads == 1 {
-            test_run(entries, shapes, store, 0, pass, &mut findings);
-        } else {
-            // Equal shares, one per thread, the calling thread taking the first. Threads
-            // started for the pass cost tens of microseconds; a pool's sleeping workers took
-            // milliseconds to wake on the 2-core VM.
-            let share = entries.len().div_ceil(threads);
-            let mut parts = entries.chunks_mut(share).zip(shapes.chunks(share));
-            let (first_entries, first_shapes) = parts.next().expect("entries to test");
-            let others = std::thread::scope(|scope| {
-                let others: Vec<_> = parts
-                    .enumerate()
-                    .map(|(k, (entries, shapes))| {
-                        scope.spawn(move || {
-                            let mut findings = Findings::default();
-                            let first = (k + 1) * share;
-                            test_run(entries, shapes, store, first, pass, &mut findings);
-                            findings
-                        })
-                    })
-                    .collect();
-                test_run(first_entries, first_shapes, store, 0, pass, &mut findings);
-                others
-                    .into_iter()
-                    .map(|h| h.join().expect("a test run does not panic"))
-                    .collect::<Vec<_>>()
-            });
-            for other in others {
-                findings.append(other);
-            }
-        }
-        self.stats.add(&findings.stats);
-        self.findings = findings;
-    }
-
     /// Tests the threshold pass's entries on `threads` threads (1: on the calling thread,
     /// the default). The cut is the same whatever the number.
     pub fn set_threads(&mut self, threads: usize) {
@@ -909,179 +647,5 @@ impl Adjuster {
                 return;
             }
         }
-    }
-
-    /// The priority of unfolding `id` this frame: the judge's priority, clamped to its
-    /// parent's (see the module documentation).
-    pub fn priority(&mut self, cut: &Cut, judge: &Judge, id: u32) -> f32 {
-        // Walk up to the first ancestor already priced this frame, then price down.
-        self.stack.clear();
-        let mut n = id;
-        let mut above = f32::MAX;
-        while n != NIL {
-            if let Some(&value) = self.priorities.get(&n) {
-                above = value;
-                break;
-            }
-            self.stack.push(n);
-            n = cut.node(n).parent;
-        }
-        while let Some(n) = self.stack.pop() {
-            self.stats.visited += 1;
-            let surface = cut.store().surface_error(n);
-            above = judge.priority(cut.store().tested(n), surface).min(above);
-            self.priorities.insert(n, above);
-        }
-        above
-    }
-
-    /// Adjusts `cut` to the best cut of at most `budget` triangles under `judge`.
-    pub fn adjust_budget(
-        &mut self,
-        cut: &mut Cut,
-        judge: &Judge,
-        budget: u32,
-        prevent_flips: bool,
-    ) -> Result<AdjustStats, VdtError> {
-        self.begin();
-        self.unfold_queue.clear();
-        self.fold_queue.clear();
-        self.work.clear();
-        self.work.extend(cut.boundary());
-        for i in 0..self.work.len() {
-            let b = self.work[i];
-            self.queue_unfold(cut, judge, b);
-            self.queue_fold(cut, judge, cut.node(b).parent);
-        }
-        // Over budget (the budget shrank): fold the cheapest candidates. The budget is a hard
-        // limit, so mesh-fold prevention yields here.
-        while cut.counted_triangles() > budget {
-            let Some(f) = self.pop_fold(cut) else { break };
-            cut.fold_node(f, false);
-            self.stats.folds += 1;
-            self.after_fold(cut, judge, f);
-        }
-        self.exchange(cut, judge, budget, prevent_flips)?;
-        // Refused folds again (see `retry_refused_folds`): back in the queue after changes
-        // that may have removed the triangle they would have flipped. A round that goes on
-        // made an exchange, and a frame's exchanges are finite (module documentation), so
-        // the rounds end.
-        while !self.refused.is_empty() {
-            let changes = self.stats.folds + self.stats.unfolds;
-            for f in std::mem::take(&mut self.refused) {
-                self.queue_fold(cut, judge, f);
-            }
-            self.exchange(cut, judge, budget, prevent_flips)?;
-            if self.stats.folds + self.stats.unfolds == changes {
-                break;
-            }
-        }
-        Ok(self.stats)
-    }
-
-    /// The budget's exchanges (see the module documentation) until the worst boundary node
-    /// does not fit and no cheaper candidate can fold.
-    fn exchange(
-        &mut self,
-        cut: &mut Cut,
-        judge: &Judge,
-        budget: u32,
-        prevent_flips: bool,
-    ) -> Result<(), VdtError> {
-        while let Some(&(Priority(worst), Reverse(u))) = self.peek_unfold(cut) {
-            if worst <= 0.0 {
-                break;
-            }
-            // A node whose children are not resident is passed over (its pages asked for)
-            // before anything is folded to make room for it. (With synchronous loading they
-            // are read here, and passed over only when they do not fit in the memory budget.)
-            if !cut.children_available(u)? {
-                self.unfold_queue.pop();
-                if cut.request_children(u, worst) {
-                    self.stats.deferred_unfolds += 1;
-                }
-                continue;
-            }
-            let cost = cut.node(u).subtri_count;
-            if u64::from(cut.counted_triangles()) + u64::from(cost) <= u64::from(budget) {
-                cut.unfold_node(u)?;
-                // An unfold can split classes of repeats that were counted once, and so add
-                // more than its subtris: one that goes past the budget is undone, and the node
-                // does not fit after all.
-                if cut.counted_triangles() > budget {
-                    cut.fold_node(u, false);
-                } else {
-                    self.unfold_queue.pop();
-                    self.stats.unfolds += 1;
-                    for c in cut.node(u).children() {
-                        self.queue_unfold(cut, judge, c);
-                    }
-                    self.queue_fold(cut, judge, u);
-                    continue;
-                }
-            }
-            match self.peek_fold(cut) {
-                Some(&Reverse((Priority(cheapest), f))) if cheapest < worst => {
-                    self.pop_fold(cut);
-                    if cut.fold_node(f, prevent_flips) {
-                        self.stats.folds += 1;
-                        self.after_fold(cut, judge, f);
-                    } else {
-                        self.stats.refused_folds += 1;
-                        self.refused.push(f);
-                    }
-                }
-                _ => break,
-            }
-        }
-        Ok(())
-    }
-
-    fn after_fold(&mut self, cut: &Cut, judge: &Judge, id: u32) {
-        self.queue_unfold(cut, judge, id);
-        self.queue_fold(cut, judge, cut.node(id).parent);
-    }
-
-    fn queue_unfold(&mut self, cut: &Cut, judge: &Judge, id: u32) {
-        if cut.can_unfold(id) {
-            let p = self.priority(cut, judge, id);
-            self.unfold_queue.push((Priority(p), Reverse(id)));
-        }
-    }
-
-    fn queue_fold(&mut self, cut: &Cut, judge: &Judge, id: u32) {
-        if id != NIL && cut.can_fold(id) && self.queued.insert(id) {
-            let p = self.priority(cut, judge, id);
-            self.fold_queue.push(Reverse((Priority(p), id)));
-        }
-    }
-
-    fn peek_unfold(&mut self, cut: &Cut) -> Option<&(Priority, Reverse<u32>)> {
-        while let Some(&(_, Reverse(u))) = self.unfold_queue.peek() {
-            if cut.can_unfold(u) {
-                break;
-            }
-            self.unfold_queue.pop();
-        }
-        self.unfold_queue.peek()
-    }
-
-    fn peek_fold(&mut self, cut: &Cut) -> Option<&Reverse<(Priority, u32)>> {
-        while let Some(&Reverse((_, f))) = self.fold_queue.peek() {
-            if cut.can_fold(f) {
-                break;
-            }
-            // A node that stops being a candidate may become one again this frame.
-            self.queued.remove(&f);
-            self.fold_queue.pop();
-        }
-        self.fold_queue.peek()
-    }
-
-    fn pop_fold(&mut self, cut: &Cut) -> Option<u32> {
-        let f = self.peek_fold(cut)?.0.1;
-        self.fold_queue.pop();
-        self.queued.remove(&f);
-        Some(f)
     }
 }
