@@ -22,6 +22,7 @@ mod review;
 mod simplify;
 mod window;
 
+use std::num::NonZero;
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
@@ -161,6 +162,10 @@ struct Args {
     /// lists, rewritten per triangle changed).
     #[arg(long, value_enum, default_value_t = CornersArg::Ranks)]
     corners: CornersArg,
+    /// Threads the threshold pass tests active entries on, 1 to 256 (default: every core).
+    /// Folds and unfolds stay on one; the cut is the same whatever the number.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
+    adjust_threads: Option<u32>,
 }
 
 /// `--corners`.
@@ -316,7 +321,7 @@ impl Args {
     /// Opens the model the arguments name (`model::open`), keeping the original mesh when
     /// `keep_mesh` is set.
     fn open_model(&self, keep_mesh: bool, loading: vds_runtime::Loading) -> Result<model::Model> {
-        model::open(
+        let mut model = model::open(
             self.file.as_deref(),
             keep_mesh,
             loading,
@@ -326,7 +331,11 @@ impl Args {
                 CornersArg::Ranks => vds_runtime::CornerTracking::Ranks,
                 CornersArg::Incidence => vds_runtime::CornerTracking::Incidence,
             },
-        )
+        )?;
+        let every_core = || std::thread::available_parallelism().map_or(1, NonZero::get);
+        let threads = self.adjust_threads.map_or_else(every_core, |n| n as usize);
+        model.runtime.set_adjust_threads(threads);
+        Ok(model)
     }
 
     fn settings(&self) -> Settings {

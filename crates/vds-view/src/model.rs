@@ -63,7 +63,6 @@ pub fn open(
             let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
                 .with_context(|| path.display().to_string())?;
             runtime.set_memory_budget(budget);
-            runtime.set_adjust_threads(adjust_threads());
             let mesh = keep_mesh
                 .then(|| mesh_of(&mut runtime))
                 .transpose()
@@ -100,7 +99,6 @@ pub fn open(
     let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
         .with_context(|| format!("the tree of {name}"))?;
     runtime.set_memory_budget(budget);
-    runtime.set_adjust_threads(adjust_threads());
     Ok(Model {
         runtime,
         name,
@@ -130,10 +128,4 @@ fn mesh_of(runtime: &mut Runtime) -> Result<vds_import::Scene> {
         stats: Default::default(),
         warnings: Vec::new(),
     })
-}
-
-/// Threads the viewer's threshold pass tests active entries on: every core (the cut is the
-/// same whatever the number; only its tests are shared out).
-fn adjust_threads() -> usize {
-    std::thread::available_parallelism().map_or(1, std::num::NonZero::get)
 }
