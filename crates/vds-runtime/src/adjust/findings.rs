@@ -69,6 +69,7 @@ const MIN_SHARE: usize = 4096;
 /// bound failed, its children's tests.
 #[derive(Debug, Default)]
 pub(super) struct Findings {
+    /// The tests made, added to the adjust's figures once the findings are complete.
     pub(super) stats: AdjustStats,
     /// Indices of the entries with something pending, ascending.
     pub(super) marked: Vec<u32>,
