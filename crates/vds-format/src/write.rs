@@ -37,9 +37,11 @@ use crate::{Grid, Metadata, VdtError};
 /// 50 M scene about five times finer in screen error (`docs/benchmarks.md`, "Page shape under
 /// a budget").
 pub const DEFAULT_PAGE_BYTES: u32 = 32 * 1024;
-/// Default zstd level: on generated CAD scenes level 6 gave smaller files than 9 (17.5 vs
-/// 17.7 B/triangle) in half the time; 15 saves 15 % more at 10× the time.
-pub const DEFAULT_ZSTD_LEVEL: i32 = 6;
+/// Default zstd level. On the pages of the generated 1 M scene level 3 compresses at 2.4× the
+/// speed of level 6 for 4.7 % more bytes (zstd's own benchmark, one page per frame), and the
+/// 10 M build, whose writing was half its time at level 6, takes 17 % less time end to end
+/// (`docs/benchmarks.md`, "Measurements behind current defaults").
+pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
 
 /// The nodes of a tree to write, by id: a slice of records, or a builder's own node array
 /// that makes each record when the writer asks for it, so that a whole tree of records (76
