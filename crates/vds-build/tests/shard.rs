@@ -475,6 +475,13 @@ fn shard_inputs_round_trip_through_files() {
     write_shard_inputs(&scene, &plan, &root_of, &paths, 2, |_, _| {}).unwrap();
     for (k, path) in paths.iter().enumerate() {
         let input = read_shard_input(path, &plan, k as u32).unwrap();
+        // A corner naming a vertex the plan does not have is refused, not numbered.
+        let mut past = input.clone();
+        past[0].vertices[1] = plan.vertices.into();
+        assert!(matches!(
+            build_shard_from(&plan, k as u32, past),
+            Err(ShardError::InputChanged(reason)) if reason.contains("past the plan's count")
+        ));
         assert_eq!(
             build_shard_from(&plan, k as u32, input).unwrap(),
             build_shard(&scene, &plan, k as u32).unwrap()

@@ -25,14 +25,15 @@
 //! - Welding is exact: coincident vertices fall in one cell, so no weld crosses a border.
 //!
 //! Modules: [`mod@plan`] (the top tree and the shards), `part` (one shard's build),
-//! `container` (the layout of the build's files), `input_file` (a shard's input, `.vdtin`),
-//! `seal` (a root's subtree as the merge takes it: top records, regions as the file's pages),
-//! `part_file` (a shard's output, `.vdtpart`), `merge` (the top nodes, renumbering, the
-//! file).
+//! `numbering` (a shard's own numbers for its vertices), `container` (the layout of the
+//! build's files), `input_file` (a shard's input, `.vdtin`), `seal` (a root's subtree as the
+//! merge takes it: top records, regions as the file's pages), `part_file` (a shard's output,
+//! `.vdtpart`), `merge` (the top nodes, renumbering, the file).
 
 mod container;
 mod input_file;
 mod merge;
+mod numbering;
 mod part;
 mod part_file;
 pub mod plan;

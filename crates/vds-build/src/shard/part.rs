@@ -392,23 +392,17 @@ impl LocalScene {
         {
             return changed("triangles out of order or past the plan's count");
         }
-        let mut global_id: Vec<u32> = input
-            .iter()
-            .flat_map(|t| t.vertices.map(|v| v.get()))
-            .collect();
-        global_id.par_sort_unstable();
-        global_id.dedup();
-        let local_of = |v: u32| global_id.binary_search(&v).expect("listed above") as u32;
-        let mut positions = vec![None; global_id.len()];
+        let mut triangles: Vec<[u32; 3]> =
+            input.iter().map(|t| t.vertices.map(|v| v.get())).collect();
+        let Ok(used) = super::numbering::number_corners(&mut triangles, plan.vertices) else {
+            return changed("a vertex past the plan's count");
+        };
+        let mut positions = vec![None; used as usize];
         let ids: Vec<(u64, u32)> = input
             .iter()
             .map(|t| (t.triangle.get(), t.part.get()))
             .collect();
-        // The searches on every thread; the positions, which must agree, then in order.
-        let triangles: Vec<[u32; 3]> = input
-            .par_iter()
-            .map(|t| t.vertices.map(|v| local_of(v.get())))
-            .collect();
+        // The positions, which must agree, in order.
         for (t, corners) in input.iter().zip(&triangles) {
             for k in 0..3 {
                 let p = t.positions[k].map(|c| c.get());
