@@ -480,7 +480,7 @@ fn shard_inputs_round_trip_through_files() {
         past[0].vertices[1] = plan.vertices.into();
         assert!(matches!(
             build_shard_from(&plan, k as u32, past),
-            Err(ShardError::InputChanged(reason)) if reason.contains("past the plan's count")
+            Err(ShardError::InputChanged(reason)) if reason.contains("a vertex past the plan's count")
         ));
         assert_eq!(
             build_shard_from(&plan, k as u32, input).unwrap(),

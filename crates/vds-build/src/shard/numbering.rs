@@ -37,7 +37,7 @@ pub(crate) fn number_corners(
 fn by_bits(triangles: &mut [[u32; 3]], words: usize) -> u32 {
     let mut used = vec![0u64; words];
     for &v in triangles.iter().flatten() {
-        used[v as usize / 64] |= 1 << (v % 64);
+        used[v as usize / 64] |= 1u64 << (v % 64);
     }
     let mut first_rank = Vec::with_capacity(words);
     let mut count = 0u32;

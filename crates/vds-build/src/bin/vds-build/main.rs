@@ -60,9 +60,9 @@ const JOB_DECAY_MS: libc::ssize_t = 1000;
 ///
 /// - Within `--memory-limit` (one process, two shards at a time, then the merge) at once:
 ///   with a decay of a second the 20 M scene's shards and merge peaked at 536 MB instead of
-///   249 MB, at the edge of a 512 MiB limit; purging each finished shard's pages kept that to
-///   270 MB, but the 50 M scene within 2.5 GiB then peaked at 2,438 MB instead of 1,954, no
-///   faster (`docs/benchmarks.md`, "Measurements behind current defaults").
+///   249 MB, at the edge of a 512 MiB limit, and purging each finished shard did not make
+///   every limited build faster (`docs/benchmarks.md`, "Measurements behind current
+///   defaults").
 /// - A separate `plan`, `shard` or `merge` job after a second: each is 10-25 % faster than
 ///   with pages returned at once, for a peak 10-30 % higher (a shard of the 10 M scene cut
 ///   in four: 1.43-1.50 -> 1.23-1.26 s, 281 -> 309-312 MB; the merge of the 20 M scene
