@@ -68,30 +68,26 @@ fn by_sorting(triangles: &mut [[u32; 3]]) -> u32 {
 mod tests {
     use super::*;
 
-    /// Triangles over ids below `vertex_count` from a seeded generator, some ids repeated.
-    fn triangles(count: usize, vertex_count: u32, seed: u64) -> Vec<[u32; 3]> {
-        let mut state = seed;
-        let mut next = move || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            ((state >> 33) % u64::from(vertex_count)) as u32
-        };
-        (0..count).map(|_| [next(), next(), next()]).collect()
+    use proptest::prelude::*;
+
+    /// A vertex count (either side of a word's 64 and up to 2²⁰, so that both ways are taken)
+    /// and triangles over ids below it, some ids repeated.
+    fn counted_triangles() -> impl Strategy<Value = (u32, Vec<[u32; 3]>)> {
+        prop_oneof![1u32..300, 300u32..70_000, Just(1 << 20)].prop_flat_map(|vertex_count| {
+            let id = 0..vertex_count;
+            (
+                Just(vertex_count),
+                prop::collection::vec([id.clone(), id.clone(), id], 1..3000),
+            )
+        })
     }
 
-    #[test]
-    fn bits_and_sorting_number_alike() {
-        for (count, vertex_count, seed) in [
-            (1, 1, 1),
-            (5, 64, 2),
-            (100, 65, 3),
-            (1000, 200, 4),
-            (1000, 64_000, 5),
-            (20_000, 5_000, 6),
-            (3, 1 << 20, 7),
-        ] {
-            let original = triangles(count, vertex_count, seed);
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        #[test]
+        fn bits_and_sorting_number_alike((vertex_count, original) in counted_triangles()) {
+            let count = original.len();
             let (mut bits, mut sorted) = (original.clone(), original.clone());
             let words = (vertex_count as usize).div_ceil(64);
             let used = by_bits(&mut bits, words);
@@ -121,7 +117,9 @@ mod tests {
     fn ids_past_the_count_are_refused() {
         let mut few = vec![[0, 1, 2]];
         assert_eq!(number_corners(&mut few, 2), Err(PastTheCount));
-        let mut many = triangles(1000, 100, 9);
+        let mut many: Vec<[u32; 3]> = (0..1000)
+            .map(|k| [k % 100, k * 7 % 100, k * 13 % 100])
+            .collect();
         many.push([5, 100, 7]);
         assert_eq!(number_corners(&mut many, 100), Err(PastTheCount));
         let mut edge = vec![[u32::MAX - 1, 0, 1]];
