@@ -51,6 +51,7 @@
 
 use vds_format::VdtError;
 
+use crate::journal::{Journal, JournalEntry};
 use crate::repeats::{Repeats, groups_of, hidden_members, key};
 use crate::reuse::Reuse;
 use crate::store::{Hot, Node, NodeStore, Shape};
@@ -234,12 +235,9 @@ pub struct Cut {
     own_corners: Vec<([u32; 3], u32)>,
     /// Scratch of rank tracking's grouping: the first leaf ranks of the node's siblings.
     sibling_starts: Vec<u32>,
-    /// Rank tracking: the nodes whose state changed since the last `take_changes`, each
-    /// with its state then (also in its label, which marks it listed), and the store's
-    /// eviction count then: a node whose page was evicted and loaded again in between may
-    /// be listed twice, its first entry holding its state before.
-    node_journal: Vec<(u32, NodeState)>,
-    evictions_at_take: u64,
+    /// Rank tracking: the nodes whose state changed since the last `take_changes`, with
+    /// their states then and now.
+    node_journal: Journal,
     /// Rank tracking: every leaf rank that is a corner of a grouped subtri, with the node
     /// owning the group: a node joining the boundary over such a rank may change what the
     /// group hides.
@@ -291,8 +289,7 @@ impl Cut {
             repeats: Repeats::default(),
             own_corners: Vec::new(),
             sibling_starts: Vec::new(),
-            node_journal: Vec::new(),
-            evictions_at_take: 0,
+            node_journal: Journal::default(),
             watched: Default::default(),
             hidden_set: Default::default(),
             hidden_was: Default::default(),
@@ -891,7 +888,7 @@ impl Cut {
             + held(&self.free_slots)
             + held(&self.journal)
             + held(&self.dirty_bits)
-            + held(&self.node_journal)
+            + held(&self.node_journal.entries)
             + self.revisit.as_ref().map_or(0, held)
             + hashed) as u64
     }
@@ -901,7 +898,11 @@ impl Cut {
     /// `take_changes` (its journal entry says whether it was active then).
     fn count_net(&mut self, id: u32, triangles: i64) {
         let label = self.store.label(id);
-        let was_active = label.journaled.unwrap_or(label.state) == NodeState::Active;
+        let was_active = self
+            .node_journal
+            .entry(id, label)
+            .map_or(label.state, |e| e.before)
+            == NodeState::Active;
         if was_active {
             self.net_removed -= triangles;
         } else {
@@ -917,21 +918,9 @@ impl Cut {
             removed: self.net_removed as u32,
             ..Changes::default()
         };
-        let mut journal = std::mem::take(&mut self.node_journal);
         let evictions = self.store.memory().pages_evicted;
-        if evictions != std::mem::replace(&mut self.evictions_at_take, evictions) {
-            let mut seen = rustc_hash::FxHashSet::default();
-            journal.retain(|&(id, _)| seen.insert(id));
-        }
-        for &(id, before) in &journal {
-            // A node whose page was evicted is inactive; its label went with the page.
-            let now = match self.store.label_if_resident_mut(id) {
-                Some(label) => {
-                    label.journaled = None;
-                    label.state
-                }
-                None => NodeState::Inactive,
-            };
+        let mut journal = self.node_journal.take(evictions);
+        for &JournalEntry { id, before, now } in &journal {
             if before == now {
                 continue;
             }
@@ -964,7 +953,7 @@ impl Cut {
         let touched = journal.len();
         journal.clear();
         shrink_if_sparse(&mut journal, 2 * touched);
-        self.node_journal = journal;
+        self.node_journal.entries = journal;
         (self.net_added, self.net_removed) = (0, 0);
         shrink_if_sparse(&mut self.active_list, self.active_node_count as usize);
         shrink_if_sparse(&mut self.active_shapes, self.active_node_count as usize);
@@ -1497,30 +1486,28 @@ impl Cut {
     /// page, not per child.
     fn set_children_state(&mut self, node: &Node, state: NodeState) {
         debug_assert!(state != NodeState::Active);
-        let journal = self.tracking == CornerTracking::Ranks;
-        let node_journal = &mut self.node_journal;
+        let ranks = self.tracking == CornerTracking::Ranks;
+        let journal = &mut self.node_journal;
         let (first, count) = (node.first_child, u32::from(node.child_count));
         self.store
             .set_run_state(first, count, state, |id, was, label| {
                 debug_assert!(was != NodeState::Active, "node {id} was active");
-                if journal && label.journaled.is_none() {
-                    label.journaled = Some(was);
-                    node_journal.push((id, was));
+                if ranks {
+                    journal.note(id, label, was, state);
                 }
             });
     }
 
     fn set_state(&mut self, id: u32, state: NodeState) {
-        let journal = self.tracking == CornerTracking::Ranks;
-        let node_journal = &mut self.node_journal;
+        let ranks = self.tracking == CornerTracking::Ranks;
+        let journal = &mut self.node_journal;
         let next_index = self.active_list.len() as u32;
         let (mut was, mut active_children, mut left_index) = (state, 0, NIL);
         // One page look-up for the label's state, journal entry and place in the active list.
         self.store.set_run_state(id, 1, state, |_, before, label| {
             was = before;
-            if journal && label.journaled.is_none() {
-                label.journaled = Some(before);
-                node_journal.push((id, before));
+            if ranks {
+                journal.note(id, label, before, state);
             }
             if state == NodeState::Active && before != NodeState::Active {
                 label.active_index = next_index;

@@ -31,6 +31,7 @@ pub mod camera_path;
 pub mod criteria;
 pub mod cut;
 pub mod export;
+mod journal;
 mod loader;
 pub mod measure;
 pub mod nearest;

@@ -264,8 +264,9 @@ enum PageState {
 }
 
 /// What the cut keeps of one node while the node's page is resident: its label, its count of
-/// active children, its place in the cut's active list and the head of its incidence list.
-/// Nodes of pages that are not resident read as inactive.
+/// active children, its place in the cut's active list, and the head of its incidence list or
+/// its entry in the cut's journal of changes. Nodes of pages that are not resident read as
+/// inactive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NodeLabel {
     /// Inactive, boundary or active. Changed only through [`NodeStore::set_state`], which
@@ -273,12 +274,13 @@ pub struct NodeLabel {
     pub(crate) state: crate::cut::NodeState,
     /// How many of its children are active.
     pub(crate) active_children: u8,
-    /// Rank tracking: its state at the cut's last change report, while it is in the cut's
-    /// journal of changed nodes (in what would be padding).
-    pub(crate) journaled: Option<crate::cut::NodeState>,
     /// Its index in the cut's active list, or [`NIL`].
     pub(crate) active_index: u32,
-    /// First incidence-list entry it heads, or [`NIL`].
+    /// Incidence tracking: the first incidence-list entry it heads, or [`NIL`]. Rank
+    /// tracking: its entry in the cut's journal of changed nodes (`crate::cut::Journal`),
+    /// which is its entry only while that entry names it: the journal empties at each change
+    /// report, so a stale index points past the end or at another node, and no label need be
+    /// cleared.
     pub(crate) head: u32,
 }
 
@@ -289,7 +291,6 @@ impl NodeLabel {
     pub(crate) const INACTIVE: NodeLabel = NodeLabel {
         state: crate::cut::NodeState::Inactive,
         active_children: 0,
-        journaled: None,
         active_index: NIL,
         head: NIL,
     };

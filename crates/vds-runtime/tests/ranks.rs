@@ -217,3 +217,51 @@ fn node_changes_alone_let_a_renderer_draw_the_cut_and_it_is_lazy_trackings_cut()
     }
     assert!(hidden > 0, "no repeat was ever hidden");
 }
+
+/// The node changes stay exact while a small memory budget evicts pages between reports and
+/// within adjusts: a node whose page is evicted (every node of it inactive) and read again
+/// before the next report starts over with a fresh label, and the report must still give
+/// its state at the last report and now, once.
+#[test]
+fn node_changes_stay_exact_while_pages_come_and_go() {
+    let (bytes, center, radius) = generated(60_000);
+    let mut full = runtime(&bytes, CornerTracking::Ranks);
+    full.set_memory_budget(u64::MAX);
+    full.load_every_page().unwrap();
+    let budget = full.memory().resident_bytes / 8;
+    for path in [
+        vds_runtime::CameraPath::fly_through(center, radius, 40, 640, 360),
+        vds_runtime::CameraPath::orbit(center, radius, 40, 640, 360),
+    ] {
+        let mut ranks = runtime(&bytes, CornerTracking::Ranks);
+        ranks.set_memory_budget(budget);
+        let vertices = ranks.cut().store().vertex_count() as usize;
+        let mut mirror = Mirror::new(vertices);
+        for (i, camera) in path.cameras.iter().enumerate() {
+            let what = format!("frame {i}");
+            let frame = ranks
+                .adjust(
+                    &Viewpoint::Camera(*camera),
+                    &Criteria::default(),
+                    Goal::Threshold(1.0),
+                )
+                .unwrap();
+            mirror.apply(&frame.changes, &ranks, &what);
+            let active: HashSet<u32> = ranks.cut().active_entries().iter().map(|e| e.id).collect();
+            let mirrored: HashSet<u32> = mirror.active.keys().copied().collect();
+            assert!(
+                mirrored == active,
+                "{what}: the mirror's active nodes differ"
+            );
+            let boundary: HashSet<u32> = ranks.cut().boundary().into_iter().collect();
+            assert!(
+                mirror.boundary == boundary,
+                "{what}: the mirror's boundary differs"
+            );
+        }
+        assert!(
+            ranks.memory().pages_evicted > 0,
+            "a budget of an eighth of the model never evicted"
+        );
+    }
+}

@@ -1,0 +1,147 @@
+//! Rank tracking's journal of node changes: which nodes changed state since the cut's last
+//! change report ([`crate::Cut::take_changes`]), with their states then and now.
+//!
+//! A renderer that mirrors a rank-tracked cut needs, per report, the nodes that became active
+//! or left it and those that joined or left the boundary. A node can change several times
+//! between reports (unfolded, then folded again), so the report compares its state at the
+//! last report with its state now, and a node back where it was is no change.
+
+use crate::cut::NodeState;
+use crate::store::NodeLabel;
+
+/// One node of the [`Journal`]: its state at the last change report and now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct JournalEntry {
+    pub(crate) id: u32,
+    pub(crate) before: NodeState,
+    pub(crate) now: NodeState,
+}
+
+/// Rank tracking: the nodes whose state changed since the last change report, each with its
+/// state then and now.
+///
+/// A node's label holds the index of its entry ([`NodeLabel::head`]), so a change updates the
+/// entry in place and the report reads the entries alone: it never goes back to the labels,
+/// a look-up at random per changed node. An index is the node's only while the entry at it
+/// names the node: the journal empties at each report, so nothing need be cleared.
+#[derive(Debug, Default)]
+pub(crate) struct Journal {
+    pub(crate) entries: Vec<JournalEntry>,
+    /// The store's eviction count at the last report: a node whose page was evicted (all its
+    /// nodes inactive, which the journal saw) and loaded again since starts a second entry
+    /// with a fresh label.
+    evictions_at_take: u64,
+}
+
+impl Journal {
+    /// The entry of node `id`, whose label is `label`, if it changed since the last report.
+    #[inline]
+    pub(crate) fn entry(&self, id: u32, label: NodeLabel) -> Option<&JournalEntry> {
+        self.entries
+            .get(label.head as usize)
+            .filter(|entry| entry.id == id)
+    }
+
+    /// Records node `id` going from `was` to `now`; `label` is its label.
+    #[inline]
+    pub(crate) fn note(&mut self, id: u32, label: &mut NodeLabel, was: NodeState, now: NodeState) {
+        match self.entries.get_mut(label.head as usize) {
+            Some(entry) if entry.id == id => entry.now = now,
+            _ => {
+                label.head = self.entries.len() as u32;
+                self.entries.push(JournalEntry {
+                    id,
+                    before: was,
+                    now,
+                });
+            }
+        }
+    }
+
+    /// The entries since the last report, one per node (`evictions`: the store's eviction
+    /// count now), leaving the journal empty.
+    pub(crate) fn take(&mut self, evictions: u64) -> Vec<JournalEntry> {
+        let mut entries = std::mem::take(&mut self.entries);
+        if evictions != std::mem::replace(&mut self.evictions_at_take, evictions) {
+            // A node listed twice: its state before is its first entry's, now its last's.
+            let mut first: rustc_hash::FxHashMap<u32, usize> = rustc_hash::FxHashMap::default();
+            let mut merged: Vec<JournalEntry> = Vec::with_capacity(entries.len());
+            for entry in entries.drain(..) {
+                match first.entry(entry.id) {
+                    std::collections::hash_map::Entry::Occupied(at) => {
+                        merged[*at.get()].now = entry.now;
+                    }
+                    std::collections::hash_map::Entry::Vacant(slot) => {
+                        slot.insert(merged.len());
+                        merged.push(entry);
+                    }
+                }
+            }
+            entries = merged;
+        }
+        entries
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use NodeState::{Active, Boundary, Inactive};
+
+    fn label() -> NodeLabel {
+        NodeLabel::INACTIVE
+    }
+
+    #[test]
+    fn a_node_changed_twice_is_one_entry_from_its_first_state_to_its_last() {
+        let mut journal = Journal::default();
+        let (mut a, mut b) = (label(), label());
+        journal.note(7, &mut a, Boundary, Active);
+        journal.note(9, &mut b, Inactive, Boundary);
+        journal.note(7, &mut a, Active, Boundary);
+        assert_eq!(journal.entry(7, a).map(|e| e.before), Some(Boundary));
+        let taken = journal.take(0);
+        let entry = |id, before, now| JournalEntry { id, before, now };
+        assert_eq!(
+            taken,
+            vec![entry(7, Boundary, Boundary), entry(9, Inactive, Boundary)]
+        );
+        // The labels still hold their old indices, which name no entry after the report.
+        assert!(journal.entry(7, a).is_none() && journal.entry(9, b).is_none());
+        journal.note(9, &mut b, Boundary, Inactive);
+        assert_eq!(journal.take(0), vec![entry(9, Boundary, Inactive)]);
+    }
+
+    #[test]
+    fn a_stale_index_naming_another_node_starts_a_new_entry() {
+        let mut journal = Journal::default();
+        let (mut a, mut b) = (label(), label());
+        journal.note(1, &mut a, Inactive, Boundary);
+        let _ = journal.take(0);
+        // `a` still holds index 0; node 2 now owns entry 0.
+        journal.note(2, &mut b, Inactive, Boundary);
+        journal.note(1, &mut a, Boundary, Active);
+        let taken = journal.take(0);
+        assert_eq!(taken.len(), 2);
+        assert_eq!(
+            (taken[1].id, taken[1].before, taken[1].now),
+            (1, Boundary, Active)
+        );
+    }
+
+    #[test]
+    fn a_node_whose_page_was_evicted_between_reports_is_reported_once() {
+        let mut journal = Journal::default();
+        let mut a = label();
+        journal.note(5, &mut a, Boundary, Inactive);
+        // Its page is evicted and read again: a fresh label, a second entry.
+        let mut fresh = label();
+        journal.note(5, &mut fresh, Inactive, Boundary);
+        journal.note(5, &mut fresh, Boundary, Active);
+        let entry = |id, before, now| JournalEntry { id, before, now };
+        assert_eq!(journal.take(1), vec![entry(5, Boundary, Active)]);
+        // Without an eviction since the last report, entries are taken as they are.
+        journal.note(5, &mut label(), Active, Boundary);
+        assert_eq!(journal.take(1), vec![entry(5, Active, Boundary)]);
+    }
+}
