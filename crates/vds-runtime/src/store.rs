@@ -652,6 +652,16 @@ pub struct NodeStore {
     /// Node id ranges of the pages loaded since the last [`NodeStore::take_loaded`].
     loaded: Vec<std::ops::Range<u32>>,
     scratch: Page,
+    /// Scratch of [`NodeStore::load_children`]: the children's records.
+    children_scratch: Vec<ChildRecords>,
+}
+
+/// The records of one child that [`NodeStore::load_children`] checks.
+struct ChildRecords {
+    hot: Hot,
+    shape: Shape,
+    leaf_begin: u32,
+    topology: Topology,
 }
 
 pub(crate) fn empty_page() -> Page {
@@ -771,6 +781,7 @@ impl NodeStore {
             page_errors: Vec::new(),
             loaded: Vec::new(),
             scratch: empty_page(),
+            children_scratch: Vec::new(),
         };
         store.load_node(0)?;
         let root = store.node(0);
@@ -1747,16 +1758,21 @@ impl NodeStore {
         if self.is_checked(id) {
             return Ok(());
         }
-        self.check_children(id)?;
+        // The children's records, read a page's run at a time rather than a look-up each.
+        let mut children = std::mem::take(&mut self.children_scratch);
+        self.gather_children(id, &mut children);
+        let checked = self.check_children(id, &children);
         let node = self.node(id);
         let center = glam::Vec3::from(node.proxy);
         let (mut radius, mut error) = (0.0f32, 0.0f32);
-        for c in node.children() {
-            let child = self.hot(c);
+        for child in &children {
+            let child = &child.hot;
             radius =
                 radius.max(center.distance(glam::Vec3::from(child.proxy)) + child.error_radius);
             error = error.max(child.error_radius);
         }
+        self.children_scratch = children;
+        checked?;
         // Widened by a few ulps so the ball holds the children's balls despite rounding.
         let p = self.expect_place(id);
         let page = self.resident_mut(p.slot);
@@ -1767,20 +1783,42 @@ impl NodeStore {
         Ok(())
     }
 
-    /// The structural checks of [`NodeStore::load_children`], on resident children.
-    fn check_children(&self, id: u32) -> Result<(), VdtError> {
+    /// The records of resident node `id`'s resident children, in order, into `out`: one
+    /// look-up per page they span.
+    fn gather_children(&self, id: u32, out: &mut Vec<ChildRecords>) {
+        out.clear();
+        let hot = self.hot(id);
+        let (mut child, end) = (hot.first_child, hot.first_child + hot.child_count);
+        while child < end {
+            let p = self.expect_place(child);
+            let page = self.resident(p.slot);
+            let local = p.local as usize;
+            let in_page = ((end - child) as usize).min(page.hot.len() - local);
+            out.extend((local..local + in_page).map(|i| ChildRecords {
+                hot: page.hot[i],
+                shape: page.shape[i],
+                leaf_begin: page.leaf_begin[i],
+                topology: page.topology[i],
+            }));
+            child += in_page as u32;
+        }
+    }
+
+    /// The structural checks of [`NodeStore::load_children`], on the records of `id`'s
+    /// children ([`NodeStore::gather_children`]), then the bounds.
+    fn check_children(&self, id: u32, children: &[ChildRecords]) -> Result<(), VdtError> {
         let node = self.node(id);
         let mut next_rank = node.leaf_begin;
-        for c in node.children() {
-            let child = self.node(c);
-            if child.parent != id || child.leaf_begin != next_rank || child.depth != node.depth + 1
+        for (c, child) in node.children().zip(children) {
+            let (leaf_begin, topology) = (child.leaf_begin, &child.topology);
+            if topology.parent != id || leaf_begin != next_rank || topology.depth != node.depth + 1
             {
                 return Err(VdtError::invalid(
                     format!("node {c}"),
                     format!("is not a well-formed child of node {id}"),
                 ));
             }
-            next_rank = child.leaf_end;
+            next_rank = topology.leaf_end;
         }
         if next_rank != node.leaf_end {
             return Err(VdtError::invalid(
@@ -1788,7 +1826,7 @@ impl NodeStore {
                 "its children do not cover its leaf range",
             ));
         }
-        self.check_child_bounds(id)
+        self.check_child_bounds(id, children)
     }
 
     /// Holds the bounds of `id`'s children (resident) to `id`'s where the file's quantisation
@@ -1799,7 +1837,7 @@ impl NodeStore {
     /// A file can still lie about bounds this cannot see (a sphere or error radius too
     /// small for the leaves far below, a cone too narrow): `docs/format.md` says what such a
     /// file can do to a cut. Only `vds-info --verify` checks bounds against the geometry.
-    fn check_child_bounds(&self, id: u32) -> Result<(), VdtError> {
+    fn check_child_bounds(&self, id: u32, children: &[ChildRecords]) -> Result<(), VdtError> {
         let step = self.source.header().grid_step.get();
         let Tested {
             hot: parent_hot,
@@ -1814,9 +1852,8 @@ impl NodeStore {
             32.0 * f32::EPSILON * (parent_center.abs().max_element() + parent.radius);
         let error_rounding =
             32.0 * f32::EPSILON * (parent_proxy.abs().max_element() + parent_hot.error_radius);
-        let first = parent_hot.first_child;
-        for c in first..first + parent_hot.child_count {
-            let Tested { hot, shape } = self.tested(c);
+        for (c, child) in (parent_hot.first_child..).zip(children) {
+            let (hot, shape) = (&child.hot, &child.shape);
             let center = glam::Vec3::from(shape.center);
             let by = center.distance(parent_center) + shape.radius - parent.radius;
             if by > nesting_slack(hot.error_radius, step) + sphere_rounding {
