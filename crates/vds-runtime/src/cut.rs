@@ -561,6 +561,11 @@ impl Cut {
         debug_assert!(self.can_unfold(id), "node {id} cannot unfold");
         debug_assert!(self.store.children_resident(id));
         let node = self.store.node(id);
+        if self.tracking == CornerTracking::Ranks && node.subtri_count > 1 {
+            // Grouping its subtris below reads their corners: a miss started now overlaps
+            // with the labels' misses in between.
+            self.store.prefetch_subtri_corners(id);
+        }
         self.set_state(id, NodeState::Active);
         self.set_children_state(&node, NodeState::Boundary);
         self.boundary_count += u32::from(node.child_count) - 1;

@@ -1713,6 +1713,16 @@ impl NodeStore {
         page.parts[local]
     }
 
+    /// Hints that the corners of resident node `id`'s subtris will be read soon.
+    #[inline]
+    pub(crate) fn prefetch_subtri_corners(&self, id: u32) {
+        let p = self.expect_place(id);
+        let page = self.resident(p.slot);
+        let t = &page.topology[p.local as usize];
+        let begin = (t.subtri_begin - page.first_triangle) as usize;
+        crate::prefetch::prefetch_range(&page.corners, begin..begin + t.subtri_count as usize);
+    }
+
     /// Corners of the subtris of resident node `id`, in triangle order.
     pub(crate) fn subtri_corners(&self, id: u32) -> &[[u32; 3]] {
         let p = self.expect_place(id);
