@@ -561,9 +561,12 @@ impl Cut {
         debug_assert!(self.can_unfold(id), "node {id} cannot unfold");
         debug_assert!(self.store.children_resident(id));
         let node = self.store.node(id);
+        // The children's and the parent's labels are written below, and grouping the subtris
+        // reads their corners: misses at random, started together so that they overlap.
+        self.store
+            .prefetch_labels(node.first_child, u32::from(node.child_count));
+        self.store.prefetch_labels(node.parent, 1);
         if self.tracking == CornerTracking::Ranks && node.subtri_count > 1 {
-            // Grouping its subtris below reads their corners: a miss started now overlaps
-            // with the labels' misses in between.
             self.store.prefetch_subtri_corners(id);
         }
         self.set_state(id, NodeState::Active);
@@ -663,6 +666,10 @@ impl Cut {
             return false;
         }
         let node = self.store.node(id);
+        // The children's and the parent's labels are written below: their misses overlap.
+        self.store
+            .prefetch_labels(node.first_child, u32::from(node.child_count));
+        self.store.prefetch_labels(node.parent, 1);
         if self.tracking == CornerTracking::Ranks {
             self.active_triangle_count -= node.subtri_count;
             self.count_net(id, -i64::from(node.subtri_count));

@@ -1713,6 +1713,18 @@ impl NodeStore {
         page.parts[local]
     }
 
+    /// Hints that the labels of nodes `first..first + count` (resident or not; one page's
+    /// run) will be read soon.
+    #[inline]
+    pub(crate) fn prefetch_labels(&self, first: u32, count: u32) {
+        if let Some(p) = self.place(first) {
+            let page = self.resident(p.slot);
+            let begin = p.local as usize;
+            let range = begin..(begin + count as usize).min(page.labels.len());
+            crate::prefetch::prefetch_range(&page.labels, range);
+        }
+    }
+
     /// Hints that the corners of resident node `id`'s subtris will be read soon.
     #[inline]
     pub(crate) fn prefetch_subtri_corners(&self, id: u32) {
