@@ -96,6 +96,26 @@ impl Mirror {
         (added, removed)
     }
 
+    /// Asserts that the mirror's active and boundary nodes are the cut's.
+    fn assert_nodes_match(&self, runtime: &Runtime, what: &str) {
+        let mirrored: HashSet<u32> = self.active.keys().copied().collect();
+        let active: HashSet<u32> = runtime
+            .cut()
+            .active_entries()
+            .iter()
+            .map(|e| e.id)
+            .collect();
+        assert!(
+            mirrored == active,
+            "{what}: the mirror's active nodes differ"
+        );
+        let boundary: HashSet<u32> = runtime.cut().boundary().into_iter().collect();
+        assert!(
+            self.boundary == boundary,
+            "{what}: the mirror's boundary differs"
+        );
+    }
+
     /// What the mirror draws: every subtri of its active nodes but those it was told are
     /// hidden, with corners from the rank map; and what it should draw by a recomputation of
     /// repeats from all of them (each class of same-winding repeats once, by its smallest
@@ -176,17 +196,7 @@ fn node_changes_alone_let_a_renderer_draw_the_cut_and_it_is_lazy_trackings_cut()
             changed_frames += u32::from(added + removed > 0);
             ranks.cut_mut().check().unwrap();
 
-            let mirrored: HashSet<u32> = mirror.active.keys().copied().collect();
-            let active: HashSet<u32> = ranks.cut().active_entries().iter().map(|e| e.id).collect();
-            assert!(
-                mirrored == active,
-                "{what}: the mirror's active nodes differ"
-            );
-            let boundary: HashSet<u32> = ranks.cut().boundary().into_iter().collect();
-            assert!(
-                mirror.boundary == boundary,
-                "{what}: the mirror's boundary differs"
-            );
+            mirror.assert_nodes_match(&ranks, &what);
             let drawn = ranks.cut_mut().active_triangles();
             let (told, recomputed) = mirror.drawn(&ranks);
             assert!(
@@ -247,17 +257,7 @@ fn node_changes_stay_exact_while_pages_come_and_go() {
                 )
                 .unwrap();
             mirror.apply(&frame.changes, &ranks, &what);
-            let active: HashSet<u32> = ranks.cut().active_entries().iter().map(|e| e.id).collect();
-            let mirrored: HashSet<u32> = mirror.active.keys().copied().collect();
-            assert!(
-                mirrored == active,
-                "{what}: the mirror's active nodes differ"
-            );
-            let boundary: HashSet<u32> = ranks.cut().boundary().into_iter().collect();
-            assert!(
-                mirror.boundary == boundary,
-                "{what}: the mirror's boundary differs"
-            );
+            mirror.assert_nodes_match(&ranks, &what);
         }
         assert!(
             ranks.memory().pages_evicted > 0,
