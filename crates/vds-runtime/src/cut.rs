@@ -900,7 +900,7 @@ impl Cut {
             + held(&self.free_slots)
             + held(&self.journal)
             + held(&self.dirty_bits)
-            + held(&self.node_journal.entries)
+            + self.node_journal.held_bytes()
             + self.revisit.as_ref().map_or(0, held)
             + hashed) as u64
     }
@@ -965,7 +965,7 @@ impl Cut {
         let touched = journal.len();
         journal.clear();
         shrink_if_sparse(&mut journal, 2 * touched);
-        self.node_journal.entries = journal;
+        self.node_journal.recycle(journal);
         (self.net_added, self.net_removed) = (0, 0);
         shrink_if_sparse(&mut self.active_list, self.active_node_count as usize);
         shrink_if_sparse(&mut self.active_shapes, self.active_node_count as usize);
@@ -1493,6 +1493,27 @@ impl Cut {
         }
     }
 
+    /// Rank tracking: checks that every journal entry says what its node is now. An entry its
+    /// node's label names holds the label's state; any other entry is of a node whose page
+    /// was evicted since (inactive then) and which is inactive or listed again later.
+    fn check_journal(&self) -> Result<(), String> {
+        for (k, entry) in self.node_journal.entries().iter().enumerate() {
+            let label = self.store.label(entry.id);
+            let now = if label.head == k as u32 {
+                label.state
+            } else {
+                NodeState::Inactive
+            };
+            if entry.now != now {
+                return Err(format!(
+                    "the change journal says node {} is {:?}, but it is {now:?}",
+                    entry.id, entry.now
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// [`Cut::set_state`] for the children of `node`, which are not active and do not become
     /// active (a fold or unfold of `node`): their labels are reached with a page look-up per
     /// page, not per child.
@@ -1671,6 +1692,7 @@ impl Cut {
             if subtris != self.active_triangle_count {
                 return Err("the active triangle count is wrong".into());
             }
+            self.check_journal()?;
             expected.sort_unstable_by_key(|t| (key(t.corners), t.triangle));
             expected.dedup_by_key(|t| key(t.corners));
             expected.sort_unstable();

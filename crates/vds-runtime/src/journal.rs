@@ -9,7 +9,7 @@
 use crate::cut::NodeState;
 use crate::store::NodeLabel;
 
-/// One node of the [`Journal`]: its state at the last change report and now.
+/// One entry of the [`Journal`]: a node, its state at the last change report and now.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct JournalEntry {
     pub(crate) id: u32,
@@ -26,7 +26,7 @@ pub(crate) struct JournalEntry {
 /// names the node: the journal empties at each report, so nothing need be cleared.
 #[derive(Debug, Default)]
 pub(crate) struct Journal {
-    pub(crate) entries: Vec<JournalEntry>,
+    entries: Vec<JournalEntry>,
     /// The store's eviction count at the last report: a node whose page was evicted (all its
     /// nodes inactive, which the journal saw) and loaded again since starts a second entry
     /// with a fresh label.
@@ -56,6 +56,23 @@ impl Journal {
                 });
             }
         }
+    }
+
+    /// Bytes the journal holds, by capacity.
+    pub(crate) fn held_bytes(&self) -> usize {
+        self.entries.capacity() * size_of::<JournalEntry>()
+    }
+
+    /// The entries since the last report, in the order recorded.
+    pub(crate) fn entries(&self) -> &[JournalEntry] {
+        &self.entries
+    }
+
+    /// Takes back the vector [`Journal::take`] handed out, emptied, for its memory.
+    pub(crate) fn recycle(&mut self, mut entries: Vec<JournalEntry>) {
+        entries.clear();
+        debug_assert!(self.entries.is_empty(), "the journal was not taken");
+        self.entries = entries;
     }
 
     /// The entries since the last report, one per node (`evictions`: the store's eviction

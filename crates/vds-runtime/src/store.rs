@@ -277,7 +277,7 @@ pub struct NodeLabel {
     /// Its index in the cut's active list, or [`NIL`].
     pub(crate) active_index: u32,
     /// Incidence tracking: the first incidence-list entry it heads, or [`NIL`]. Rank
-    /// tracking: its entry in the cut's journal of changed nodes (`crate::cut::Journal`),
+    /// tracking: its entry in the cut's journal of changed nodes (`crate::journal::Journal`),
     /// which is its entry only while that entry names it: the journal empties at each change
     /// report, so a stale index points past the end or at another node, and no label need be
     /// cleared.

@@ -228,10 +228,11 @@ fn node_changes_alone_let_a_renderer_draw_the_cut_and_it_is_lazy_trackings_cut()
     assert!(hidden > 0, "no repeat was ever hidden");
 }
 
-/// The node changes stay exact while a small memory budget evicts pages between reports and
-/// within adjusts: a node whose page is evicted (every node of it inactive) and read again
-/// before the next report starts over with a fresh label, and the report must still give
-/// its state at the last report and now, once.
+/// The node changes stay exact while a small memory budget evicts pages all along the path:
+/// labels come and go with their pages, and a journal index a label held before its page left
+/// must not be taken for an entry of the node once the page is back. (A page evicted and read
+/// again between two reports, which gives a node two entries, is `journal.rs`'s unit tests':
+/// within one adjust the store evicts no page unpinned in that frame.)
 #[test]
 fn node_changes_stay_exact_while_pages_come_and_go() {
     let (bytes, center, radius) = generated(60_000);
