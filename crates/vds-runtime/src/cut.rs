@@ -247,9 +247,6 @@ pub struct Cut {
     /// Rank tracking: the triangles hidden or shown since the last report, with whether each
     /// was hidden then and the node owning it.
     hidden_was: rustc_hash::FxHashMap<u32, (bool, u32)>,
-    /// Rank tracking: triangles added and removed since the last `take_changes`, net.
-    net_added: i64,
-    net_removed: i64,
     /// Still passes of the threshold traversal ([`crate::adjust`]: the camera where it was at
     /// the last adjust): the active nodes the next still pass must visit, those that did not
     /// settle at the last one and those the cut created or cleared the record of since
@@ -293,8 +290,6 @@ impl Cut {
             watched: Default::default(),
             hidden_set: Default::default(),
             hidden_was: Default::default(),
-            net_added: 0,
-            net_removed: 0,
             revisit: None,
             moved_pending: Vec::new(),
         }
@@ -569,14 +564,13 @@ impl Cut {
         if self.tracking == CornerTracking::Ranks && node.subtri_count > 1 {
             self.store.prefetch_subtri_corners(id);
         }
-        self.set_state(id, NodeState::Active);
+        self.set_state(id, NodeState::Active, node.subtri_count);
         self.set_children_state(&node, NodeState::Boundary);
         self.boundary_count += u32::from(node.child_count) - 1;
         self.count_active_child(node.parent, 1);
         self.active_node_count += 1;
         if self.tracking == CornerTracking::Ranks {
             self.active_triangle_count += node.subtri_count;
-            self.count_net(id, i64::from(node.subtri_count));
             self.note_ranks_moved(node.leaf_begin, node.leaf_end);
             if node.subtri_count > 1
                 && !self.store.is_unrepeated(id)
@@ -672,7 +666,6 @@ impl Cut {
         self.store.prefetch_labels(node.parent, 1);
         if self.tracking == CornerTracking::Ranks {
             self.active_triangle_count -= node.subtri_count;
-            self.count_net(id, -i64::from(node.subtri_count));
             self.ungroup_by_ranks(id);
             self.note_ranks_moved(node.leaf_begin, node.leaf_end);
         } else {
@@ -702,7 +695,7 @@ impl Cut {
         if self.tracking == CornerTracking::Lazy {
             self.lazy_dirty = true;
         }
-        self.set_state(id, NodeState::Boundary);
+        self.set_state(id, NodeState::Boundary, node.subtri_count);
         self.count_active_child(node.parent, -1);
         self.active_node_count -= 1;
         self.repeats.groups.remove(&id);
@@ -905,36 +898,28 @@ impl Cut {
             + hashed) as u64
     }
 
-    /// Rank tracking: counts `triangles` subtris of `id` becoming active (positive) or
-    /// inactive (negative), net of what the same node did earlier since the last
-    /// `take_changes` (its journal entry says whether it was active then).
-    fn count_net(&mut self, id: u32, triangles: i64) {
-        let label = self.store.label(id);
-        let was_active = self
-            .node_journal
-            .entry(id, label)
-            .map_or(label.state, |e| e.before)
-            == NodeState::Active;
-        if was_active {
-            self.net_removed -= triangles;
-        } else {
-            self.net_added += triangles;
-        }
-    }
-
     /// Rank tracking's [`Cut::take_changes`]: the nodes whose label changed, by what they
     /// became, from the node journal.
     fn take_node_changes(&mut self) -> Changes {
-        let mut changes = Changes {
-            added: self.net_added as u32,
-            removed: self.net_removed as u32,
-            ..Changes::default()
-        };
+        let mut changes = Changes::default();
         let evictions = self.store.memory().pages_evicted;
         let mut journal = self.node_journal.take(evictions);
-        for &JournalEntry { id, before, now } in &journal {
+        for &JournalEntry {
+            id,
+            before,
+            now,
+            subtris,
+        } in &journal
+        {
             if before == now {
                 continue;
+            }
+            // Triangles added and removed, net: subtris of nodes active now and not at the
+            // last report, and the reverse.
+            if now == NodeState::Active {
+                changes.added += subtris;
+            } else if before == NodeState::Active {
+                changes.removed += subtris;
             }
             match now {
                 NodeState::Active => changes.unfolded.push(id),
@@ -966,7 +951,6 @@ impl Cut {
         journal.clear();
         shrink_if_sparse(&mut journal, 2 * touched);
         self.node_journal.recycle(journal);
-        (self.net_added, self.net_removed) = (0, 0);
         shrink_if_sparse(&mut self.active_list, self.active_node_count as usize);
         shrink_if_sparse(&mut self.active_shapes, self.active_node_count as usize);
         self.store.set_cut_bytes(self.own_bytes());
@@ -1526,12 +1510,15 @@ impl Cut {
             .set_run_state(first, count, state, |id, was, label| {
                 debug_assert!(was != NodeState::Active, "node {id} was active");
                 if ranks {
-                    journal.note(id, label, was, state);
+                    journal.note(id, label, was, state, 0);
                 }
             });
     }
 
-    fn set_state(&mut self, id: u32, state: NodeState) {
+    /// Sets node `id`'s label to `state`, keeping the active list and, under rank tracking,
+    /// the change journal (`subtris`: the node's subtri count, which the report counts when
+    /// it goes to or from active).
+    fn set_state(&mut self, id: u32, state: NodeState, subtris: u32) {
         let ranks = self.tracking == CornerTracking::Ranks;
         let journal = &mut self.node_journal;
         let next_index = self.active_list.len() as u32;
@@ -1540,7 +1527,7 @@ impl Cut {
         self.store.set_run_state(id, 1, state, |_, before, label| {
             was = before;
             if ranks {
-                journal.note(id, label, before, state);
+                journal.note(id, label, before, state, subtris);
             }
             if state == NodeState::Active && before != NodeState::Active {
                 label.active_index = next_index;

@@ -15,6 +15,10 @@ pub(crate) struct JournalEntry {
     pub(crate) id: u32,
     pub(crate) before: NodeState,
     pub(crate) now: NodeState,
+    /// The node's subtri count, once it was noted going to or from active (0 before): what
+    /// the report counts as triangles added or removed if it is active now and was not then,
+    /// or the reverse.
+    pub(crate) subtris: u32,
 }
 
 /// Rank tracking: the nodes whose state changed since the last change report, each with its
@@ -34,25 +38,29 @@ pub(crate) struct Journal {
 }
 
 impl Journal {
-    /// The entry of node `id`, whose label is `label`, if it changed since the last report.
+    /// Records node `id` going from `was` to `now`; `label` is its label, and `subtris` its
+    /// subtri count when it goes to or from active (else 0).
     #[inline]
-    pub(crate) fn entry(&self, id: u32, label: NodeLabel) -> Option<&JournalEntry> {
-        self.entries
-            .get(label.head as usize)
-            .filter(|entry| entry.id == id)
-    }
-
-    /// Records node `id` going from `was` to `now`; `label` is its label.
-    #[inline]
-    pub(crate) fn note(&mut self, id: u32, label: &mut NodeLabel, was: NodeState, now: NodeState) {
+    pub(crate) fn note(
+        &mut self,
+        id: u32,
+        label: &mut NodeLabel,
+        was: NodeState,
+        now: NodeState,
+        subtris: u32,
+    ) {
         match self.entries.get_mut(label.head as usize) {
-            Some(entry) if entry.id == id => entry.now = now,
+            Some(entry) if entry.id == id => {
+                entry.now = now;
+                entry.subtris = entry.subtris.max(subtris);
+            }
             _ => {
                 label.head = self.entries.len() as u32;
                 self.entries.push(JournalEntry {
                     id,
                     before: was,
                     now,
+                    subtris,
                 });
             }
         }
@@ -86,7 +94,9 @@ impl Journal {
             for entry in entries.drain(..) {
                 match first.entry(entry.id) {
                     std::collections::hash_map::Entry::Occupied(at) => {
-                        merged[*at.get()].now = entry.now;
+                        let first = &mut merged[*at.get()];
+                        first.now = entry.now;
+                        first.subtris = first.subtris.max(entry.subtris);
                     }
                     std::collections::hash_map::Entry::Vacant(slot) => {
                         slot.insert(merged.len());
@@ -109,40 +119,49 @@ mod tests {
         NodeLabel::INACTIVE
     }
 
+    fn entry(id: u32, before: NodeState, now: NodeState, subtris: u32) -> JournalEntry {
+        JournalEntry {
+            id,
+            before,
+            now,
+            subtris,
+        }
+    }
+
     #[test]
     fn a_node_changed_twice_is_one_entry_from_its_first_state_to_its_last() {
         let mut journal = Journal::default();
         let (mut a, mut b) = (label(), label());
-        journal.note(7, &mut a, Boundary, Active);
-        journal.note(9, &mut b, Inactive, Boundary);
-        journal.note(7, &mut a, Active, Boundary);
-        assert_eq!(journal.entry(7, a).map(|e| e.before), Some(Boundary));
-        let taken = journal.take(0);
-        let entry = |id, before, now| JournalEntry { id, before, now };
+        journal.note(7, &mut a, Boundary, Active, 4);
+        journal.note(9, &mut b, Inactive, Boundary, 0);
+        journal.note(7, &mut a, Active, Boundary, 4);
         assert_eq!(
-            taken,
-            vec![entry(7, Boundary, Boundary), entry(9, Inactive, Boundary)]
+            journal.take(0),
+            vec![
+                entry(7, Boundary, Boundary, 4),
+                entry(9, Inactive, Boundary, 0)
+            ]
         );
         // The labels still hold their old indices, which name no entry after the report.
-        assert!(journal.entry(7, a).is_none() && journal.entry(9, b).is_none());
-        journal.note(9, &mut b, Boundary, Inactive);
-        assert_eq!(journal.take(0), vec![entry(9, Boundary, Inactive)]);
+        journal.note(9, &mut b, Boundary, Inactive, 0);
+        assert_eq!(journal.take(0), vec![entry(9, Boundary, Inactive, 0)]);
     }
 
     #[test]
     fn a_stale_index_naming_another_node_starts_a_new_entry() {
         let mut journal = Journal::default();
         let (mut a, mut b) = (label(), label());
-        journal.note(1, &mut a, Inactive, Boundary);
+        journal.note(1, &mut a, Inactive, Boundary, 0);
         let _ = journal.take(0);
         // `a` still holds index 0; node 2 now owns entry 0.
-        journal.note(2, &mut b, Inactive, Boundary);
-        journal.note(1, &mut a, Boundary, Active);
-        let taken = journal.take(0);
-        assert_eq!(taken.len(), 2);
+        journal.note(2, &mut b, Inactive, Boundary, 0);
+        journal.note(1, &mut a, Boundary, Active, 3);
         assert_eq!(
-            (taken[1].id, taken[1].before, taken[1].now),
-            (1, Boundary, Active)
+            journal.take(0),
+            vec![
+                entry(2, Inactive, Boundary, 0),
+                entry(1, Boundary, Active, 3)
+            ]
         );
     }
 
@@ -150,15 +169,15 @@ mod tests {
     fn a_node_whose_page_was_evicted_between_reports_is_reported_once() {
         let mut journal = Journal::default();
         let mut a = label();
-        journal.note(5, &mut a, Boundary, Inactive);
+        journal.note(5, &mut a, Active, Boundary, 6);
+        journal.note(5, &mut a, Boundary, Inactive, 0);
         // Its page is evicted and read again: a fresh label, a second entry.
         let mut fresh = label();
-        journal.note(5, &mut fresh, Inactive, Boundary);
-        journal.note(5, &mut fresh, Boundary, Active);
-        let entry = |id, before, now| JournalEntry { id, before, now };
-        assert_eq!(journal.take(1), vec![entry(5, Boundary, Active)]);
+        journal.note(5, &mut fresh, Inactive, Boundary, 0);
+        journal.note(5, &mut fresh, Boundary, Active, 6);
+        assert_eq!(journal.take(1), vec![entry(5, Active, Active, 6)]);
         // Without an eviction since the last report, entries are taken as they are.
-        journal.note(5, &mut label(), Active, Boundary);
-        assert_eq!(journal.take(1), vec![entry(5, Active, Boundary)]);
+        journal.note(5, &mut label(), Active, Boundary, 6);
+        assert_eq!(journal.take(1), vec![entry(5, Active, Boundary, 6)]);
     }
 }

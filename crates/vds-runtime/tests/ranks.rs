@@ -231,8 +231,8 @@ fn node_changes_alone_let_a_renderer_draw_the_cut_and_it_is_lazy_trackings_cut()
 /// The node changes stay exact while a small memory budget evicts pages all along the path:
 /// labels come and go with their pages, and a journal index a label held before its page left
 /// must not be taken for an entry of the node once the page is back. (A page evicted and read
-/// again between two reports, which gives a node two entries, is `journal.rs`'s unit tests':
-/// within one adjust the store evicts no page unpinned in that frame.)
+/// again between two reports, which gives a node two entries, is the next test's: within one
+/// adjust the store evicts no page unpinned in that frame.)
 #[test]
 fn node_changes_stay_exact_while_pages_come_and_go() {
     let (bytes, center, radius) = generated(60_000);
@@ -265,4 +265,48 @@ fn node_changes_stay_exact_while_pages_come_and_go() {
             "a budget of an eighth of the model never evicted"
         );
     }
+}
+
+/// A direct user of the cut may evict pages between two reports. A chain of nodes active at
+/// the last report, folded away with their pages evicted, then read back and unfolded again
+/// before the next report, is back where it was: the report lists no change and counts no
+/// triangle added or removed.
+#[test]
+fn nodes_back_where_they_were_after_their_pages_left_are_no_change() {
+    let (bytes, _, _) = generated(60_000);
+    let mut runtime = runtime(&bytes, CornerTracking::Ranks);
+    let cut = runtime.cut_mut();
+    let mut chain = vec![0u32];
+    loop {
+        let id = *chain.last().unwrap();
+        cut.unfold_node(id).unwrap();
+        let child = cut.node(id).first_child;
+        if cut.node(child).child_count == 0 {
+            break;
+        }
+        chain.push(child);
+    }
+    let _ = cut.take_changes();
+    cut.fold_all();
+    cut.store_mut().set_memory_budget(0);
+    cut.store_mut().evict_to_budget();
+    let deepest = *chain.last().unwrap();
+    assert!(
+        !cut.store().is_resident(deepest),
+        "the deepest node's page stayed: the test evicts nothing it needs"
+    );
+    cut.store_mut().set_memory_budget(u64::MAX);
+    for &id in &chain {
+        cut.unfold_node(id).unwrap();
+    }
+    cut.check().unwrap();
+    let changes = cut.take_changes();
+    assert!(
+        changes.unfolded.is_empty()
+            && changes.folded.is_empty()
+            && changes.joined_boundary.is_empty()
+            && changes.left_boundary.is_empty(),
+        "nodes back where they were were reported: {changes:?}"
+    );
+    assert_eq!((changes.added, changes.removed), (0, 0));
 }
