@@ -320,17 +320,20 @@ const NOT_AWAITED: f32 = f32::NEG_INFINITY;
 
 /// One decoded page: its nodes' records split by who reads them, its triangles, and the cut's
 /// per-node and per-triangle state, all freed together when the page is evicted.
+// `repr(C)` and the alignment keep the four arrays read on nearly every look-up (boxed
+// slices, 16 bytes each) in the record's first cache line.
+#[repr(C, align(64))]
 struct ResidentPage {
+    hot: Box<[Hot]>,
+    shape: Box<[Shape]>,
+    labels: Box<[NodeLabel]>,
+    /// Per node: its first leaf rank, apart, so finding the child that holds a rank reads one
+    /// small contiguous run.
+    leaf_begin: Box<[u32]>,
+    topology: Box<[Topology]>,
     /// The page's index in the file.
     index: u32,
     first_triangle: u32,
-    hot: Vec<Hot>,
-    shape: Vec<Shape>,
-    /// Per node: its first leaf rank, apart, so finding the child that holds a rank reads one
-    /// small contiguous run.
-    leaf_begin: Vec<u32>,
-    topology: Vec<Topology>,
-    labels: Vec<NodeLabel>,
     /// One bit per node: its children were checked against it ([`NodeStore::load_children`]).
     checked: Vec<u64>,
     /// One bit per node: no two of its subtris can ever repeat (found when it last unfolded
@@ -354,14 +357,35 @@ impl ResidentPage {
     fn from_page(index: u32, page: &Page, triangle_slots: bool) -> ResidentPage {
         let n = page.nodes.len();
         let t = page.triangles.len();
+        let mut hot = Vec::with_capacity(n);
+        let mut shape = Vec::with_capacity(n);
+        let mut leaf_begin = Vec::with_capacity(n);
+        let mut topology = Vec::with_capacity(n);
+        for record in &page.nodes {
+            let node = Node::from_record(record);
+            let (node_hot, node_shape) = tested_parts(&node);
+            hot.push(node_hot);
+            shape.push(node_shape);
+            leaf_begin.push(node.leaf_begin);
+            topology.push(Topology {
+                parent: node.parent,
+                leaf_end: node.leaf_end,
+                subtri_begin: node.subtri_begin,
+                subtri_count: node.subtri_count,
+                cone_half_angle: node.cone_half_angle,
+                surface_error: node.surface_error,
+                depth: node.depth,
+                cone_two_sided: node.cone_two_sided,
+            });
+        }
         let mut resident = ResidentPage {
             index,
             first_triangle: page.first_triangle,
-            hot: Vec::with_capacity(n),
-            shape: Vec::with_capacity(n),
-            leaf_begin: Vec::with_capacity(n),
-            topology: Vec::with_capacity(n),
-            labels: vec![NodeLabel::INACTIVE; n],
+            hot: hot.into_boxed_slice(),
+            shape: shape.into_boxed_slice(),
+            leaf_begin: leaf_begin.into_boxed_slice(),
+            topology: topology.into_boxed_slice(),
+            labels: vec![NodeLabel::INACTIVE; n].into_boxed_slice(),
             checked: vec![0; n.div_ceil(64)],
             unrepeated: vec![0; n.div_ceil(64)],
             corners: Vec::with_capacity(t),
@@ -375,23 +399,6 @@ impl ResidentPage {
             stamp: 0,
             bytes: 0,
         };
-        for record in &page.nodes {
-            let node = Node::from_record(record);
-            let (hot, shape) = tested_parts(&node);
-            resident.hot.push(hot);
-            resident.shape.push(shape);
-            resident.leaf_begin.push(node.leaf_begin);
-            resident.topology.push(Topology {
-                parent: node.parent,
-                leaf_end: node.leaf_end,
-                subtri_begin: node.subtri_begin,
-                subtri_count: node.subtri_count,
-                cone_half_angle: node.cone_half_angle,
-                surface_error: node.surface_error,
-                depth: node.depth,
-                cone_two_sided: node.cone_two_sided,
-            });
-        }
         for triangle in &page.triangles {
             resident.corners.push(triangle.corners.map(|c| c.get()));
             resident.parts.push(triangle.part.get());
@@ -438,12 +445,15 @@ impl ResidentPage {
         fn held<T>(v: &Vec<T>) -> usize {
             v.capacity() * size_of::<T>()
         }
+        fn boxed<T>(v: &[T]) -> usize {
+            std::mem::size_of_val(v)
+        }
         (size_of::<ResidentPage>()
-            + held(&self.hot)
-            + held(&self.shape)
-            + held(&self.leaf_begin)
-            + held(&self.topology)
-            + held(&self.labels)
+            + boxed(&self.hot)
+            + boxed(&self.shape)
+            + boxed(&self.leaf_begin)
+            + boxed(&self.topology)
+            + boxed(&self.labels)
             + held(&self.checked)
             + held(&self.unrepeated)
             + held(&self.corners)
