@@ -77,8 +77,8 @@ impl Journal {
     }
 
     /// Takes back the vector [`Journal::take`] handed out, emptied, for its memory.
-    pub(crate) fn recycle(&mut self, mut entries: Vec<JournalEntry>) {
-        entries.clear();
+    pub(crate) fn recycle(&mut self, entries: Vec<JournalEntry>) {
+        debug_assert!(entries.is_empty(), "recycled entries were not emptied");
         debug_assert!(self.entries.is_empty(), "the journal was not taken");
         self.entries = entries;
     }
@@ -89,10 +89,10 @@ impl Journal {
         let mut entries = std::mem::take(&mut self.entries);
         if evictions != std::mem::replace(&mut self.evictions_at_take, evictions) {
             // A node listed twice: its state before is its first entry's, now its last's.
-            let mut first: rustc_hash::FxHashMap<u32, usize> = rustc_hash::FxHashMap::default();
+            let mut merged_at: rustc_hash::FxHashMap<u32, usize> = Default::default();
             let mut merged: Vec<JournalEntry> = Vec::with_capacity(entries.len());
             for entry in entries.drain(..) {
-                match first.entry(entry.id) {
+                match merged_at.entry(entry.id) {
                     std::collections::hash_map::Entry::Occupied(at) => {
                         let first = &mut merged[*at.get()];
                         first.now = entry.now;

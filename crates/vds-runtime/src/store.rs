@@ -1738,11 +1738,8 @@ impl NodeStore {
     /// Hints that the corners of resident node `id`'s subtris will be read soon.
     #[inline]
     pub(crate) fn prefetch_subtri_corners(&self, id: u32) {
-        let p = self.expect_place(id);
-        let page = self.resident(p.slot);
-        let t = &page.topology[p.local as usize];
-        let begin = (t.subtri_begin - page.first_triangle) as usize;
-        crate::prefetch::prefetch_range(&page.corners, begin..begin + t.subtri_count as usize);
+        let corners = self.subtri_corners(id);
+        crate::prefetch::prefetch_range(corners, 0..corners.len());
     }
 
     /// Corners of the subtris of resident node `id`, in triangle order.
