@@ -17,7 +17,7 @@ pub const INPUT_MAGIC: [u8; 8] = *b"VDTINPUT";
 /// What errors call the file.
 const WHAT: &str = "shard input file";
 const RECORD_BYTES: u64 = size_of::<InputTriangle>() as u64;
-/// Bytes a shard input file holds while it is written: an open file, a zstd encoder and its
+/// Bytes a shard input file holds while it is written: an open file, an LZ4 encoder and its
 /// share of a run of triangles (about 2 MB together, measured on a 24-shard plan).
 pub const INPUT_WRITER_BYTES: u64 = 5 << 19;
 /// The most files written by one pass over the scene: many shards take several passes.

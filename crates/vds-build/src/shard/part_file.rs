@@ -37,8 +37,8 @@ use vds_format::{NO_NODE, NodeRecord, TriangleRecord};
 use zerocopy::IntoBytes;
 
 use super::container::{
-    BodyReader, BodyWriter, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, file_size,
-    parse_header, parse_trailer, read_ends,
+    BodyReader, BodyWriter, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, compressed_bound,
+    file_size, parse_header, parse_trailer, read_ends,
 };
 use super::part::{
     CrossCorner, InputTriangle, OpenPage, RegionPage, RegionPart, RootPart, ShardPart,
@@ -214,9 +214,7 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     let (header, trailer) = read_ends(path, PART_MAGIC, WHAT)?;
     check_stated(plan, header.plan_id, header.index, &trailer).map_err(bad)?;
     // A file larger than its shard's body could compress to is refused before it is read.
-    let most = HEADER_BYTES
-        + TRAILER_BYTES
-        + zstd::zstd_safe::compress_bound(body_limit(plan, header.index) as usize) as u64;
+    let most = HEADER_BYTES + TRAILER_BYTES + compressed_bound(body_limit(plan, header.index));
     let size = file_size(path)?;
     if size > most {
         return Err(bad(format!("{size} bytes, more than its shard can hold")));
@@ -682,6 +680,7 @@ fn check_records(
 mod tests {
     use super::super::container::encoded;
     use super::*;
+    use std::io::Read;
     use vds_import::Scene;
 
     /// A small scene: a bumpy grid of triangles, some sharing corners across cells.
@@ -744,9 +743,12 @@ mod tests {
             let path = dir.path().join("p.vdtpart");
             write_part(&path, &part).unwrap();
             let file = std::fs::read(&path).unwrap();
-            let body =
-                zstd::decode_all(&file[HEADER_BYTES as usize..file.len() - TRAILER_BYTES as usize])
-                    .unwrap();
+            let mut body = Vec::new();
+            lz4_flex::frame::FrameDecoder::new(
+                &file[HEADER_BYTES as usize..file.len() - TRAILER_BYTES as usize],
+            )
+            .read_to_end(&mut body)
+            .unwrap();
             let mut seed = 0x9e37_79b9_7f4a_7c15u64;
             let mut random = move || {
                 seed ^= seed << 13;
