@@ -17,6 +17,7 @@
 
 use std::path::Path;
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use vds_format::Grid;
 use xxhash_rust::xxh3::xxh3_64;
@@ -442,26 +443,7 @@ pub fn plan(
         for (slot, &id) in splitting.iter().enumerate() {
             slot_of[id as usize] = slot as u32;
         }
-        let mut counts = vec![[0u32; 8]; splitting.len()];
-        let mut boxes = vec![[Aabb::EMPTY; 8]; splitting.len()];
-        for &p in positions {
-            let mut id = 0u32;
-            loop {
-                let node = &top[id as usize];
-                let Some(mid) = node.split else {
-                    break; // a finished node: a root
-                };
-                let octant = octant_of(p, mid.map(f32::from_bits));
-                let slot = slot_of[id as usize];
-                if slot != u32::MAX {
-                    counts[slot as usize][octant] += 1;
-                    boxes[slot as usize][octant].add_point(p);
-                    break;
-                }
-                let before = (node.octants & ((1u8 << octant) - 1)).count_ones();
-                id = node.first_child + before;
-            }
-        }
+        let (counts, boxes) = octant_tallies(positions, &top, &slot_of, splitting.len());
         for (slot, &id) in splitting.iter().enumerate() {
             let octants = (0..8)
                 .filter(|&k| counts[slot][k] > 0)
@@ -520,6 +502,60 @@ pub fn plan(
     };
     plan.seal();
     Ok(plan)
+}
+
+/// One pass of [`plan()`]: for each node being split (`slot_of` gives its slot, `u32::MAX`
+/// for the others), how many of `positions` fall in each of its octants and their bounds.
+/// Chunks of the positions are tallied side by side and their tallies summed: counts are
+/// integers and bounds minima and maxima, so the result does not depend on the chunking.
+fn octant_tallies(
+    positions: &[[f32; 3]],
+    top: &[TopNode],
+    slot_of: &[u32],
+    slots: usize,
+) -> (Vec<[u32; 8]>, Vec<[Aabb; 8]>) {
+    // Large enough that each chunk's tallies (36 bytes an octant) cost little to sum.
+    const CHUNK: usize = 1 << 16;
+    let empty = || (vec![[0u32; 8]; slots], vec![[Aabb::EMPTY; 8]; slots]);
+    positions
+        .par_chunks(CHUNK)
+        .fold(empty, |(mut counts, mut boxes), chunk| {
+            for &p in chunk {
+                let mut id = 0u32;
+                loop {
+                    let node = &top[id as usize];
+                    let Some(mid) = node.split else {
+                        break; // a finished node: a root
+                    };
+                    let octant = octant_of(p, mid.map(f32::from_bits));
+                    let slot = slot_of[id as usize];
+                    if slot != u32::MAX {
+                        counts[slot as usize][octant] += 1;
+                        boxes[slot as usize][octant].add_point(p);
+                        break;
+                    }
+                    let before = (node.octants & ((1u8 << octant) - 1)).count_ones();
+                    id = node.first_child + before;
+                }
+            }
+            (counts, boxes)
+        })
+        .reduce(
+            empty,
+            |(mut counts, mut boxes), (more_counts, more_boxes)| {
+                for (c, m) in counts.iter_mut().zip(&more_counts) {
+                    for (a, b) in c.iter_mut().zip(m) {
+                        *a += b;
+                    }
+                }
+                for (c, m) in boxes.iter_mut().zip(&more_boxes) {
+                    for (a, b) in c.iter_mut().zip(m) {
+                        a.add_box(b);
+                    }
+                }
+                (counts, boxes)
+            },
+        )
 }
 
 /// Cuts the roots (in leaf order) into `shards` contiguous runs of about equal vertex counts:
