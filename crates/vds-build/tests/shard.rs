@@ -454,8 +454,8 @@ fn a_shard_refuses_an_input_that_is_not_the_plans() {
 #[test]
 fn shard_inputs_round_trip_through_files() {
     use vds_build::shard::{
-        build_shard_from, read_shard_input, roots_of_vertices, shard_triangle_counts,
-        write_shard_inputs,
+        build_shard_from, read_shard_input, roots_of_vertices, shard_input_of,
+        shard_triangle_counts, write_shard_inputs,
     };
     let (scene, grid) = loaded(shared("cow.obj"));
     let mut plan = planned(&scene, grid, 3);
@@ -475,9 +475,33 @@ fn shard_inputs_round_trip_through_files() {
     write_shard_inputs(&scene, &plan, &root_of, &paths, 2, |_, _| {}).unwrap();
     for (k, path) in paths.iter().enumerate() {
         let input = read_shard_input(path, &plan, k as u32).unwrap();
+        assert_eq!(input, shard_input_of(&scene, &plan, &root_of, k as u32));
+        // A corner whose vertex is not listed, and a listed vertex no corner uses, are
+        // refused.
+        let mut short = input.clone();
+        short.vertices.remove(short.vertices.len() / 2);
+        assert!(matches!(
+            build_shard_from(&plan, k as u32, short),
+            Err(ShardError::InputChanged(reason)) if reason.contains("not listed")
+        ));
+        let mut long = input.clone();
+        let unused = (0..plan.vertices)
+            .find(|&v| {
+                long.vertices
+                    .binary_search_by_key(&v, |x| x.vertex.get())
+                    .is_err()
+            })
+            .unwrap();
+        let at = long.vertices.partition_point(|x| x.vertex.get() < unused);
+        long.vertices
+            .insert(at, vds_build::shard::input_vertex(unused, &scene.positions));
+        assert!(matches!(
+            build_shard_from(&plan, k as u32, long),
+            Err(ShardError::InputChanged(reason)) if reason.contains("no triangle uses")
+        ));
         // A corner naming a vertex the plan does not have is refused, not numbered.
         let mut past = input.clone();
-        past[0].vertices[1] = plan.vertices.into();
+        past.triangles[0].vertices[1] = plan.vertices.into();
         assert!(matches!(
             build_shard_from(&plan, k as u32, past),
             Err(ShardError::InputChanged(reason)) if reason.contains("a vertex past the plan's count")

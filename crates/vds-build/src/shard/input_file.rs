@@ -1,29 +1,41 @@
-//! A shard's input (`.vdtin`): every triangle with a corner in the shard, in scene order, as
-//! [`InputTriangle`] records (60 bytes each), in the sharded build's container
-//! ([`super::container`]). `vds-build plan` writes every shard's input in passes over the
-//! scene; a shard reads only its own.
+//! A shard's input (`.vdtin`): what [`ShardInput`] holds, in the sharded build's container
+//! ([`super::container`]). The body is three runs of records:
+//!
+//! 1. the shard's own vertices (those under its roots; as many as its roots' leaves), as
+//!    [`InputVertex`] records (16 bytes: id, position), in id order;
+//! 2. every triangle with a corner in the shard, as [`InputTriangle`] records (24 bytes:
+//!    index, part, corners' ids), in scene order (as many as the plan's count for the shard);
+//! 3. the vertices of those triangles' corners under other shards' roots, as [`InputVertex`]
+//!    records in id order, each once (the rest of the body).
+//!
+//! A vertex is stored once, not with each triangle that uses it: about 33 bytes a triangle
+//! instead of the 60 of a triangle with its corners' positions. `vds-build plan` writes every
+//! shard's input in passes over the scene (the own vertices first, in a pass over the
+//! vertices); a shard reads only its own.
 
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 use zerocopy::{FromZeros, IntoBytes};
 
-use super::container::{BodyWriter, read_body_into, read_ends};
-use super::part::{InputTriangle, input_triangle};
+use super::container::{BodyReader, BodyWriter, body_stream, read_ends};
+use super::part::{InputTriangle, InputVertex, ShardInput, input_triangle, input_vertex};
 use super::{Plan, PlanScene, ShardError};
 
 /// The first eight bytes of a `.vdtin` file.
 pub const INPUT_MAGIC: [u8; 8] = *b"VDTINPUT";
 /// What errors call the file.
 const WHAT: &str = "shard input file";
-const RECORD_BYTES: u64 = size_of::<InputTriangle>() as u64;
+const TRIANGLE_BYTES: u64 = size_of::<InputTriangle>() as u64;
+const VERTEX_BYTES: u64 = size_of::<InputVertex>() as u64;
 /// Bytes a shard input file holds while it is written: an open file, an LZ4 encoder and its
-/// share of a run of triangles (about 2 MB together, measured on a 24-shard plan).
+/// share of a run of triangles (about 2 MB together, measured on a 24-shard plan), besides the
+/// ids of its corners in other shards, 4 bytes each, held until the end of the pass.
 pub const INPUT_WRITER_BYTES: u64 = 5 << 19;
 /// The most files written by one pass over the scene: many shards take several passes.
 pub const MAX_FILES_PER_PASS: usize = 128;
-/// Triangles gathered before the files compress them.
-const TRIANGLES_PER_RUN: usize = 1 << 16;
+/// Triangles or vertices gathered before the files compress them.
+const RECORDS_PER_RUN: usize = 1 << 16;
 
 /// How many of `scene`'s triangles each shard of `plan` reads: those with a corner under
 /// one of its roots (`root_of`, from [`super::roots_of_vertices`]).
@@ -79,59 +91,81 @@ pub fn write_shard_inputs(
     let total = passes * scene.triangle_count();
     let positions = scene.positions();
     let mut done = 0u64;
+    // Runs are gathered per file, a piece of the run on each thread, then each file
+    // compresses its share on its own task (the files are independent streams, each still
+    // written in order: its pieces one after the other).
+    let pieces = rayon::current_num_threads().max(1);
     for first in (0..paths.len()).step_by(files_per_pass) {
         let batch = first..(first + files_per_pass).min(paths.len());
         let mut files = batch
             .clone()
             .map(|k| BodyWriter::create(&paths[k], INPUT_MAGIC, k as u32, plan.id))
             .collect::<Result<Vec<_>, _>>()?;
-        // A run of triangles at a time: gathered per file, a piece of the run on each thread,
-        // then each file compresses its share on its own task (the files are independent
-        // streams, each still written in scene order: its pieces one after the other).
-        let pieces = rayon::current_num_threads().max(1);
-        let mut gathered: Vec<Vec<Vec<u8>>> = vec![vec![Vec::new(); batch.len()]; pieces];
+        let mut gathered = Gathered::new(pieces, batch.len());
+        // The shards' own vertices, in id order.
+        for run_first in (0..positions.len()).step_by(RECORDS_PER_RUN) {
+            let run = run_first..(run_first + RECORDS_PER_RUN).min(positions.len());
+            gathered.gather(run.len(), |i, out| {
+                let v = (run.start + i) as u32;
+                let k = shard_of_root[root_of[v as usize] as usize] as usize;
+                if batch.contains(&k) {
+                    let record = input_vertex(v, positions);
+                    out.bytes[k - first].extend_from_slice(record.as_bytes());
+                }
+            });
+            gathered.put(&mut files)?;
+        }
+        // The triangles, noting their corners in other shards.
+        let mut elsewhere: Vec<Vec<u32>> = vec![Vec::new(); batch.len()];
         scene.for_each_triangle_run(&mut |run_first, triangles, parts| {
             for (sub, (triangles, parts)) in triangles
-                .chunks(TRIANGLES_PER_RUN)
-                .zip(parts.chunks(TRIANGLES_PER_RUN))
+                .chunks(RECORDS_PER_RUN)
+                .zip(parts.chunks(RECORDS_PER_RUN))
                 .enumerate()
             {
-                let sub_first = run_first + (sub * TRIANGLES_PER_RUN) as u64;
+                let sub_first = run_first + (sub * RECORDS_PER_RUN) as u64;
                 // Triangles with a part each (as the zip of the two would take them).
                 let n = triangles.len().min(parts.len());
-                let (triangles, parts) = (&triangles[..n], &parts[..n]);
-                let piece = triangles.len().div_ceil(pieces);
-                gathered
-                    .par_iter_mut()
-                    .enumerate()
-                    .for_each(|(p, gathered)| {
-                        let start = (p * piece).min(triangles.len());
-                        let end = (start + piece).min(triangles.len());
-                        let mine = triangles[start..end].iter().zip(&parts[start..end]);
-                        for (i, (&t, &part)) in (start..).zip(mine) {
-                            for_each_shard(&t, root_of, &shard_of_root, |k| {
-                                if batch.contains(&k) {
-                                    let id = sub_first + i as u64;
-                                    let record = input_triangle(id, part, t, positions);
-                                    gathered[k - first].extend_from_slice(record.as_bytes());
+                gathered.gather(n, |i, out| {
+                    let t = triangles[i];
+                    let shards = t.map(|v| shard_of_root[root_of[v as usize] as usize] as usize);
+                    for_each_shard(&t, root_of, &shard_of_root, |k| {
+                        if batch.contains(&k) {
+                            let record = input_triangle(sub_first + i as u64, parts[i], t);
+                            out.bytes[k - first].extend_from_slice(record.as_bytes());
+                            for (&v, &shard) in t.iter().zip(&shards) {
+                                if shard != k {
+                                    out.elsewhere[k - first].push(v);
                                 }
-                            });
+                            }
                         }
                     });
-                files.par_iter_mut().enumerate().try_for_each(|(j, file)| {
-                    for piece in &gathered {
-                        file.put(&piece[j])?;
-                    }
-                    Ok::<(), ShardError>(())
-                })?;
-                for piece in &mut gathered {
-                    piece.iter_mut().for_each(Vec::clear);
-                }
-                done += triangles.len() as u64;
+                });
+                gathered.put(&mut files)?;
+                gathered.take_elsewhere(&mut elsewhere);
+                done += n as u64;
                 on_progress(done, total);
             }
             Ok(())
         })?;
+        // The corners in other shards, in id order, once each.
+        files
+            .par_iter_mut()
+            .zip(&mut elsewhere)
+            .try_for_each(|(file, ids)| {
+                ids.sort_unstable();
+                ids.dedup();
+                let mut records = Vec::with_capacity(RECORDS_PER_RUN * VERTEX_BYTES as usize);
+                for run in ids.chunks(RECORDS_PER_RUN) {
+                    records.clear();
+                    for &v in run {
+                        records.extend_from_slice(input_vertex(v, positions).as_bytes());
+                    }
+                    file.put(&records)?;
+                }
+                Ok::<(), ShardError>(())
+            })?;
+        drop(elsewhere);
         for file in files {
             file.finish()?;
         }
@@ -139,12 +173,73 @@ pub fn write_shard_inputs(
     Ok(())
 }
 
+/// One piece of a run: records gathered for each file of a pass, and each file's corners in
+/// other shards.
+#[derive(Clone, Default)]
+struct Piece {
+    bytes: Vec<Vec<u8>>,
+    elsewhere: Vec<Vec<u32>>,
+}
+
+/// A run of records gathered a piece per thread.
+struct Gathered {
+    pieces: Vec<Piece>,
+}
+
+impl Gathered {
+    fn new(pieces: usize, files: usize) -> Gathered {
+        let piece = Piece {
+            bytes: vec![Vec::new(); files],
+            elsewhere: vec![Vec::new(); files],
+        };
+        Gathered {
+            pieces: vec![piece; pieces],
+        }
+    }
+
+    /// Calls `each(i, piece)` for `i` in `0..n`, the range cut into one contiguous share per
+    /// piece, the shares side by side.
+    fn gather(&mut self, n: usize, each: impl Fn(usize, &mut Piece) + Sync) {
+        let share = n.div_ceil(self.pieces.len());
+        self.pieces
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(p, piece)| {
+                let start = (p * share).min(n);
+                let end = (start + share).min(n);
+                for i in start..end {
+                    each(i, piece);
+                }
+            });
+    }
+
+    /// Appends what was gathered to the files, pieces in order, and empties the pieces.
+    fn put(&mut self, files: &mut [BodyWriter]) -> Result<(), ShardError> {
+        let pieces = &self.pieces;
+        files.par_iter_mut().enumerate().try_for_each(|(j, file)| {
+            for piece in pieces {
+                file.put(&piece.bytes[j])?;
+            }
+            Ok::<(), ShardError>(())
+        })?;
+        for piece in &mut self.pieces {
+            piece.bytes.iter_mut().for_each(Vec::clear);
+        }
+        Ok(())
+    }
+
+    /// Moves the corners in other shards that were gathered to `elsewhere`, file by file.
+    fn take_elsewhere(&mut self, elsewhere: &mut [Vec<u32>]) {
+        for piece in &mut self.pieces {
+            for (all, ids) in elsewhere.iter_mut().zip(&mut piece.elsewhere) {
+                all.append(ids);
+            }
+        }
+    }
+}
+
 /// Reads shard `index`'s input file, which must be for `plan`.
-pub fn read_shard_input(
-    path: &Path,
-    plan: &Plan,
-    index: u32,
-) -> Result<Vec<InputTriangle>, ShardError> {
+pub fn read_shard_input(path: &Path, plan: &Plan, index: u32) -> Result<ShardInput, ShardError> {
     plan.check_index(index)?;
     let bad = |reason: String| ShardError::BadFile {
         path: path.to_path_buf(),
@@ -157,24 +252,123 @@ pub fn read_shard_input(
             header.index, header.plan_id, plan.id
         )));
     }
-    let Some(&count) = plan.shard_triangles.get(index as usize) else {
+    let Some(&triangles) = plan.shard_triangles.get(index as usize) else {
         return Err(bad(
             "the plan does not say how many triangles its shards read".into(),
         ));
     };
-    if trailer.body_bytes != count * RECORD_BYTES {
+    let own: u64 = plan
+        .shard_roots(index)
+        .map(|r| {
+            let node = plan.root_node(r);
+            u64::from(node.leaf_end - node.leaf_begin)
+        })
+        .sum();
+    // The counts come from the plan, a file, and the rest from the body's stated length: both
+    // are bounded (every vertex elsewhere is some triangle's corner) before anything is
+    // allocated, and a plan stating more than memory holds gets an error, not an abort.
+    let fixed = own * VERTEX_BYTES + triangles * TRIANGLE_BYTES;
+    let rest = trailer.body_bytes.checked_sub(fixed);
+    let Some(elsewhere) = rest
+        .filter(|r| r % VERTEX_BYTES == 0 && r / VERTEX_BYTES <= 3 * triangles)
+        .map(|r| r / VERTEX_BYTES)
+    else {
         return Err(bad(format!(
-            "{} bytes of triangles; the plan gives this shard {count} triangles",
+            "{} bytes of records; the plan gives this shard {own} vertices and {triangles} \
+             triangles",
             trailer.body_bytes
         )));
+    };
+    let too_many = || bad("the shard's records do not fit in memory".into());
+    let mut own_vertices = zeroed::<InputVertex>(own).ok_or_else(too_many)?;
+    let mut input_triangles = zeroed::<InputTriangle>(triangles).ok_or_else(too_many)?;
+    let mut other_vertices = zeroed::<InputVertex>(elsewhere).ok_or_else(too_many)?;
+    let mut body = BodyReader::new(body_stream(path)?, &trailer).map_err(bad)?;
+    body.read_exact(own_vertices.as_mut_bytes()).map_err(bad)?;
+    body.read_exact(input_triangles.as_mut_bytes())
+        .map_err(bad)?;
+    body.read_exact(other_vertices.as_mut_bytes())
+        .map_err(bad)?;
+    body.finish().map_err(bad)?;
+    let vertices = merged(own_vertices, other_vertices)
+        .ok_or_else(|| bad("vertices out of order, or listed twice".into()))?;
+    Ok(ShardInput {
+        triangles: input_triangles,
+        vertices,
+    })
+}
+
+/// `count` zeroed records, or `None` where memory does not hold them.
+fn zeroed<T: FromZeros + Clone>(count: u64) -> Option<Vec<T>> {
+    let count = usize::try_from(count).ok()?;
+    let mut records = Vec::new();
+    records.try_reserve_exact(count).ok()?;
+    records.resize(count, T::new_zeroed());
+    Some(records)
+}
+
+/// The vertices of two runs, each in strictly increasing id order, merged into one; `None`
+/// when a run is out of order or an id is in both.
+fn merged(a: Vec<InputVertex>, b: Vec<InputVertex>) -> Option<Vec<InputVertex>> {
+    let increasing = |run: &[InputVertex]| {
+        run.windows(2)
+            .all(|w| w[0].vertex.get() < w[1].vertex.get())
+    };
+    if !increasing(&a) || !increasing(&b) {
+        return None;
     }
-    // The count comes from the plan, a file: a plan stating more than memory holds gets an
-    // error, not an abort.
-    let mut triangles = Vec::new();
-    triangles
-        .try_reserve_exact(count as usize)
-        .map_err(|_| bad(format!("{count} triangles do not fit in memory")))?;
-    triangles.resize(count as usize, InputTriangle::new_zeroed());
-    read_body_into(path, &trailer, triangles.as_mut_bytes())?;
-    Ok(triangles)
+    if b.is_empty() {
+        return Some(a);
+    }
+    let mut out = Vec::new();
+    out.try_reserve_exact(a.len() + b.len()).ok()?;
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let (x, y) = (a[i].vertex.get(), b[j].vertex.get());
+        if x == y {
+            return None;
+        }
+        if x < y {
+            out.push(a[i]);
+            i += 1;
+        } else {
+            out.push(b[j]);
+            j += 1;
+        }
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use zerocopy::little_endian::{F32, U32};
+
+    fn vertices(ids: &[u32]) -> Vec<InputVertex> {
+        ids.iter()
+            .map(|&v| InputVertex {
+                vertex: U32::new(v),
+                position: [F32::new(v as f32); 3],
+            })
+            .collect()
+    }
+
+    #[test]
+    fn runs_merge_in_id_order_and_an_id_in_both_or_out_of_order_is_refused() {
+        let ids = |run: Option<Vec<InputVertex>>| {
+            run.map(|r| r.iter().map(|v| v.vertex.get()).collect::<Vec<_>>())
+        };
+        assert_eq!(
+            ids(merged(vertices(&[1, 4, 9]), vertices(&[0, 2, 10, 11]))),
+            Some(vec![0, 1, 2, 4, 9, 10, 11])
+        );
+        assert_eq!(ids(merged(vertices(&[3]), vertices(&[]))), Some(vec![3]));
+        assert_eq!(ids(merged(vertices(&[]), vertices(&[5]))), Some(vec![5]));
+        assert_eq!(merged(vertices(&[1, 4]), vertices(&[4])), None);
+        assert_eq!(merged(vertices(&[4, 1]), vertices(&[0])), None);
+        assert_eq!(merged(vertices(&[1, 1]), vertices(&[])), None);
+        assert_eq!(merged(vertices(&[1]), vertices(&[3, 2])), None);
+    }
 }

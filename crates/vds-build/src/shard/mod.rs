@@ -46,8 +46,9 @@ pub use input_file::{
 };
 pub use merge::{merge, merge_to};
 pub use part::{
-    CrossCorner, InputTriangle, OpenPage, RegionPage, RegionPart, RootPart, ShardPart, build_shard,
-    build_shard_from, build_shard_into, input_triangle, roots_of_vertices, shard_input_of,
+    CrossCorner, InputTriangle, InputVertex, OpenPage, RegionPage, RegionPart, RootPart,
+    ShardInput, ShardPart, build_shard, build_shard_from, build_shard_into, input_triangle,
+    input_vertex, roots_of_vertices, shard_input_of,
 };
 pub use part_file::{PART_MAGIC, part_from_bytes, part_header, read_part, write_part, write_shard};
 pub use plan::{Plan, PlanMetadata, plan};

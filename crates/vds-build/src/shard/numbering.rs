@@ -1,67 +1,93 @@
-//! A shard's own numbering of the vertices its triangles use: each global vertex id becomes
-//! its rank among the ids the shard uses, so local numbers follow global order.
+//! A shard's own numbering of the vertices its triangles use: its input lists those vertices
+//! in global id order, and each corner's global id becomes its vertex's place in that list,
+//! so local numbers follow global order.
 //!
-//! Two ways give the same numbers. The reference sorts the used ids, drops repeats and
-//! binary-searches each corner (a sort of three ids a triangle and a search of about twenty
-//! steps a corner: 12 % of a shard's time on the 10 M scene cut in four). Where the plan's
-//! vertex count is small enough, a bit per plan vertex marks the used ids and each 64-bit word
-//! keeps the rank of its first bit, so a corner's number is a lookup and a popcount. The bits
-//! are used only where they take no more memory than the sorted list would (a plan of at most
-//! 64 vertices per triangle of the shard), so a shard of a huge model cut fine still sorts.
+//! Two ways give the same numbers. The reference binary-searches the list for each corner
+//! (about twenty steps a corner). Where the plan's vertex count is small enough, a bit per
+//! plan vertex marks the listed ids and each 64-bit word keeps the rank of its first bit, so a
+//! corner's number is a lookup and a popcount (the sort and search took 12 % of a shard's time
+//! on the 10 M scene cut in four). The bits are used only where they take no more memory than
+//! the triangles do (a plan of at most 64 vertices per triangle of the shard), so a shard of a
+//! huge model cut fine still searches.
 
 use rayon::prelude::*;
 
-/// A corner's vertex id at or past the plan's vertex count.
+/// Why a shard's corners and its list of vertices do not fit together.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct PastTheCount;
+pub(crate) enum Mismatch {
+    /// A corner's vertex id at or past the plan's vertex count.
+    PastTheCount,
+    /// A corner whose vertex the list lacks.
+    Unlisted,
+    /// A listed vertex no corner uses.
+    Unused,
+}
 
-/// Replaces each corner's global vertex id (below `vertex_count`) with its rank among the ids
-/// the triangles use, and returns how many ids they use.
+/// Replaces each corner's global vertex id (below `vertex_count`) with its place in `listed`
+/// (strictly increasing ids, below `vertex_count`), which must hold the ids the corners use and
+/// no others.
 pub(crate) fn number_corners(
     triangles: &mut [[u32; 3]],
+    listed: &[u32],
     vertex_count: u32,
-) -> Result<u32, PastTheCount> {
+) -> Result<(), Mismatch> {
+    debug_assert!(listed.windows(2).all(|w| w[0] < w[1]));
+    debug_assert!(listed.last().is_none_or(|&v| v < vertex_count));
     if triangles.iter().flatten().any(|&v| v >= vertex_count) {
-        return Err(PastTheCount);
+        return Err(Mismatch::PastTheCount);
     }
     let words = (vertex_count as usize).div_ceil(64);
-    // Bits and ranks take 12 bytes a word, the sorted list 12 bytes a triangle.
+    // Bits and ranks take 12 bytes a word, the triangles 12 bytes each.
     if words <= triangles.len() {
-        Ok(by_bits(triangles, words))
+        by_bits(triangles, listed, words)?;
     } else {
-        Ok(by_sorting(triangles))
+        by_search(triangles, listed)?;
     }
+    every_one_used(triangles, listed.len())
 }
 
 /// [`number_corners`] with a bit per vertex.
-fn by_bits(triangles: &mut [[u32; 3]], words: usize) -> u32 {
-    let mut used = vec![0u64; words];
-    for &v in triangles.iter().flatten() {
-        used[v as usize / 64] |= 1u64 << (v % 64);
+fn by_bits(triangles: &mut [[u32; 3]], listed: &[u32], words: usize) -> Result<(), Mismatch> {
+    let mut bits = vec![0u64; words];
+    for &v in listed {
+        bits[v as usize / 64] |= 1u64 << (v % 64);
     }
     let mut first_rank = Vec::with_capacity(words);
     let mut count = 0u32;
-    for &word in &used {
+    for &word in &bits {
         first_rank.push(count);
         count += word.count_ones();
     }
-    triangles.par_iter_mut().flatten().for_each(|v| {
+    triangles.par_iter_mut().flatten().try_for_each(|v| {
         let (word, bit) = (*v as usize / 64, *v % 64);
-        let below = used[word] & ((1u64 << bit) - 1);
+        if bits[word] >> bit & 1 == 0 {
+            return Err(Mismatch::Unlisted);
+        }
+        let below = bits[word] & ((1u64 << bit) - 1);
         *v = first_rank[word] + below.count_ones();
-    });
-    count
+        Ok(())
+    })
 }
 
-/// [`number_corners`] by sorting the used ids and searching each corner: the reference.
-fn by_sorting(triangles: &mut [[u32; 3]]) -> u32 {
-    let mut ids: Vec<u32> = triangles.iter().flatten().copied().collect();
-    ids.par_sort_unstable();
-    ids.dedup();
-    triangles.par_iter_mut().flatten().for_each(|v| {
-        *v = ids.binary_search(v).expect("listed above") as u32;
-    });
-    ids.len() as u32
+/// [`number_corners`] by searching the list for each corner: the reference.
+fn by_search(triangles: &mut [[u32; 3]], listed: &[u32]) -> Result<(), Mismatch> {
+    triangles.par_iter_mut().flatten().try_for_each(|v| {
+        *v = listed.binary_search(v).map_err(|_| Mismatch::Unlisted)? as u32;
+        Ok(())
+    })
+}
+
+/// Whether every one of `count` numbered vertices is some triangle's corner.
+fn every_one_used(triangles: &[[u32; 3]], count: usize) -> Result<(), Mismatch> {
+    let mut used = vec![false; count];
+    for &v in triangles.iter().flatten() {
+        used[v as usize] = true;
+    }
+    if used.iter().all(|&u| u) {
+        Ok(())
+    } else {
+        Err(Mismatch::Unused)
+    }
 }
 
 #[cfg(test)]
@@ -82,48 +108,88 @@ mod tests {
         })
     }
 
+    /// The ids `triangles` use, sorted, once each.
+    fn used_ids(triangles: &[[u32; 3]]) -> Vec<u32> {
+        let mut ids: Vec<u32> = triangles.iter().flatten().copied().collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(200))]
 
         #[test]
-        fn bits_and_sorting_number_alike((vertex_count, original) in counted_triangles()) {
+        fn bits_and_search_number_alike((vertex_count, original) in counted_triangles()) {
             let count = original.len();
-            let (mut bits, mut sorted) = (original.clone(), original.clone());
+            let listed = used_ids(&original);
+            let (mut bits, mut searched) = (original.clone(), original.clone());
             let words = (vertex_count as usize).div_ceil(64);
-            let used = by_bits(&mut bits, words);
-            assert_eq!(used, by_sorting(&mut sorted));
+            by_bits(&mut bits, &listed, words).unwrap();
+            by_search(&mut searched, &listed).unwrap();
             assert_eq!(
-                bits, sorted,
+                &bits, &searched,
                 "{count} triangles over {vertex_count} vertices"
             );
-            // Ranks of the used ids in global order: dense, and in the order of the ids.
-            let mut pairs: Vec<(u32, u32)> = original
-                .iter()
-                .flatten()
-                .copied()
-                .zip(bits.iter().flatten().copied())
-                .collect();
-            pairs.sort_unstable();
-            pairs.dedup();
-            let locals: Vec<u32> = pairs.iter().map(|p| p.1).collect();
-            assert_eq!(locals, (0..used).collect::<Vec<_>>());
+            // Each corner's number is its vertex's place in the list.
+            for (corners, numbers) in original.iter().zip(&bits) {
+                for (&v, &n) in corners.iter().zip(numbers) {
+                    assert_eq!(listed[n as usize], v);
+                }
+            }
             let mut numbered = original.clone();
-            assert_eq!(number_corners(&mut numbered, vertex_count), Ok(used));
-            assert_eq!(numbered, sorted);
+            assert_eq!(number_corners(&mut numbered, &listed, vertex_count), Ok(()));
+            assert_eq!(numbered, searched);
+        }
+
+        #[test]
+        fn a_list_short_of_a_corner_or_with_one_too_many_is_refused(
+            (vertex_count, original) in counted_triangles(),
+            pick in any::<prop::sample::Index>(),
+        ) {
+            let listed = used_ids(&original);
+            let mut short = listed.clone();
+            short.remove(pick.index(listed.len()));
+            let words = (vertex_count as usize).div_ceil(64);
+            assert_eq!(by_bits(&mut original.clone(), &short, words), Err(Mismatch::Unlisted));
+            assert_eq!(by_search(&mut original.clone(), &short), Err(Mismatch::Unlisted));
+            assert_eq!(
+                number_corners(&mut original.clone(), &short, vertex_count),
+                Err(Mismatch::Unlisted)
+            );
+            let unused = (0..vertex_count).find(|v| listed.binary_search(v).is_err());
+            if let Some(unused) = unused {
+                let mut long = listed.clone();
+                long.insert(listed.partition_point(|&v| v < unused), unused);
+                assert_eq!(
+                    number_corners(&mut original.clone(), &long, vertex_count),
+                    Err(Mismatch::Unused)
+                );
+            }
         }
     }
 
     #[test]
     fn ids_past_the_count_are_refused() {
         let mut few = vec![[0, 1, 2]];
-        assert_eq!(number_corners(&mut few, 2), Err(PastTheCount));
+        assert_eq!(
+            number_corners(&mut few, &[0, 1], 2),
+            Err(Mismatch::PastTheCount)
+        );
         let mut many: Vec<[u32; 3]> = (0..1000)
             .map(|k| [k % 100, k * 7 % 100, k * 13 % 100])
             .collect();
+        let listed = used_ids(&many);
         many.push([5, 100, 7]);
-        assert_eq!(number_corners(&mut many, 100), Err(PastTheCount));
+        assert_eq!(
+            number_corners(&mut many, &listed, 100),
+            Err(Mismatch::PastTheCount)
+        );
         let mut edge = vec![[u32::MAX - 1, 0, 1]];
-        assert_eq!(number_corners(&mut edge, u32::MAX), Ok(3));
+        assert_eq!(
+            number_corners(&mut edge, &[0, 1, u32::MAX - 1], u32::MAX),
+            Ok(())
+        );
         assert_eq!(edge, vec![[2, 0, 1]]);
     }
 }

@@ -15,6 +15,7 @@ use vds_import::Scene;
 use zerocopy::little_endian::{F32, U32, U64};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
 
+use super::numbering::Mismatch;
 use super::{Plan, PlanScene, ShardError};
 use crate::build::{Accumulator, Adjacency, Inputs, Sphere, compute_attributes, leaf_tables};
 use crate::isa::Isa;
@@ -142,10 +143,8 @@ pub struct ShardPart {
 /// No root: a vertex outside the shard.
 const ELSEWHERE: u32 = u32::MAX;
 
-/// One triangle as a shard reads it: its index in the welded scene, its part, and each
-/// corner's welded vertex id and position. A shard's input is every triangle with a corner
-/// under one of its roots, in scene order (what `vds-build plan` writes to each shard's input
-/// file).
+/// One triangle as a shard reads it: its index in the welded scene, its part, and its
+/// corners' welded vertex ids.
 #[derive(
     Debug, Clone, Copy, PartialEq, FromBytes, IntoBytes, KnownLayout, Immutable, Unaligned,
 )]
@@ -157,8 +156,30 @@ pub struct InputTriangle {
     pub part: U32,
     /// The corners' welded vertex ids.
     pub vertices: [U32; 3],
-    /// The corners' positions (snapped to the plan's grid).
-    pub positions: [[F32; 3]; 3],
+}
+
+/// One vertex as a shard reads it: its welded id and its position (snapped to the plan's
+/// grid).
+#[derive(
+    Debug, Clone, Copy, PartialEq, FromBytes, IntoBytes, KnownLayout, Immutable, Unaligned,
+)]
+#[repr(C)]
+pub struct InputVertex {
+    /// Welded vertex id.
+    pub vertex: U32,
+    /// Position.
+    pub position: [F32; 3],
+}
+
+/// What a shard reads: every triangle with a corner under one of its roots, in scene order,
+/// and every vertex those triangles use, in id order (its own and the corners that lie under
+/// other shards' roots), each once. What `vds-build plan` writes to each shard's input file.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ShardInput {
+    /// The triangles, in scene order.
+    pub triangles: Vec<InputTriangle>,
+    /// The vertices they use, in id order.
+    pub vertices: Vec<InputVertex>,
 }
 
 /// The root of every vertex of `scene` (welded, snapped: the scene the plan was made from),
@@ -211,41 +232,49 @@ fn check_counts(
     Ok(())
 }
 
-/// Shard `index`'s input: the triangles of `scene` with a corner under one of its roots
-/// (`root_of` from [`roots_of_vertices`]), in scene order.
-pub fn shard_input_of(
-    scene: &Scene,
-    plan: &Plan,
-    root_of: &[u32],
-    index: u32,
-) -> Vec<InputTriangle> {
+/// Shard `index`'s input from `scene` (`root_of` from [`roots_of_vertices`]).
+pub fn shard_input_of(scene: &Scene, plan: &Plan, root_of: &[u32], index: u32) -> ShardInput {
     let mine = plan.shard_roots(index);
-    (0..scene.triangles.len())
+    let triangles: Vec<InputTriangle> = (0..scene.triangles.len())
         .into_par_iter()
         .filter_map(|t| {
             let corners = scene.triangles[t];
             corners
                 .iter()
                 .any(|&v| mine.contains(&root_of[v as usize]))
-                .then(|| {
-                    input_triangle(t as u64, scene.triangle_parts[t], corners, &scene.positions)
-                })
+                .then(|| input_triangle(t as u64, scene.triangle_parts[t], corners))
         })
-        .collect()
+        .collect();
+    let mut used: Vec<u32> = triangles
+        .iter()
+        .flat_map(|t| t.vertices.map(|v| v.get()))
+        .collect();
+    used.par_sort_unstable();
+    used.dedup();
+    let vertices = used
+        .into_iter()
+        .map(|v| input_vertex(v, &scene.positions))
+        .collect();
+    ShardInput {
+        triangles,
+        vertices,
+    }
 }
 
-/// Triangle `t` of a scene (in `part`, with `corners` into `positions`) as a shard reads it.
-pub fn input_triangle(
-    t: u64,
-    part: u32,
-    corners: [u32; 3],
-    positions: &[[f32; 3]],
-) -> InputTriangle {
+/// Triangle `t` of a scene (in `part`, with `corners`) as a shard reads it.
+pub fn input_triangle(t: u64, part: u32, corners: [u32; 3]) -> InputTriangle {
     InputTriangle {
         triangle: U64::new(t),
         part: U32::new(part),
         vertices: corners.map(U32::new),
-        positions: corners.map(|v| positions[v as usize].map(F32::new)),
+    }
+}
+
+/// Vertex `v` of a scene's `positions` as a shard reads it.
+pub fn input_vertex(v: u32, positions: &[[f32; 3]]) -> InputVertex {
+    InputVertex {
+        vertex: U32::new(v),
+        position: positions[v as usize].map(F32::new),
     }
 }
 
@@ -257,12 +286,11 @@ pub fn build_shard(scene: &Scene, plan: &Plan, index: u32) -> Result<ShardPart, 
     build_shard_from(plan, index, shard_input_of(scene, plan, &root_of, index))
 }
 
-/// Builds shard `index` of `plan` from its input (see [`InputTriangle`]), which it frees as
-/// soon as it has read it.
+/// Builds shard `index` of `plan` from its input, which it frees as soon as it has read it.
 pub fn build_shard_from(
     plan: &Plan,
     index: u32,
-    input: Vec<InputTriangle>,
+    input: ShardInput,
 ) -> Result<ShardPart, ShardError> {
     let mut roots = Vec::new();
     let cross = build_shard_into(plan, index, input, |root| {
@@ -283,7 +311,7 @@ pub fn build_shard_from(
 pub fn build_shard_into(
     plan: &Plan,
     index: u32,
-    input: Vec<InputTriangle>,
+    input: ShardInput,
     each_root: impl FnMut(RootPart) -> Result<(), ShardError>,
 ) -> Result<Vec<CrossCorner>, ShardError> {
     build_shard_with(plan, index, input, Isa::detect(), each_root)
@@ -292,7 +320,7 @@ pub fn build_shard_into(
 fn build_shard_with(
     plan: &Plan,
     index: u32,
-    input: Vec<InputTriangle>,
+    input: ShardInput,
     isa: Isa,
     mut each_root: impl FnMut(RootPart) -> Result<(), ShardError>,
 ) -> Result<Vec<CrossCorner>, ShardError> {
@@ -375,14 +403,18 @@ struct LocalScene {
 
 impl LocalScene {
     /// Numbers the vertices of the shard's input and checks it against the plan: triangles in
-    /// scene order, one position per vertex, a corner in the shard for every triangle, and
-    /// each root's vertex count.
+    /// scene order, vertices in id order, the vertices listed the ones the corners use, a
+    /// corner in the shard for every triangle, and each root's vertex count.
     fn new(
         plan: &Plan,
         mine: std::ops::Range<u32>,
-        input: Vec<InputTriangle>,
+        input: ShardInput,
     ) -> Result<LocalScene, ShardError> {
         let changed = |what: &str| Err(ShardError::InputChanged(what.to_string()));
+        let ShardInput {
+            triangles: input,
+            vertices,
+        } = input;
         if input
             .windows(2)
             .any(|w| w[0].triangle.get() >= w[1].triangle.get())
@@ -392,36 +424,39 @@ impl LocalScene {
         {
             return changed("triangles out of order or past the plan's count");
         }
+        if vertices
+            .windows(2)
+            .any(|w| w[0].vertex.get() >= w[1].vertex.get())
+            || vertices
+                .last()
+                .is_some_and(|v| v.vertex.get() >= plan.vertices)
+        {
+            return changed("vertices out of order or past the plan's count");
+        }
         let mut triangles: Vec<[u32; 3]> =
             input.iter().map(|t| t.vertices.map(|v| v.get())).collect();
-        let Ok(used) = super::numbering::number_corners(&mut triangles, plan.vertices) else {
-            return changed("a vertex past the plan's count");
-        };
-        let mut positions = vec![None; used as usize];
         let ids: Vec<(u64, u32)> = input
             .iter()
             .map(|t| (t.triangle.get(), t.part.get()))
             .collect();
-        // The positions, which must agree, in order.
-        for (t, corners) in input.iter().zip(&triangles) {
-            for k in 0..3 {
-                let p = t.positions[k].map(|c| c.get());
-                match &mut positions[corners[k] as usize] {
-                    slot @ None => *slot = Some(p),
-                    Some(q) if q.map(f32::to_bits) == p.map(f32::to_bits) => {}
-                    Some(_) => return changed("one vertex at two positions"),
-                }
-            }
-        }
         drop(input);
+        let listed: Vec<u32> = vertices.iter().map(|v| v.vertex.get()).collect();
+        match super::numbering::number_corners(&mut triangles, &listed, plan.vertices) {
+            Ok(()) => {}
+            Err(Mismatch::PastTheCount) => return changed("a vertex past the plan's count"),
+            Err(Mismatch::Unlisted) => return changed("a corner whose vertex is not listed"),
+            Err(Mismatch::Unused) => return changed("a listed vertex that no triangle uses"),
+        }
+        drop(listed);
         let scene = Scene {
-            positions: positions
-                .into_iter()
-                .map(|p| p.expect("every vertex is a corner"))
+            positions: vertices
+                .iter()
+                .map(|v| v.position.map(|c| c.get()))
                 .collect(),
             triangles,
             ..Scene::default()
         };
+        drop(vertices);
         let root: Vec<u32> = scene
             .positions
             .par_iter()

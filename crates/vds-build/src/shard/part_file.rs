@@ -40,9 +40,7 @@ use super::container::{
     BodyReader, BodyWriter, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, compressed_bound,
     file_size, parse_header, parse_trailer, read_ends,
 };
-use super::part::{
-    CrossCorner, InputTriangle, OpenPage, RegionPage, RegionPart, RootPart, ShardPart,
-};
+use super::part::{CrossCorner, OpenPage, RegionPage, RegionPart, RootPart, ShardInput, ShardPart};
 use super::{Plan, ShardError};
 use crate::bounds::{Aabb, NormalCone};
 use crate::build::{Accumulator, Sphere};
@@ -82,7 +80,7 @@ pub fn write_shard(
     path: &Path,
     plan: &Plan,
     index: u32,
-    input: Vec<InputTriangle>,
+    input: ShardInput,
 ) -> Result<usize, ShardError> {
     plan.check_index(index)?;
     let mut out = BodyWriter::create(path, PART_MAGIC, index, plan.id)?;
