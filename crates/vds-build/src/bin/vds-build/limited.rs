@@ -35,6 +35,10 @@ const MERGE_BYTES_PER_TRIANGLE: u64 = 200;
 /// Bytes a shard job holds whatever its size (its zstd contexts, buffers, the allocator's
 /// caches of its threads).
 const SHARD_OVERHEAD_BYTES: u64 = 8 << 20;
+/// Quarters of the limit past which a finished shard returns the freed pages the allocator
+/// keeps ([`crate::allocator::LIMITED_DECAY_MS`]): the shard counts leave the shards room
+/// for their own arrays, not for pages kept after them.
+const KEPT_SHARE: u64 = 3;
 /// The most shards a plan has.
 const MAX_SHARDS: u32 = 4096;
 
@@ -101,10 +105,14 @@ pub(crate) fn build_within(
     }
     check_output(output, inputs)?;
     let start = Instant::now();
-    // What the process holds before any work (code, the worker threads' stacks, started here
-    // so that they are counted), and room for the merge's top of the tree and triangles
+    // Every thread of the build on one arena, so that what one frees another reuses
+    // (`allocator`); the import and plan return freed pages at once. Starting the pool's
+    // workers here also counts their stacks in what the process holds before any work (code,
+    // stacks), to which the reserve adds room for the merge's top of the tree and triangles
     // across shards.
-    rayon::broadcast(|_| ());
+    crate::allocator::return_freed_memory_after(0);
+    crate::allocator::share_one_arena();
+    rayon::broadcast(|_| crate::allocator::share_one_arena());
     let reserve = memory_status("VmRSS").unwrap_or(0) + (16 << 20);
     let Some(budget) = limit.checked_sub(reserve).filter(|&b| b >= 8 << 20) else {
         bail!(
@@ -204,7 +212,9 @@ pub(crate) fn build_within(
         ));
     }
 
-    let parts = build_shards(&plan, work.path(), concurrent, &progress)?;
+    // The shards and the merge keep freed pages a moment for reuse.
+    crate::allocator::return_freed_memory_after(crate::allocator::LIMITED_DECAY_MS);
+    let parts = build_shards(&plan, work.path(), concurrent, limit, &progress)?;
     let shards_at = start.elapsed().as_secs_f64();
     let part_refs: Vec<&Path> = parts.iter().map(PathBuf::as_path).collect();
     let report = merge_parts(&plan, &part_refs, output, &progress)?;
@@ -278,11 +288,14 @@ pub(crate) fn build_within(
     Ok(())
 }
 
-/// Builds every shard of `plan`, `concurrent` at a time, into part files in `folder`.
+/// Builds every shard of `plan`, `concurrent` at a time, into part files in `folder`. Freed
+/// pages the allocator keeps for reuse are returned whenever a shard ends with the process
+/// holding more than [`KEPT_SHARE`] of `limit`.
 fn build_shards(
     plan: &Plan,
     folder: &Path,
     concurrent: usize,
+    limit: u64,
     progress: &Progress,
 ) -> Result<Vec<PathBuf>> {
     let count = plan.shard_count();
@@ -296,6 +309,7 @@ fn build_shards(
     std::thread::scope(|scope| {
         for _ in 0..concurrent {
             scope.spawn(|| {
+                crate::allocator::share_one_arena();
                 loop {
                     let k = next.fetch_add(1, Ordering::Relaxed);
                     if k >= count || failure.lock().expect("not poisoned").is_some() {
@@ -308,6 +322,9 @@ fn build_shards(
                     }
                     // The input is no longer needed: the disk holds one copy of the model less.
                     let _ = std::fs::remove_file(&input);
+                    if memory_status("VmRSS").is_none_or(|held| held > limit / 4 * KEPT_SHARE) {
+                        crate::allocator::release_freed_memory();
+                    }
                     let finished = done.fetch_add(1, Ordering::Relaxed) + 1;
                     progress.set(u64::from(finished), u64::from(count));
                 }

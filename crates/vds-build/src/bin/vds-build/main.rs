@@ -20,77 +20,6 @@ const DEMO_MODEL: &str = concat!(
     "/../../testdata/as1_assembly.obj"
 );
 
-/// jemalloc, configured in `.cargo/config.toml`: a batch build allocates and frees gigabytes
-/// of arrays, and keeping freed pages for reuse avoids faulting them in again.
-#[global_allocator]
-static ALLOCATOR: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
-
-/// Hands the pages of freed memory back to the kernel. The allocator keeps freed memory for
-/// reuse during a run (`.cargo/config.toml`: faulting fresh pages is what a build on this VM
-/// waits on most), but the build leaves garbage (octree buffers, accumulators, adjacency) in
-/// sizes the writer's large arrays cannot reuse, and that garbage would add to the peak: at
-/// 10 M triangles, 2.48 GB instead of under 2 GB.
-#[allow(unsafe_code)]
-fn release_freed_memory() {
-    // jemalloc(3): "arena.<i>.purge" with i = MALLCTL_ARENAS_ALL (4096) purges every arena.
-    const PURGE_ALL: &[u8] = b"arena.4096.purge\0";
-    // SAFETY: the name is a NUL-terminated string naming a control that reads and writes no
-    // value, so null pointers and a zero length are the documented way to call it; purging
-    // only returns unused pages to the kernel and touches no live allocation. The return
-    // code is ignored: failing to purge only leaves the memory resident.
-    unsafe {
-        tikv_jemalloc_sys::mallctl(
-            PURGE_ALL.as_ptr().cast(),
-            std::ptr::null_mut(),
-            std::ptr::null_mut(),
-            std::ptr::null_mut(),
-            0,
-        );
-    }
-}
-
-/// The dirty decay of a separate sharded job ([`return_freed_memory_after`]).
-const JOB_DECAY_MS: libc::ssize_t = 1000;
-
-/// Makes the allocator hand freed memory back to the kernel from now on, instead of keeping it
-/// for reuse (`.cargo/config.toml`): pages unused for about `decay_ms` milliseconds are
-/// returned (jemalloc's dirty decay; 0 returns them at once). The sharded build's steps exist
-/// to bound memory: each frees large buffers (a shard's input, a part once merged) whose pages
-/// other threads' arenas would not reuse, so kept pages only raise the peak.
-///
-/// - Within `--memory-limit` (one process, two shards at a time, then the merge) at once:
-///   with a decay of a second the 20 M scene's shards and merge peaked at 536 MB instead of
-///   249 MB, at the edge of a 512 MiB limit, and purging each finished shard did not make
-///   every limited build faster (`docs/benchmarks.md`, "Measurements behind current
-///   defaults").
-/// - A separate `plan`, `shard` or `merge` job after a second: each is 10-25 % faster than
-///   with pages returned at once, for a peak 10-30 % higher (a shard of the 10 M scene cut
-///   in four: 1.43-1.50 -> 1.23-1.26 s, 281 -> 309-312 MB; the merge of the 20 M scene
-///   2.53 -> 1.93 s, 74 -> 96 MB).
-#[allow(unsafe_code)]
-fn return_freed_memory_after(decay_ms: libc::ssize_t) {
-    // The default for arenas made from now on (rayon's threads get theirs when first used),
-    // and arena 0, the main thread's, which exists already.
-    for name in [
-        &b"arenas.dirty_decay_ms\0"[..],
-        &b"arena.0.dirty_decay_ms\0"[..],
-    ] {
-        // SAFETY: the name is a NUL-terminated string naming a writable `ssize_t` control
-        // (jemalloc(3)); the new value points to a live `ssize_t` of the size passed, and no
-        // old value is asked for (null pointers). Setting a decay time only changes when
-        // unused pages are purged, never a live allocation. A failure leaves the default.
-        unsafe {
-            tikv_jemalloc_sys::mallctl(
-                name.as_ptr().cast(),
-                std::ptr::null_mut(),
-                std::ptr::null_mut(),
-                (&decay_ms as *const libc::ssize_t).cast_mut().cast(),
-                size_of::<libc::ssize_t>(),
-            );
-        }
-    }
-}
-
 #[derive(Parser, Debug)]
 #[command(
     version,
@@ -328,13 +257,14 @@ fn memory_status(field: &str) -> Option<u64> {
     Some(kib * 1024)
 }
 
+mod allocator;
 mod limited;
 mod sharded;
 
 fn main() {
     let first = std::env::args_os().nth(1);
     if first.is_some_and(|a| sharded::COMMANDS.iter().any(|c| a == *c)) {
-        return_freed_memory_after(JOB_DECAY_MS);
+        allocator::return_freed_memory_after(allocator::JOB_DECAY_MS);
         if let Err(error) = sharded::main() {
             eprintln!("vds-build: error: {error:#}");
             std::process::exit(1);
@@ -372,7 +302,6 @@ fn run(args: Args) -> Result<()> {
         args.inputs.clone()
     };
     if let (Some(limit), Some(output)) = (args.memory_limit, args.output.as_deref()) {
-        return_freed_memory_after(0);
         return limited::build_within(&args, &inputs, output, limit);
     }
     // On a worker of the pool: the build's parallel steps then start from inside it instead of
@@ -572,7 +501,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
                 metadata.bounds_max = [0, 1, 2].map(|k| center[k] + r);
             }
             let grid = grid.expect("snapped when an output is given");
-            release_freed_memory();
+            allocator::release_freed_memory();
             // The writer reads the tree's nodes in place; the scene is done with.
             let content = vds_build::tree_content(&tree, &scene, metadata, grid);
             drop(scene);
