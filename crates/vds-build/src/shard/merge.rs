@@ -21,7 +21,8 @@
 //!
 //! Last, the plan's top nodes get their bounds, the top pages are encoded, and the file is
 //! written: header, metadata and directory, the top's pages, the spilled pages. What is held
-//! is the top, the triangles across roots, a page's directory entry each, and one part.
+//! is the top, the triangles across roots, a page's directory entry each, and one part, whose
+//! pages are made side by side and spilled in order once all are made.
 
 use std::collections::VecDeque;
 use std::io::{BufWriter, Seek, Write};
@@ -572,9 +573,13 @@ impl<'p> RegionWriter<'p> {
 
     /// Numbers the regions of one part and spills their pages: sealed pages copied (a
     /// region's first page rebased), open pages encoded with the triangles across shards that
-    /// their nodes own.
+    /// their nodes own. The pages are numbered in order, made side by side, and spilled in
+    /// order.
     fn write_part(&mut self, top: &FinishedTop, shard: ShardPart) -> Result<(), ShardError> {
         let level = self.plan.metadata.zstd_level;
+        // Each page with what makes it: its shard root, its region's first node and parent,
+        // and whether it is its region's first.
+        let mut jobs = Vec::new();
         for root in shard.roots {
             let r = root.root;
             self.widen_radii(&top.proxies, self.plan.root_node(r), &root.leaves);
@@ -590,24 +595,21 @@ impl<'p> RegionWriter<'p> {
                 self.region_first[self.regions_done] = first_node;
                 let parent = top.file_id[g.top as usize];
                 for (k, page) in region.pages.into_iter().enumerate() {
-                    let page = match page {
-                        RegionPage::Sealed(page) if k == 0 => {
-                            attach_region(&page, first_node, parent, level)?
-                        }
-                        RegionPage::Sealed(page) => page,
+                    let nodes = match &page {
+                        RegionPage::Sealed(page) => page.node_count,
                         RegionPage::Open(page) => {
                             let k = (self.next_node - u64::from(first_node)) as usize;
                             if page.first != detached_id(k) {
                                 return Err(changed());
                             }
-                            self.encode_open(top, r, first_node, parent, page)?
+                            page.ids.len() as u32
                         }
                     };
-                    self.next_node += u64::from(page.node_count);
+                    self.next_node += u64::from(nodes);
                     if self.next_node > u64::from(u32::MAX) {
                         return Err(too_many());
                     }
-                    self.spill_page(&page)?;
+                    jobs.push((r, first_node, parent, k == 0, nodes, page));
                 }
                 for (total, n) in self
                     .degree_histogram
@@ -623,68 +625,40 @@ impl<'p> RegionWriter<'p> {
                 self.regions_done += 1;
             }
         }
-        Ok(())
-    }
-
-    /// Encodes an open page of the region numbered from `first_node` under the top node
-    /// `parent` (shard root `r`), with the triangles across shards that its nodes own.
-    fn encode_open(
-        &mut self,
-        top: &FinishedTop,
-        r: u32,
-        first_node: u32,
-        parent: u32,
-        page: OpenPage,
-    ) -> Result<EncodedPage, ShardError> {
-        let bad = || {
-            set(format!(
-                "shard root {r}: an open page's links leave its region"
-            ))
-        };
-        let file_id = |id: u32| attached_id(id, first_node, parent).ok_or_else(bad);
-        let n0 = file_id(page.first)?;
-        let mut records = Vec::with_capacity(page.nodes.len());
-        let mut triangles = Vec::with_capacity(page.triangles.len());
-        let cross = &top.region_cross;
-        for (j, (&id, n)) in page.ids.iter().zip(&page.nodes).enumerate() {
-            let at = u64::from(n0) + j as u64;
-            let mut m = *n;
-            // Parents before their children, children after: the encoder's steps hold.
-            let p = file_id(n.parent.get())?;
-            if u64::from(p) >= at {
-                return Err(bad());
+        let plan = self.plan;
+        let made: Vec<Result<MadePage, ShardError>> = jobs
+            .into_par_iter()
+            .map(|(r, first_node, parent, first, nodes, page)| {
+                let (page, cross_parts) = match page {
+                    RegionPage::Sealed(page) if first => {
+                        (attach_region(&page, first_node, parent, level)?, Vec::new())
+                    }
+                    RegionPage::Sealed(page) => (page, Vec::new()),
+                    RegionPage::Open(page) => encode_open(plan, top, r, first_node, parent, page)?,
+                };
+                Ok(MadePage {
+                    page,
+                    nodes,
+                    cross_parts,
+                })
+            })
+            .collect();
+        for made in made {
+            let MadePage {
+                page,
+                nodes,
+                cross_parts,
+            } = made?;
+            if page.node_count != nodes {
+                return Err(set("a page's node count changed as it was made".into()));
             }
-            m.parent = U32::new(p);
-            if n.child_count > 0 {
-                let c = file_id(n.first_child.get())?;
-                if u64::from(c) <= at {
-                    return Err(bad());
-                }
-                m.first_child = U32::new(c);
+            self.cross_done += cross_parts.len();
+            for part in cross_parts {
+                self.part_counts.add(part, 1);
             }
-            let begin = triangles.len();
-            triangles.extend_from_slice(page.triangles.get(subtris(n)).ok_or_else(bad)?);
-            let from = cross.partition_point(|(cr, cl, _)| (*cr, *cl) < (r, id));
-            let to = cross.partition_point(|(cr, cl, _)| (*cr, *cl) <= (r, id));
-            for (_, _, t) in &cross[from..to] {
-                triangles.push(*t);
-                self.part_counts.add(t.part.get(), 1);
-            }
-            self.cross_done += to - from;
-            if to > from {
-                triangles[begin..]
-                    .sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
-            }
-            m.subtri_count = U32::new((triangles.len() - begin) as u32);
-            records.push(m);
+            self.spill_page(&page)?;
         }
-        Ok(encode_page_frame(
-            &self.plan.grid(),
-            n0,
-            &records,
-            &triangles,
-            self.plan.metadata.zstd_level,
-        )?)
+        Ok(())
     }
 
     fn spill_page(&mut self, page: &EncodedPage) -> Result<(), ShardError> {
@@ -817,6 +791,76 @@ impl<'p> RegionWriter<'p> {
         }
         Ok(report)
     }
+}
+
+/// A page of a region as pass 2 made it, with the node count its numbering gave it and the
+/// parts of the triangles across shards it took.
+struct MadePage {
+    page: EncodedPage,
+    nodes: u32,
+    cross_parts: Vec<u32>,
+}
+
+/// Encodes an open page of the region numbered from `first_node` under the top node `parent`
+/// (shard root `r`) of `plan`'s merge, with the triangles across shards that its nodes own;
+/// returns it with the parts of those triangles.
+fn encode_open(
+    plan: &Plan,
+    top: &FinishedTop,
+    r: u32,
+    first_node: u32,
+    parent: u32,
+    page: OpenPage,
+) -> Result<(EncodedPage, Vec<u32>), ShardError> {
+    let bad = || {
+        set(format!(
+            "shard root {r}: an open page's links leave its region"
+        ))
+    };
+    let file_id = |id: u32| attached_id(id, first_node, parent).ok_or_else(bad);
+    let n0 = file_id(page.first)?;
+    let mut records = Vec::with_capacity(page.nodes.len());
+    let mut triangles = Vec::with_capacity(page.triangles.len());
+    let mut cross_parts = Vec::new();
+    let cross = &top.region_cross;
+    for (j, (&id, n)) in page.ids.iter().zip(&page.nodes).enumerate() {
+        let at = u64::from(n0) + j as u64;
+        let mut m = *n;
+        // Parents before their children, children after: the encoder's steps hold.
+        let p = file_id(n.parent.get())?;
+        if u64::from(p) >= at {
+            return Err(bad());
+        }
+        m.parent = U32::new(p);
+        if n.child_count > 0 {
+            let c = file_id(n.first_child.get())?;
+            if u64::from(c) <= at {
+                return Err(bad());
+            }
+            m.first_child = U32::new(c);
+        }
+        let begin = triangles.len();
+        triangles.extend_from_slice(page.triangles.get(subtris(n)).ok_or_else(bad)?);
+        let from = cross.partition_point(|(cr, cl, _)| (*cr, *cl) < (r, id));
+        let to = cross.partition_point(|(cr, cl, _)| (*cr, *cl) <= (r, id));
+        for (_, _, t) in &cross[from..to] {
+            triangles.push(*t);
+            cross_parts.push(t.part.get());
+        }
+        if to > from {
+            triangles[begin..].sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
+        }
+        m.subtri_count = U32::new((triangles.len() - begin) as u32);
+        records.push(m);
+    }
+    let page = encode_page_frame(
+        &plan.grid(),
+        n0,
+        &records,
+        &triangles,
+        plan.metadata.zstd_level,
+    )?;
+    Ok((page, cross_parts))
 }
 
 /// The top node a triangle with corners under three roots is a subtri of: the deepest one
