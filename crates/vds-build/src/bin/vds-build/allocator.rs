@@ -56,49 +56,63 @@ pub(crate) const LIMITED_DECAY_MS: libc::ssize_t = 200;
 ///   once and 13.7-14.2 s after 200 ms on one arena (14.4-15.1 after 50 ms), peaking at
 ///   220-260 MB and 320-333 MB; the 10 M scene within 256 MiB 8.3 and 6.9 s, 116 and
 ///   182 MB.
-#[allow(unsafe_code)]
 pub(crate) fn return_freed_memory_after(decay_ms: libc::ssize_t) {
     // The default for arenas made from now on (rayon's threads get theirs when first used),
-    // and arena 0, the main thread's, which exists already.
-    for name in [
-        &b"arenas.dirty_decay_ms\0"[..],
-        &b"arena.0.dirty_decay_ms\0"[..],
-    ] {
-        // SAFETY: the name is a NUL-terminated string naming a writable `ssize_t` control
-        // (jemalloc(3)); the new value points to a live `ssize_t` of the size passed, and no
-        // old value is asked for (null pointers). Setting a decay time only changes when
-        // unused pages are purged, never a live allocation. A failure leaves the default.
-        unsafe {
-            tikv_jemalloc_sys::mallctl(
-                name.as_ptr().cast(),
-                std::ptr::null_mut(),
-                std::ptr::null_mut(),
-                (&decay_ms as *const libc::ssize_t).cast_mut().cast(),
-                size_of::<libc::ssize_t>(),
-            );
+    // and arena 0, the main thread's, which exists already. Setting a decay time only changes
+    // when unused pages are purged, never a live allocation. A failure leaves the default.
+    write_control(&DEFAULT_DIRTY_DECAY_MS, decay_ms);
+    write_control(&ARENA_0_DIRTY_DECAY_MS, decay_ms);
+}
+
+/// Makes the calling thread allocate from jemalloc's arena 0, the one the threads of a build
+/// within `--memory-limit` share ([`return_freed_memory_after`]). Arena 0 always exists.
+/// Moving a thread to another arena changes only where its later allocations come from;
+/// memory it allocated before is freed to the arena that holds it. A failure leaves the
+/// thread where it was.
+pub(crate) fn share_one_arena() {
+    write_control(&THREAD_ARENA, 0);
+}
+
+/// A writable jemalloc control (jemalloc(3), "MALLCTL NAMESPACE") whose value is a `T`.
+struct Control<T> {
+    /// The control's name, NUL-terminated.
+    name: &'static [u8],
+    value: std::marker::PhantomData<T>,
+}
+
+impl<T> Control<T> {
+    /// The control `name` (NUL-terminated), which must be writable and take a `T`: each
+    /// constant below says where jemalloc(3) gives its type.
+    const fn new(name: &'static [u8]) -> Control<T> {
+        assert!(!name.is_empty() && name[name.len() - 1] == 0);
+        Control {
+            name,
+            value: std::marker::PhantomData,
         }
     }
 }
 
-/// Makes the calling thread allocate from jemalloc's arena 0, the one the threads of a build
-/// within `--memory-limit` share ([`return_freed_memory_after`]).
+/// `arenas.dirty_decay_ms (ssize_t) rw`: the dirty decay of arenas made from now on.
+const DEFAULT_DIRTY_DECAY_MS: Control<libc::ssize_t> = Control::new(b"arenas.dirty_decay_ms\0");
+/// `arena.<i>.dirty_decay_ms (ssize_t) rw`, for arena 0.
+const ARENA_0_DIRTY_DECAY_MS: Control<libc::ssize_t> = Control::new(b"arena.0.dirty_decay_ms\0");
+/// `thread.arena (unsigned) rw`: the calling thread's arena.
+const THREAD_ARENA: Control<libc::c_uint> = Control::new(b"thread.arena\0");
+
+/// Writes `value` to `control`; a failure (jemalloc's return code) is ignored.
 #[allow(unsafe_code)]
-pub(crate) fn share_one_arena() {
-    const THREAD_ARENA: &[u8] = b"thread.arena\0";
-    let arena: libc::c_uint = 0;
-    // SAFETY: the name is a NUL-terminated string naming the calling thread's writable
-    // `unsigned` control (jemalloc(3)); the new value points to a live `c_uint` of the size
-    // passed, and no old value is asked for (null pointers). Arena 0 always exists. Moving a
-    // thread to another arena changes only where its later allocations come from; memory it
-    // allocated before is freed to the arena that holds it. A failure leaves the thread where
-    // it was.
+fn write_control<T>(control: &Control<T>, value: T) {
+    // SAFETY: `control.name` is NUL-terminated (checked when the constant was made) and names
+    // a writable control whose value is a `T` (each constant's documented type); the new
+    // value points to a live `T` of the size passed, and no old value is asked for (null
+    // pointers), as jemalloc(3) documents for writing a control.
     unsafe {
         tikv_jemalloc_sys::mallctl(
-            THREAD_ARENA.as_ptr().cast(),
+            control.name.as_ptr().cast(),
             std::ptr::null_mut(),
             std::ptr::null_mut(),
-            (&arena as *const libc::c_uint).cast_mut().cast(),
-            size_of::<libc::c_uint>(),
+            (&value as *const T).cast_mut().cast(),
+            size_of::<T>(),
         );
     }
 }
