@@ -499,6 +499,12 @@ fn shard_inputs_round_trip_through_files() {
             build_shard_from(&plan, k as u32, long),
             Err(ShardError::InputChanged(reason)) if reason.contains("no triangle uses")
         ));
+        let mut swapped = input.clone();
+        swapped.vertices.swap(0, 1);
+        assert!(matches!(
+            build_shard_from(&plan, k as u32, swapped),
+            Err(ShardError::InputChanged(reason)) if reason.contains("vertices out of order")
+        ));
         // A corner naming a vertex the plan does not have is refused, not numbered.
         let mut past = input.clone();
         past.triangles[0].vertices[1] = plan.vertices.into();
@@ -514,7 +520,8 @@ fn shard_inputs_round_trip_through_files() {
         let other = (k + 1) % 3;
         assert!(read_shard_input(path, &plan, other as u32).is_err());
         let mut bytes = std::fs::read(path).unwrap();
-        let at = bytes.len() - 5;
+        // A byte of the body (past the 32-byte header), whose trailer is intact.
+        let at = 32 + (bytes.len() - 32 - 24) / 2;
         bytes[at] ^= 0x40;
         let broken = dir.path().join("broken.vdtin");
         std::fs::write(&broken, &bytes).unwrap();

@@ -28,10 +28,12 @@ pub const INPUT_MAGIC: [u8; 8] = *b"VDTINPUT";
 const WHAT: &str = "shard input file";
 const TRIANGLE_BYTES: u64 = size_of::<InputTriangle>() as u64;
 const VERTEX_BYTES: u64 = size_of::<InputVertex>() as u64;
-/// Bytes a shard input file holds while it is written: an open file, an LZ4 encoder and its
-/// share of a run of triangles (about 2 MB together, measured on a 24-shard plan), besides the
-/// ids of its corners in other shards, 4 bytes each, held until the end of the pass.
-pub const INPUT_WRITER_BYTES: u64 = 5 << 19;
+/// Bytes a shard input file holds while it is written: an open file, an LZ4 encoder (about
+/// 150 KB) and its share of a run of records (a `vds-build plan` of the 10 M scene peaked
+/// 2.8 MB higher per file from 1 to 96 shards, the plan's own records per root included),
+/// besides the ids of its corners in other shards, 4 bytes each once per run, held until the
+/// end of the pass (about 3 % of its triangles' on the generated scenes).
+pub const INPUT_WRITER_BYTES: u64 = 3 << 20;
 /// The most files written by one pass over the scene: many shards take several passes.
 pub const MAX_FILES_PER_PASS: usize = 128;
 /// Triangles or vertices gathered before the files compress them.
@@ -48,7 +50,9 @@ pub fn shard_triangle_counts(
     let mut counts = vec![0u64; plan.shard_count() as usize];
     scene.for_each_triangle_run(&mut |_, triangles, _| {
         for t in triangles {
-            for_each_shard(t, root_of, &shard_of_root, |k| counts[k] += 1);
+            for_each_shard(corner_shards(t, root_of, &shard_of_root), |k| {
+                counts[k] += 1
+            });
         }
         Ok(())
     })?;
@@ -61,13 +65,19 @@ fn shard_of_root(plan: &Plan) -> Vec<u32> {
         .collect()
 }
 
-/// Calls `f` once for each shard a triangle's corners lie in.
-fn for_each_shard(t: &[u32; 3], root_of: &[u32], shard_of_root: &[u32], mut f: impl FnMut(usize)) {
-    let mut shards = t.map(|v| shard_of_root[root_of[v as usize] as usize]);
-    shards.sort_unstable();
-    for (k, &shard) in shards.iter().enumerate() {
-        if k == 0 || shards[k - 1] != shard {
-            f(shard as usize);
+/// The shard of each of a triangle's corners.
+fn corner_shards(t: &[u32; 3], root_of: &[u32], shard_of_root: &[u32]) -> [usize; 3] {
+    t.map(|v| shard_of_root[root_of[v as usize] as usize] as usize)
+}
+
+/// Calls `f` once for each shard a triangle's corners lie in (`shards`, from
+/// [`corner_shards`]).
+fn for_each_shard(shards: [usize; 3], mut f: impl FnMut(usize)) {
+    let mut sorted = shards;
+    sorted.sort_unstable();
+    for (k, &shard) in sorted.iter().enumerate() {
+        if k == 0 || sorted[k - 1] != shard {
+            f(shard);
         }
     }
 }
@@ -75,8 +85,8 @@ fn for_each_shard(t: &[u32; 3], root_of: &[u32], shard_of_root: &[u32], mut f: i
 /// Writes every shard's input file (`paths[k]` for shard `k`) from `scene`, each written
 /// beside its target and renamed into place when complete, at most `files_per_pass` (1 to
 /// [`MAX_FILES_PER_PASS`]; each holds about [`INPUT_WRITER_BYTES`]) in one pass over the
-/// scene's triangles. `on_progress(done, total)` is told how many triangles the passes over
-/// the scene have gone through.
+/// scene's vertices and then its triangles. `on_progress(done, total)` is told how many
+/// triangles the passes over the scene have gone through.
 pub fn write_shard_inputs(
     scene: &impl PlanScene,
     plan: &Plan,
@@ -128,8 +138,8 @@ pub fn write_shard_inputs(
                 let n = triangles.len().min(parts.len());
                 gathered.gather(n, |i, out| {
                     let t = triangles[i];
-                    let shards = t.map(|v| shard_of_root[root_of[v as usize] as usize] as usize);
-                    for_each_shard(&t, root_of, &shard_of_root, |k| {
+                    let shards = corner_shards(&t, root_of, &shard_of_root);
+                    for_each_shard(shards, |k| {
                         if batch.contains(&k) {
                             let record = input_triangle(sub_first + i as u64, parts[i], t);
                             out.bytes[k - first].extend_from_slice(record.as_bytes());
@@ -228,8 +238,15 @@ impl Gathered {
         Ok(())
     }
 
-    /// Moves the corners in other shards that were gathered to `elsewhere`, file by file.
+    /// Moves the corners in other shards that were gathered to `elsewhere`, file by file,
+    /// each id once per run (a corner is shared by several triangles of a run).
     fn take_elsewhere(&mut self, elsewhere: &mut [Vec<u32>]) {
+        self.pieces.par_iter_mut().for_each(|piece| {
+            for ids in &mut piece.elsewhere {
+                ids.sort_unstable();
+                ids.dedup();
+            }
+        });
         for piece in &mut self.pieces {
             for (all, ids) in elsewhere.iter_mut().zip(&mut piece.elsewhere) {
                 all.append(ids);
@@ -265,12 +282,14 @@ pub fn read_shard_input(path: &Path, plan: &Plan, index: u32) -> Result<ShardInp
         })
         .sum();
     // The counts come from the plan, a file, and the rest from the body's stated length: both
-    // are bounded (every vertex elsewhere is some triangle's corner) before anything is
-    // allocated, and a plan stating more than memory holds gets an error, not an abort.
+    // are bounded before anything is allocated (a triangle has a corner in the shard, so at
+    // most two elsewhere, and those are among the plan's other vertices), and a plan stating
+    // more than memory holds gets an error, not an abort.
     let fixed = own * VERTEX_BYTES + triangles * TRIANGLE_BYTES;
+    let most_elsewhere = (2 * triangles).min(u64::from(plan.vertices).saturating_sub(own));
     let rest = trailer.body_bytes.checked_sub(fixed);
     let Some(elsewhere) = rest
-        .filter(|r| r % VERTEX_BYTES == 0 && r / VERTEX_BYTES <= 3 * triangles)
+        .filter(|r| r % VERTEX_BYTES == 0 && r / VERTEX_BYTES <= most_elsewhere)
         .map(|r| r / VERTEX_BYTES)
     else {
         return Err(bad(format!(
@@ -280,18 +299,19 @@ pub fn read_shard_input(path: &Path, plan: &Plan, index: u32) -> Result<ShardInp
         )));
     };
     let too_many = || bad("the shard's records do not fit in memory".into());
-    let mut own_vertices = zeroed::<InputVertex>(own).ok_or_else(too_many)?;
+    let mut vertices = zeroed::<InputVertex>(own + elsewhere).ok_or_else(too_many)?;
     let mut input_triangles = zeroed::<InputTriangle>(triangles).ok_or_else(too_many)?;
-    let mut other_vertices = zeroed::<InputVertex>(elsewhere).ok_or_else(too_many)?;
-    let mut body = BodyReader::new(body_stream(path)?, &trailer).map_err(bad)?;
+    let (own_vertices, other_vertices) = vertices.split_at_mut(own as usize);
+    let mut body = BodyReader::new(body_stream(path)?, &trailer);
     body.read_exact(own_vertices.as_mut_bytes()).map_err(bad)?;
     body.read_exact(input_triangles.as_mut_bytes())
         .map_err(bad)?;
     body.read_exact(other_vertices.as_mut_bytes())
         .map_err(bad)?;
     body.finish().map_err(bad)?;
-    let vertices = merged(own_vertices, other_vertices)
-        .ok_or_else(|| bad("vertices out of order, or listed twice".into()))?;
+    if !in_one_order(&mut vertices, own as usize) {
+        return Err(bad("vertices out of order, or listed twice".into()));
+    }
     Ok(ShardInput {
         triangles: input_triangles,
         vertices,
@@ -307,44 +327,131 @@ fn zeroed<T: FromZeros + Clone>(count: u64) -> Option<Vec<T>> {
     Some(records)
 }
 
-/// The vertices of two runs, each in strictly increasing id order, merged into one; `None`
-/// when a run is out of order or an id is in both.
-fn merged(a: Vec<InputVertex>, b: Vec<InputVertex>) -> Option<Vec<InputVertex>> {
+/// Puts `vertices` (the shard's first `own`, then the others, each run in increasing id
+/// order) in id order; false when a run is out of order or an id is in both.
+fn in_one_order(vertices: &mut [InputVertex], own: usize) -> bool {
     let increasing = |run: &[InputVertex]| {
         run.windows(2)
             .all(|w| w[0].vertex.get() < w[1].vertex.get())
     };
-    if !increasing(&a) || !increasing(&b) {
-        return None;
+    let (mine, others) = vertices.split_at(own);
+    if !increasing(mine) || !increasing(others) {
+        return false;
     }
-    if b.is_empty() {
-        return Some(a);
-    }
-    let mut out = Vec::new();
-    out.try_reserve_exact(a.len() + b.len()).ok()?;
-    let (mut i, mut j) = (0, 0);
-    while i < a.len() && j < b.len() {
-        let (x, y) = (a[i].vertex.get(), b[j].vertex.get());
-        if x == y {
-            return None;
-        }
-        if x < y {
-            out.push(a[i]);
-            i += 1;
-        } else {
-            out.push(b[j]);
-            j += 1;
-        }
-    }
-    out.extend_from_slice(&a[i..]);
-    out.extend_from_slice(&b[j..]);
-    Some(out)
+    // Two sorted runs: the stable sort finds them and merges them once.
+    vertices.sort_by_key(|v| v.vertex.get());
+    increasing(vertices)
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::container::encoded;
     use super::*;
+    use vds_import::Scene;
     use zerocopy::little_endian::{F32, U32};
+
+    /// A plan of two shards of a bumpy grid, with the shards' triangle counts, and the grid.
+    fn planned() -> (Plan, Scene) {
+        let n = 20u32;
+        let mut scene = Scene::default();
+        for y in 0..n {
+            for x in 0..n {
+                let z = ((x * 7 + y * 3) % 5) as f32 * 0.1;
+                scene.positions.push([x as f32, y as f32, z]);
+            }
+        }
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = y * n + x;
+                scene.triangles.push([v, v + 1, v + n]);
+                scene.triangles.push([v + 1, v + n + 1, v + n]);
+            }
+        }
+        scene.triangle_parts = vec![0; scene.triangles.len()];
+        let grid = crate::snap_to_grid(&mut scene);
+        let metadata = super::super::PlanMetadata {
+            page_bytes: 256,
+            ..Default::default()
+        };
+        let triangles = scene.triangles.len() as u64;
+        let mut plan = super::super::plan(&scene.positions, triangles, grid, 2, metadata).unwrap();
+        let root_of = super::super::roots_of_vertices(&scene, &plan).unwrap();
+        plan.shard_triangles = shard_triangle_counts(&scene, &plan, &root_of).unwrap();
+        plan.seal();
+        (plan, scene)
+    }
+
+    /// Shard 0's input as a file body: own vertices, triangles, vertices elsewhere.
+    fn body(plan: &Plan, input: &ShardInput) -> (Vec<u8>, usize) {
+        let root_of: Vec<u32> = input
+            .vertices
+            .iter()
+            .map(|v| plan.locate(v.position.map(|c| c.get())).unwrap())
+            .collect();
+        let mine = plan.shard_roots(0);
+        let (own, elsewhere): (Vec<_>, Vec<_>) = input
+            .vertices
+            .iter()
+            .zip(&root_of)
+            .partition(|(_, r)| mine.contains(r));
+        let mut bytes = Vec::new();
+        for (v, _) in &own {
+            bytes.extend_from_slice(v.as_bytes());
+        }
+        bytes.extend_from_slice(input.triangles.as_bytes());
+        for (v, _) in &elsewhere {
+            bytes.extend_from_slice(v.as_bytes());
+        }
+        (bytes, own.len())
+    }
+
+    /// Bodies of the right length but wrong contents, and of wrong lengths, each behind a
+    /// valid checksum: every one is refused with an error naming the file, none panics.
+    #[test]
+    fn crafted_inputs_are_refused() {
+        let (plan, scene) = planned();
+        let root_of = super::super::roots_of_vertices(&scene, &plan).unwrap();
+        let input = super::super::shard_input_of(&scene, &plan, &root_of, 0);
+        let (good, own) = body(&plan, &input);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.vdtin");
+        let read = |bytes: &[u8]| {
+            std::fs::write(&path, encoded(INPUT_MAGIC, 0, plan.id, bytes)).unwrap();
+            read_shard_input(&path, &plan, 0)
+        };
+        assert_eq!(read(&good).unwrap(), input);
+        let elsewhere = input.vertices.len() - own;
+        assert!(elsewhere >= 2, "{elsewhere} vertices elsewhere");
+        let vertex = VERTEX_BYTES as usize;
+        let tail = good.len() - elsewhere * vertex;
+        let mut crafted: Vec<(&str, Vec<u8>)> = Vec::new();
+        // Too short for the own vertices and triangles; not a whole vertex past them; more
+        // vertices elsewhere than two a triangle.
+        crafted.push(("short", good[..tail - 1].to_vec()));
+        crafted.push(("a partial vertex", good[..good.len() - 1].to_vec()));
+        let mut many = good.clone();
+        for _ in 0..2 * input.triangles.len() + 1 {
+            many.extend_from_slice(&good[good.len() - vertex..]);
+        }
+        crafted.push(("too many elsewhere", many));
+        // Own vertices out of order, an id twice, an id in both runs.
+        let mut swapped = good.clone();
+        let (first, second) = swapped[..2 * vertex].split_at_mut(vertex);
+        first.swap_with_slice(second);
+        crafted.push(("own out of order", swapped));
+        let mut twice = good.clone();
+        twice.copy_within(tail..tail + vertex, tail + vertex);
+        crafted.push(("an id twice", twice));
+        let mut both = good.clone();
+        both.copy_within(0..vertex, tail);
+        crafted.push(("an id in both runs", both));
+        for (what, bytes) in crafted {
+            match read(&bytes) {
+                Err(ShardError::BadFile { path: named, .. }) => assert_eq!(named, path, "{what}"),
+                other => panic!("{what}: {other:?}"),
+            }
+        }
+    }
 
     fn vertices(ids: &[u32]) -> Vec<InputVertex> {
         ids.iter()
@@ -357,18 +464,23 @@ mod tests {
 
     #[test]
     fn runs_merge_in_id_order_and_an_id_in_both_or_out_of_order_is_refused() {
-        let ids = |run: Option<Vec<InputVertex>>| {
-            run.map(|r| r.iter().map(|v| v.vertex.get()).collect::<Vec<_>>())
+        let ordered = |ids: &[u32], own: usize| {
+            let mut run = vertices(ids);
+            in_one_order(&mut run, own)
+                .then(|| run.iter().map(|v| v.vertex.get()).collect::<Vec<_>>())
         };
         assert_eq!(
-            ids(merged(vertices(&[1, 4, 9]), vertices(&[0, 2, 10, 11]))),
+            ordered(&[1, 4, 9, 0, 2, 10, 11], 3),
             Some(vec![0, 1, 2, 4, 9, 10, 11])
         );
-        assert_eq!(ids(merged(vertices(&[3]), vertices(&[]))), Some(vec![3]));
-        assert_eq!(ids(merged(vertices(&[]), vertices(&[5]))), Some(vec![5]));
-        assert_eq!(merged(vertices(&[1, 4]), vertices(&[4])), None);
-        assert_eq!(merged(vertices(&[4, 1]), vertices(&[0])), None);
-        assert_eq!(merged(vertices(&[1, 1]), vertices(&[])), None);
-        assert_eq!(merged(vertices(&[1]), vertices(&[3, 2])), None);
+        assert_eq!(ordered(&[3], 1), Some(vec![3]));
+        assert_eq!(ordered(&[3], 0), Some(vec![3]));
+        assert_eq!(ordered(&[], 0), Some(vec![]));
+        assert_eq!(ordered(&[1, 4, 5], 3), Some(vec![1, 4, 5]));
+        assert_eq!(ordered(&[1, 4, 4], 2), None);
+        assert_eq!(ordered(&[4, 1, 0], 1), None);
+        assert_eq!(ordered(&[1, 1], 2), None);
+        assert_eq!(ordered(&[2, 1, 5], 2), None);
+        assert_eq!(ordered(&[1, 3, 2, 0], 4), None);
     }
 }

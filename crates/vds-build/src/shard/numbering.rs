@@ -24,16 +24,17 @@ pub(crate) enum Mismatch {
 }
 
 /// Replaces each corner's global vertex id (below `vertex_count`) with its place in `listed`
-/// (strictly increasing ids, below `vertex_count`), which must hold the ids the corners use and
-/// no others.
+/// (strictly increasing ids, below `vertex_count` too), which must hold the ids the corners
+/// use and no others.
 pub(crate) fn number_corners(
     triangles: &mut [[u32; 3]],
     listed: &[u32],
     vertex_count: u32,
 ) -> Result<(), Mismatch> {
     debug_assert!(listed.windows(2).all(|w| w[0] < w[1]));
-    debug_assert!(listed.last().is_none_or(|&v| v < vertex_count));
-    if triangles.iter().flatten().any(|&v| v >= vertex_count) {
+    if listed.last().is_some_and(|&v| v >= vertex_count)
+        || triangles.iter().flatten().any(|&v| v >= vertex_count)
+    {
         return Err(Mismatch::PastTheCount);
     }
     let words = (vertex_count as usize).div_ceil(64);

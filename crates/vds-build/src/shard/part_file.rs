@@ -217,7 +217,7 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     if size > most {
         return Err(bad(format!("{size} bytes, more than its shard can hold")));
     }
-    let mut body = BodyReader::new(body_stream(path)?, &trailer).map_err(bad)?;
+    let mut body = BodyReader::new(body_stream(path)?, &trailer);
     let part = parse_body(&mut body, plan, header.index).map_err(bad)?;
     body.finish().map_err(bad)?;
     Ok(part)
@@ -255,7 +255,7 @@ pub fn part_from_bytes(data: &[u8], plan: &Plan) -> Result<ShardPart, String> {
     let trailer = parse_trailer(data)?;
     check_stated(plan, header.plan_id, header.index, &trailer)?;
     let compressed = &data[HEADER_BYTES as usize..data.len() - TRAILER_BYTES as usize];
-    let mut body = BodyReader::new(compressed, &trailer)?;
+    let mut body = BodyReader::new(compressed, &trailer);
     let part = parse_body(&mut body, plan, header.index)?;
     body.finish()?;
     Ok(part)

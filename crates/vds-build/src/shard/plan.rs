@@ -506,15 +506,16 @@ pub fn plan(
 
 /// One pass of [`plan()`]: for each node being split (`slot_of` gives its slot, `u32::MAX`
 /// for the others), how many of `positions` fall in each of its octants and their bounds.
-/// Chunks of the positions are tallied side by side and their tallies summed: counts are
-/// integers and bounds minima and maxima, so the result does not depend on the chunking.
+/// Runs of chunks of the positions are tallied side by side and the tallies summed in order:
+/// counts are integers and bounds minima and maxima that keep the first of equal values, so
+/// the result is the serial pass's.
 fn octant_tallies(
     positions: &[[f32; 3]],
     top: &[TopNode],
     slot_of: &[u32],
     slots: usize,
 ) -> (Vec<[u32; 8]>, Vec<[Aabb; 8]>) {
-    // Large enough that each chunk's tallies (36 bytes an octant) cost little to sum.
+    // Large enough that summing tallies (28 bytes an octant) costs little beside making them.
     const CHUNK: usize = 1 << 16;
     let empty = || (vec![[0u32; 8]; slots], vec![[Aabb::EMPTY; 8]; slots]);
     positions
@@ -540,22 +541,20 @@ fn octant_tallies(
             }
             (counts, boxes)
         })
-        .reduce(
-            empty,
-            |(mut counts, mut boxes), (more_counts, more_boxes)| {
-                for (c, m) in counts.iter_mut().zip(&more_counts) {
-                    for (a, b) in c.iter_mut().zip(m) {
-                        *a += b;
-                    }
+        .reduce_with(|(mut counts, mut boxes), (more_counts, more_boxes)| {
+            for (c, m) in counts.iter_mut().zip(&more_counts) {
+                for (a, b) in c.iter_mut().zip(m) {
+                    *a += b;
                 }
-                for (c, m) in boxes.iter_mut().zip(&more_boxes) {
-                    for (a, b) in c.iter_mut().zip(m) {
-                        a.add_box(b);
-                    }
+            }
+            for (c, m) in boxes.iter_mut().zip(&more_boxes) {
+                for (a, b) in c.iter_mut().zip(m) {
+                    a.add_box(b);
                 }
-                (counts, boxes)
-            },
-        )
+            }
+            (counts, boxes)
+        })
+        .unwrap_or_else(empty)
 }
 
 /// Cuts the roots (in leaf order) into `shards` contiguous runs of about equal vertex counts:
