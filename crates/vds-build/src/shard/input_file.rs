@@ -352,22 +352,7 @@ mod tests {
 
     /// A plan of two shards of a bumpy grid, with the shards' triangle counts, and the grid.
     fn planned() -> (Plan, Scene) {
-        let n = 20u32;
-        let mut scene = Scene::default();
-        for y in 0..n {
-            for x in 0..n {
-                let z = ((x * 7 + y * 3) % 5) as f32 * 0.1;
-                scene.positions.push([x as f32, y as f32, z]);
-            }
-        }
-        for y in 0..n - 1 {
-            for x in 0..n - 1 {
-                let v = y * n + x;
-                scene.triangles.push([v, v + 1, v + n]);
-                scene.triangles.push([v + 1, v + n + 1, v + n]);
-            }
-        }
-        scene.triangle_parts = vec![0; scene.triangles.len()];
+        let mut scene = super::super::bumpy_grid(20);
         let grid = crate::snap_to_grid(&mut scene);
         let metadata = super::super::PlanMetadata {
             page_bytes: 256,

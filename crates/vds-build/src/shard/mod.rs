@@ -113,3 +113,25 @@ pub enum ShardError {
         source: std::io::Error,
     },
 }
+
+/// A bumpy `n` × `n` grid of triangles in one part, for the sharded build's unit tests.
+#[cfg(test)]
+fn bumpy_grid(n: u32) -> vds_import::Scene {
+    let mut scene = vds_import::Scene::default();
+    for y in 0..n {
+        for x in 0..n {
+            let z = ((x * 7 + y * 3) % 5) as f32 * 0.1;
+            scene.positions.push([x as f32, y as f32, z]);
+        }
+    }
+    for y in 0..n - 1 {
+        for x in 0..n - 1 {
+            let v = y * n + x;
+            scene.triangles.push([v, v + 1, v + n]);
+            scene.triangles.push([v + 1, v + n + 1, v + n]);
+        }
+    }
+    scene.triangle_parts = vec![0; scene.triangles.len()];
+    scene.part_names = vec!["grid".into()];
+    scene
+}

@@ -683,24 +683,7 @@ mod tests {
 
     /// A small scene: a bumpy grid of triangles, some sharing corners across cells.
     fn scene() -> Scene {
-        let n = 24u32;
-        let mut scene = Scene::default();
-        for y in 0..n {
-            for x in 0..n {
-                let z = ((x * 7 + y * 3) % 5) as f32 * 0.1;
-                scene.positions.push([x as f32, y as f32, z]);
-            }
-        }
-        for y in 0..n - 1 {
-            for x in 0..n - 1 {
-                let v = y * n + x;
-                scene.triangles.push([v, v + 1, v + n]);
-                scene.triangles.push([v + 1, v + n + 1, v + n]);
-            }
-        }
-        scene.triangle_parts = vec![0; scene.triangles.len()];
-        scene.part_names = vec!["grid".into()];
-        scene
+        super::super::bumpy_grid(24)
     }
 
     /// Parts whose bodies are damaged but carry valid checksums (as a hostile file would):
