@@ -1644,14 +1644,21 @@ impl NodeStore {
     /// Hints that the test data of nodes `first..first + count` will be read soon.
     #[inline]
     pub(crate) fn prefetch_tested(&self, first: u32, count: u32) {
-        if let Some(p) = self.place(first) {
-            let page = self.resident(p.slot);
-            let begin = p.local as usize;
-            let range = begin..(begin + count as usize).min(page.hot.len());
+        if let Some((page, range)) = self.page_run(first, count) {
             crate::prefetch::prefetch_range(&page.hot, range.clone());
             crate::prefetch::prefetch_range(&page.shape, range.clone());
             crate::prefetch::prefetch_range(&page.labels, range);
         }
+    }
+
+    /// The resident page holding node `first` and the local range of `first..first + count`
+    /// within it (cut at the page's end), or `None` when `first` is not resident.
+    #[inline]
+    fn page_run(&self, first: u32, count: u32) -> Option<(&ResidentPage, std::ops::Range<usize>)> {
+        let p = self.place(first)?;
+        let page = self.resident(p.slot);
+        let begin = p.local as usize;
+        Some((page, begin..(begin + count as usize).min(page.labels.len())))
     }
 
     /// The per-frame test data of resident node `id`.
@@ -1727,10 +1734,7 @@ impl NodeStore {
     /// run) will be read soon.
     #[inline]
     pub(crate) fn prefetch_labels(&self, first: u32, count: u32) {
-        if let Some(p) = self.place(first) {
-            let page = self.resident(p.slot);
-            let begin = p.local as usize;
-            let range = begin..(begin + count as usize).min(page.labels.len());
+        if let Some((page, range)) = self.page_run(first, count) {
             crate::prefetch::prefetch_range(&page.labels, range);
         }
     }
