@@ -14,6 +14,7 @@
 
 mod error;
 mod gltf_scene;
+mod mapped;
 mod obj;
 mod ply;
 mod soup;
@@ -189,6 +190,7 @@ fn read_into(
     )?);
     if let Some(spill) = file_soup.spill.0.as_mut() {
         spill.input = Some(bytes.clone());
+        spill.input_path = Some(path.to_path_buf());
     }
     let result = match format {
         Format::Obj => obj::read_obj(&bytes, &name, Some(&materials), file_soup),
@@ -206,6 +208,7 @@ fn read_into(
     };
     if let Some(spill) = file_soup.spill.0.as_mut() {
         spill.input = None;
+        spill.input_path = None;
     }
     result.map_err(|e| e.in_file(path))
 }

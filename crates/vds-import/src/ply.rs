@@ -501,10 +501,21 @@ fn read_body(
             "vertex" => {
                 for piece in pieces(element, soup) {
                     let (rows, first) = (&piece.element, piece.first_row);
-                    if !fast::read_vertices(rows, first, values, soup, &mut vertex_colors)? {
+                    let mut found = None;
+                    if !fast::read_vertices(
+                        rows,
+                        first,
+                        values,
+                        soup,
+                        &mut vertex_colors,
+                        &mut found,
+                    )? {
                         read_vertices(rows, first, values, soup, &mut vertex_colors)?;
                     }
-                    soup.spill_now();
+                    match found {
+                        Some(found) => soup.spill_found(found),
+                        None => soup.spill_now(),
+                    }
                     soup.done_with_input(values.consumed());
                 }
             }
@@ -520,7 +531,8 @@ fn read_body(
                         soup,
                         triangle_colors: &mut triangle_colors,
                     };
-                    if !fast::read_faces(&piece.element, values, &mut faces)? {
+                    let mut found = None;
+                    if !fast::read_faces(&piece, values, &mut faces, &mut found)? {
                         read_faces(&piece, values, &mut faces)?;
                     }
                     // The file's vertices are all read when its faces are (PLY puts the
@@ -534,9 +546,13 @@ fn read_body(
                         &triangle_colors,
                     );
                     triangle_colors.clear();
-                    soup.spill_now();
+                    match found {
+                        Some(found) => soup.spill_found(found),
+                        None => soup.spill_now(),
+                    }
                     soup.done_with_input(values.consumed());
                 }
+                parts.publish();
             }
             _ => skip_rows(element, values)?,
         }
@@ -702,6 +718,9 @@ struct PartMap {
     file_name: String,
     file_part: u32,
     by_value: rustc_hash::FxHashMap<i64, u32>,
+    /// Each value's part, once every face is read: what faces read again from the map
+    /// ([`crate::mapped`]) look their parts up in.
+    table: std::sync::Arc<std::sync::OnceLock<rustc_hash::FxHashMap<u32, u32>>>,
 }
 
 impl PartMap {
@@ -710,7 +729,20 @@ impl PartMap {
             file_name: file_name.to_string(),
             file_part,
             by_value: Default::default(),
+            table: Default::default(),
         }
+    }
+
+    /// Publishes the parts of every value seen (those that fit a `u32`: the only ones the
+    /// faces read again from the map hold) for the faces read again from the map.
+    fn publish(&self) {
+        let table = self
+            .by_value
+            .iter()
+            .filter_map(|(&value, &part)| Some((u32::try_from(value).ok()?, part)))
+            .collect();
+        // Set once: a file has one face element that reaches here.
+        let _ = self.table.set(table);
     }
 
     fn part(&mut self, value: Option<i64>, soup: &mut MeshSoup) -> u32 {
@@ -876,8 +908,11 @@ fn skip_rows(element: &Element, values: &mut impl Values) -> Result<(), FormatEr
 mod fast {
     use rayon::prelude::*;
 
-    use super::{Element, Faces, Property, Scalar, Values, color_slots, part_slot, row_color};
+    use super::{
+        Element, Faces, Piece, Property, Scalar, Values, color_slots, part_slot, row_color,
+    };
     use crate::error::FormatError;
+    use crate::mapped::{FaceParts, FaceRows, FoundRows, RowLayout};
     use crate::soup::{MeshSoup, check_position};
 
     /// Rows decoded per parallel task.
@@ -968,6 +1003,7 @@ mod fast {
         values: &mut impl Values,
         soup: &mut MeshSoup,
         colors: &mut Vec<[f32; 4]>,
+        found: &mut Option<FoundRows>,
     ) -> Result<bool, FormatError> {
         let Some((raw, big_endian)) = values.raw() else {
             return Ok(false);
@@ -993,6 +1029,13 @@ mod fast {
         let raw = &raw[..bytes];
         let positions = if [x.1, y.1, z.1] == [Scalar::F32; 3] && !big_endian {
             let offsets = [x.0, y.0, z.0];
+            *found = Some(FoundRows {
+                address: raw.as_ptr() as usize,
+                bytes,
+                first_row,
+                stride,
+                layout: RowLayout::Positions { at: offsets },
+            });
             positions(raw, stride, |row| {
                 offsets.map(|at| f32::from_le_bytes(four(&row[at..])))
             })
@@ -1090,10 +1133,12 @@ mod fast {
     }
 
     pub(super) fn read_faces(
-        element: &Element,
+        piece: &Piece,
         values: &mut impl Values,
         faces: &mut Faces,
+        found: &mut Option<FoundRows>,
     ) -> Result<bool, FormatError> {
+        let element = &piece.element;
         let (vertex_count, base) = (faces.vertex_count, faces.base);
         let Some((raw, big_endian)) = values.raw() else {
             return Ok(false);
@@ -1212,6 +1257,33 @@ mod fast {
         faces.soup.triangle_parts = triangle_parts;
         if let Some(found) = row_colors(element, raw, stride, big_endian) {
             faces.triangle_colors.extend(found);
+        }
+        // The layouts the map's rows are read again in ([`crate::mapped`]).
+        let parts = match part_at {
+            None => Some(FaceParts::Whole(faces.parts.file_part)),
+            Some((at, Scalar::U32)) => Some(FaceParts::Values {
+                at,
+                table: faces.parts.table.clone(),
+            }),
+            Some(_) => None,
+        };
+        if let (Some(parts), Scalar::U8, Scalar::U32 | Scalar::I32, false) =
+            (parts, count_ty, item_ty, big_endian)
+        {
+            *found = Some(FoundRows {
+                address: raw.as_ptr() as usize,
+                bytes,
+                first_row: piece.first_row,
+                stride,
+                layout: RowLayout::Triangles(FaceRows {
+                    list_at,
+                    signed: item_ty == Scalar::I32,
+                    vertex_count,
+                    vertex_base: 0,
+                    part_base: 0,
+                    parts,
+                }),
+            });
         }
         values.skip_bytes(bytes);
         Ok(true)

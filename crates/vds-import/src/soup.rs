@@ -156,6 +156,29 @@ impl MeshSoup {
         }
     }
 
+    /// [`MeshSoup::spill_now`] for rows a reader just decoded on a fast path (`found`, now
+    /// the soup's positions or its triangles): a spilling soup whose input is mapped keeps
+    /// them as rows to read again from the map ([`crate::mapped`]) rather than writing them.
+    pub(crate) fn spill_found(&mut self, found: crate::mapped::FoundRows) {
+        if let Some(spill) = self.spill.0.as_mut() {
+            let vertices = matches!(found.layout, crate::mapped::RowLayout::Positions { .. });
+            let records = if vertices {
+                self.positions.len()
+            } else {
+                self.triangles.len()
+            };
+            if spill.take_mapped(found, records as u64) {
+                if vertices {
+                    self.positions.clear();
+                } else {
+                    self.triangles.clear();
+                    self.triangle_parts.clear();
+                }
+            }
+        }
+        self.spill_now();
+    }
+
     /// Says that the reader will not look at `bytes` (a prefix of its input) again: a
     /// spilling soup's input map may drop those pages from memory.
     pub(crate) fn done_with_input(&mut self, bytes: &[u8]) {

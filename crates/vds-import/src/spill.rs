@@ -23,6 +23,7 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use crate::mapped::{FoundRows, MappedRows, RowLayout};
 use crate::source::Bytes;
 use crate::{ImportError, ImportStats, PartInfo};
 
@@ -37,6 +38,110 @@ const RECENT_POSITIONS: usize = 1 << 16;
 /// Triangles or vertices read from a spill file at a time (4 MB of triangles).
 const RUN: usize = 1 << 18;
 
+/// Where a soup's records lie, run by run in order: in a spill file (the next records of
+/// it) or in an input's map ([`crate::mapped`]).
+#[derive(Debug, Default)]
+struct Segments {
+    runs: Vec<Segment>,
+    /// Records in the spill file so far.
+    spilled: u64,
+}
+
+#[derive(Debug)]
+enum Segment {
+    /// `count` records of the spill file from record `at`.
+    Spilled {
+        at: u64,
+        count: u64,
+    },
+    Mapped(MappedRows),
+}
+
+impl Segments {
+    fn push_spilled(&mut self, count: u64) {
+        if count == 0 {
+            return;
+        }
+        match self.runs.last_mut() {
+            Some(Segment::Spilled { count: last, .. }) => *last += count,
+            _ => self.runs.push(Segment::Spilled {
+                at: self.spilled,
+                count,
+            }),
+        }
+        self.spilled += count;
+    }
+
+    fn push_mapped(&mut self, rows: MappedRows) {
+        if rows.rows == 0 {
+            return;
+        }
+        if let Some(Segment::Mapped(last)) = self.runs.last_mut()
+            && last.continued_by(&rows)
+        {
+            last.rows += rows.rows;
+            return;
+        }
+        self.runs.push(Segment::Mapped(rows));
+    }
+
+    /// Hands every record to `each` in runs of at most [`RUN`], in order: those of `file`
+    /// (the spill file) read from it, the others decoded from their maps by `decode`.
+    fn read_runs<T: bytemuck::Pod, E>(
+        &self,
+        file: &File,
+        decode: impl Fn(&MappedRows, std::ops::Range<u64>, &mut Vec<T>) -> Result<(), ImportError>,
+        mut each: impl FnMut(&[T]) -> Result<(), E>,
+    ) -> Result<(), RunError<E>> {
+        let mut buffer = Vec::new();
+        for run in &self.runs {
+            match run {
+                Segment::Spilled { at, count } => {
+                    read_runs_at(file, *at, *count, &mut buffer, |records| {
+                        each(records).map_err(RunError::Caller)
+                    })?
+                }
+                Segment::Mapped(rows) => {
+                    let mut done = 0;
+                    while done < rows.rows {
+                        let n = (rows.rows - done).min(RUN as u64);
+                        decode(rows, done..done + n, &mut buffer).map_err(RunError::Import)?;
+                        each(&buffer).map_err(RunError::Caller)?;
+                        done += n;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A soup's positions or triangles: a spill file and where each run lies.
+#[derive(Debug)]
+struct Records {
+    file: File,
+    runs: Segments,
+}
+
+impl Records {
+    /// Every position in order, in runs.
+    fn positions<E>(
+        &self,
+        each: impl FnMut(&[[f32; 3]]) -> Result<(), E>,
+    ) -> Result<(), RunError<E>> {
+        self.runs.read_runs(&self.file, MappedRows::positions, each)
+    }
+
+    /// Every triangle in order as `[a, b, c, part]` with the scene's indices and parts, in
+    /// runs.
+    fn triangles<E>(
+        &self,
+        each: impl FnMut(&[[u32; 4]]) -> Result<(), E>,
+    ) -> Result<(), RunError<E>> {
+        self.runs.read_runs(&self.file, MappedRows::triangles, each)
+    }
+}
+
 /// A soup's vertices and triangles on disk: positions (`[f32; 3]`) and triangles with their
 /// part (`[a, b, c, part]`), in native byte order (the files never leave the process).
 #[derive(Debug)]
@@ -44,6 +149,9 @@ pub struct SoupFiles {
     folder: PathBuf,
     positions: BufWriter<File>,
     triangles: BufWriter<File>,
+    /// Where each run of vertices and triangles is: in the spill files, or in an input's map.
+    position_runs: Segments,
+    triangle_runs: Segments,
     vertex_count: u64,
     triangle_count: u64,
     part_names: Vec<String>,
@@ -64,6 +172,8 @@ impl SoupFiles {
             folder: folder.to_path_buf(),
             positions: file()?,
             triangles: file()?,
+            position_runs: Segments::default(),
+            triangle_runs: Segments::default(),
             vertex_count: 0,
             triangle_count: 0,
             part_names: Vec::new(),
@@ -93,6 +203,7 @@ impl SoupFiles {
             files: self,
             error: None,
             input: None,
+            input_path: None,
             released_to: 0,
         }
     }
@@ -113,6 +224,8 @@ pub(crate) struct FileSpill {
     error: Option<std::io::Error>,
     /// The file's mapped bytes, whose pages the reader may let go of as it goes.
     pub(crate) input: Option<Arc<Bytes>>,
+    /// The file's path, for the errors of rows read again from its map.
+    pub(crate) input_path: Option<PathBuf>,
     /// The address up to which the input has been released.
     released_to: usize,
 }
@@ -154,6 +267,7 @@ impl FileSpill {
         let files = &mut self.files;
         files.positions.write_all(bytemuck::cast_slice(positions))?;
         files.vertex_count += positions.len() as u64;
+        files.position_runs.push_spilled(positions.len() as u64);
         // The soup's indices and parts count from this file's first; the files' from the
         // scene's. Inputs of more than 2³² vertices together wrap here, and the importer
         // refuses them once the file is read (`check_file`), before the records are used.
@@ -169,7 +283,56 @@ impl FileSpill {
             files.triangles.write_all(bytemuck::cast_slice(&records))?;
         }
         files.triangle_count += triangles.len() as u64;
+        files.triangle_runs.push_spilled(triangles.len() as u64);
         Ok(())
+    }
+
+    /// Takes rows the reader decoded on a fast path (`found`, now in the soup's arrays) as
+    /// runs read again from the input's map rather than spilled, when the input is mapped
+    /// and the rows lie in it: returns whether it did (the caller then clears the arrays);
+    /// otherwise the rows are spilled as usual.
+    pub(crate) fn take_mapped(&mut self, found: FoundRows, records: u64) -> bool {
+        let (Some(input), Some(path)) = (&self.input, &self.input_path) else {
+            return false;
+        };
+        let Bytes::Mapped(map) = &**input else {
+            return false;
+        };
+        let base = map.as_ptr() as usize;
+        let start = found.address;
+        if self.error.is_some()
+            || found.stride == 0
+            || start < base
+            || start + found.bytes > base + map.len()
+            || found.bytes as u64 != records * found.stride as u64
+        {
+            return false;
+        }
+        let mut layout = found.layout;
+        if let RowLayout::Triangles(faces) = &mut layout {
+            faces.vertex_base = self.vertex_base as u32;
+            faces.part_base = self.part_base;
+        }
+        let rows = MappedRows {
+            bytes: input.clone(),
+            path: path.clone(),
+            offset: start - base,
+            first_row: found.first_row,
+            rows: records,
+            stride: found.stride,
+            layout,
+        };
+        let files = &mut self.files;
+        if matches!(rows.layout, RowLayout::Positions { .. }) {
+            self.spilled.0 += records as usize;
+            files.vertex_count += records;
+            files.position_runs.push_mapped(rows);
+        } else {
+            self.spilled.1 += records as usize;
+            files.triangle_count += records;
+            files.triangle_runs.push_mapped(rows);
+        }
+        true
     }
 
     /// Lets the input map drop the pages of `bytes` (the input up to where the reader is)
@@ -224,9 +387,7 @@ pub struct SpilledScene {
     /// Each input vertex's welded index (`u32::MAX` for one no triangle keeps).
     welded_index: Vec<u32>,
     /// The soup's triangles and parts (input indices).
-    triangles: File,
-    /// Triangles in `triangles` (before dropping degenerate ones).
-    input_triangles: u64,
+    triangles: Records,
     folder: PathBuf,
 }
 
@@ -242,26 +403,23 @@ impl SpilledScene {
         let mut first = 0u64;
         let mut triangles = Vec::with_capacity(RUN);
         let mut parts = Vec::with_capacity(RUN);
-        let read = read_runs(
-            &self.triangles,
-            self.input_triangles,
-            |records: &[[u32; 4]]| {
-                triangles.clear();
-                parts.clear();
-                for r in records {
-                    let t = [r[0], r[1], r[2]].map(|v| self.welded_index[v as usize]);
-                    if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
-                        triangles.push(t);
-                        parts.push(r[3]);
-                    }
+        let read = self.triangles.triangles(|records| {
+            triangles.clear();
+            parts.clear();
+            for r in records {
+                let t = [r[0], r[1], r[2]].map(|v| self.welded_index[v as usize]);
+                if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+                    triangles.push(t);
+                    parts.push(r[3]);
                 }
-                each(first, &triangles, &parts).map_err(RunError::Caller)?;
-                first += triangles.len() as u64;
-                Ok(())
-            },
-        );
+            }
+            each(first, &triangles, &parts)?;
+            first += triangles.len() as u64;
+            Ok(())
+        });
         read.map_err(|e| match e {
             RunError::Io(cause) => io(io_error(&self.folder, cause)),
+            RunError::Import(e) => io(e),
             RunError::Caller(e) => e,
         })
     }
@@ -290,36 +448,67 @@ impl SpilledScene {
     }
 }
 
-/// Why reading runs of a spill file stopped: the file, or the caller.
+/// Why reading runs of records stopped: the spill file, a row read again from an input, or
+/// the caller.
 enum RunError<E> {
     Io(std::io::Error),
+    Import(ImportError),
     Caller(E),
 }
 
-impl<E> From<std::io::Error> for RunError<E> {
-    fn from(e: std::io::Error) -> Self {
-        RunError::Io(e)
+impl<E> RunError<E> {
+    /// The error, with an I/O error of the spill files in `folder` made an [`ImportError`].
+    fn into(self, folder: &Path) -> E
+    where
+        E: From<ImportError>,
+    {
+        match self {
+            RunError::Io(cause) => io_error(folder, cause).into(),
+            RunError::Import(e) => e.into(),
+            RunError::Caller(e) => e,
+        }
     }
 }
 
-/// Reads `count` records of `T` from the start of `file` and hands them to `each` in runs of
-/// at most [`RUN`].
-fn read_runs<T: bytemuck::Pod, E: From<std::io::Error>>(
+/// Reads `count` records of `T` from record `at` of `file` into `buffer` and hands them to
+/// `each` in runs of at most [`RUN`].
+fn read_runs_at<T: bytemuck::Pod, E>(
     file: &File,
+    at: u64,
     count: u64,
-    mut each: impl FnMut(&[T]) -> Result<(), E>,
-) -> Result<(), E> {
+    buffer: &mut Vec<T>,
+    mut each: impl FnMut(&[T]) -> Result<(), RunError<E>>,
+) -> Result<(), RunError<E>> {
     let size = size_of::<T>() as u64;
-    let mut buffer = vec![T::zeroed(); RUN.min(count as usize)];
     let mut done = 0u64;
     while done < count {
         let n = (count - done).min(RUN as u64) as usize;
+        buffer.resize(n, T::zeroed());
         let bytes = bytemuck::cast_slice_mut(&mut buffer[..n]);
-        file.read_exact_at(bytes, done * size)?;
+        file.read_exact_at(bytes, (at + done) * size)
+            .map_err(RunError::Io)?;
         each(&buffer[..n])?;
         done += n as u64;
     }
     Ok(())
+}
+
+/// Reads the `count` records of `T` of `file` (a bucket file) and hands them to `each` in
+/// runs of at most [`RUN`].
+fn read_runs<T: bytemuck::Pod>(
+    file: &File,
+    count: u64,
+    mut each: impl FnMut(&[T]),
+) -> std::io::Result<()> {
+    let mut buffer = Vec::new();
+    read_runs_at(file, 0, count, &mut buffer, |run| {
+        each(run);
+        Ok::<(), RunError<()>>(())
+    })
+    .map_err(|e| match e {
+        RunError::Io(cause) => cause,
+        _ => unreachable!("only reading the file fails"),
+    })
 }
 
 fn io_error(folder: &Path, cause: std::io::Error) -> ImportError {
@@ -344,14 +533,20 @@ impl SoupFiles {
     ) -> Result<SpilledScene, ImportError> {
         let folder = self.folder.clone();
         let io = |cause| io_error(&folder, cause);
-        let positions = self
-            .positions
-            .into_inner()
-            .map_err(|e| io(e.into_error()))?;
-        let triangles = self
-            .triangles
-            .into_inner()
-            .map_err(|e| io(e.into_error()))?;
+        let positions = Records {
+            file: self
+                .positions
+                .into_inner()
+                .map_err(|e| io(e.into_error()))?,
+            runs: self.position_runs,
+        };
+        let triangles = Records {
+            file: self
+                .triangles
+                .into_inner()
+                .map_err(|e| io(e.into_error()))?,
+            runs: self.triangle_runs,
+        };
         let vertices = self.vertex_count;
         let input_triangles = self.triangle_count;
 
@@ -366,20 +561,21 @@ impl SoupFiles {
         // Which representatives a triangle that stays uses, and how many triangles go.
         let mut used = vec![0u64; (vertices as usize).div_ceil(64)];
         let mut degenerate = 0u64;
-        read_runs(&triangles, input_triangles, |records: &[[u32; 4]]| {
-            for r in records {
-                let [a, b, c] = [r[0], r[1], r[2]].map(|v| representative[v as usize]);
-                if a != b && b != c && a != c {
-                    for v in [a, b, c] {
-                        used[v as usize / 64] |= 1 << (v % 64);
+        triangles
+            .triangles(|records| {
+                for r in records {
+                    let [a, b, c] = [r[0], r[1], r[2]].map(|v| representative[v as usize]);
+                    if a != b && b != c && a != c {
+                        for v in [a, b, c] {
+                            used[v as usize / 64] |= 1 << (v % 64);
+                        }
+                    } else {
+                        degenerate += 1;
                     }
-                } else {
-                    degenerate += 1;
                 }
-            }
-            Ok::<(), std::io::Error>(())
-        })
-        .map_err(io)?;
+                Ok::<(), ImportError>(())
+            })
+            .map_err(|e| e.into(&folder))?;
 
         // New indices for the used representatives in input order, and their positions; then
         // every vertex's index through its representative, in place: a representative is
@@ -387,24 +583,25 @@ impl SoupFiles {
         let mut welded_index = representative;
         let mut welded = Vec::new();
         let mut v = 0usize;
-        read_runs(&positions, vertices, |run: &[[f32; 3]]| {
-            for &p in run {
-                let r = welded_index[v] as usize;
-                welded_index[v] = if r == v {
-                    if used[v / 64] & (1 << (v % 64)) != 0 {
-                        welded.push(p);
-                        (welded.len() - 1) as u32
+        positions
+            .positions(|run| {
+                for &p in run {
+                    let r = welded_index[v] as usize;
+                    welded_index[v] = if r == v {
+                        if used[v / 64] & (1 << (v % 64)) != 0 {
+                            welded.push(p);
+                            (welded.len() - 1) as u32
+                        } else {
+                            u32::MAX
+                        }
                     } else {
-                        u32::MAX
-                    }
-                } else {
-                    welded_index[r]
-                };
-                v += 1;
-            }
-            Ok::<(), std::io::Error>(())
-        })
-        .map_err(io)?;
+                        welded_index[r]
+                    };
+                    v += 1;
+                }
+                Ok::<(), ImportError>(())
+            })
+            .map_err(|e| e.into(&folder))?;
         drop(used);
         drop(positions);
         welded.shrink_to_fit();
@@ -425,7 +622,6 @@ impl SoupFiles {
             triangle_count: input_triangles - degenerate,
             welded_index,
             triangles,
-            input_triangles,
             folder,
         })
     }
@@ -441,7 +637,7 @@ impl SoupFiles {
 /// about six times) mostly end there, and no position repeated millions of times fills a
 /// bucket (which would hold about 50 bytes per vertex as it is resolved).
 fn representatives(
-    positions: &File,
+    positions: &Records,
     vertices: u64,
     bucket_vertices: u64,
     recent: usize,
@@ -451,11 +647,12 @@ fn representatives(
     let buckets = vertices.div_ceil(bucket_vertices).clamp(1, MAX_BUCKETS);
     if buckets == 1 {
         let mut all = Vec::with_capacity(vertices as usize);
-        read_runs(positions, vertices, |run: &[[f32; 3]]| {
-            all.extend_from_slice(run);
-            Ok::<(), std::io::Error>(())
-        })
-        .map_err(io)?;
+        positions
+            .positions(|run| {
+                all.extend_from_slice(run);
+                Ok::<(), ImportError>(())
+            })
+            .map_err(|e| e.into(folder))?;
         return Ok(crate::weld::exact_representatives(&all));
     }
     let mut representative = vec![0u32; vertices as usize];
@@ -474,31 +671,35 @@ fn representatives(
     let mut copies = vec![0u64; (vertices as usize).div_ceil(64)];
     // Counted in `u64`: the inputs may hold exactly 2³² vertices.
     let mut index = 0u64;
-    read_runs(positions, vertices, |run: &[[f32; 3]]| {
-        for p in run {
-            let hash = crate::weld::position_hash(p);
-            let key = p.map(|c| (c + 0.0).to_bits());
-            let slot = &mut seen[hash.checked_shr(slot_shift).unwrap_or(0) as usize];
-            if slot.0 == key {
-                representative[index as usize] = slot.1;
-                copies[index as usize / 64] |= 1 << (index % 64);
+    positions
+        .positions(|run| {
+            for p in run {
+                let hash = crate::weld::position_hash(p);
+                let key = p.map(|c| (c + 0.0).to_bits());
+                let slot = &mut seen[hash.checked_shr(slot_shift).unwrap_or(0) as usize];
+                if slot.0 == key {
+                    representative[index as usize] = slot.1;
+                    copies[index as usize / 64] |= 1 << (index % 64);
+                    index += 1;
+                    continue;
+                }
+                *slot = (key, index as u32);
+                // The bucket from the hash's bits below its top 12, which pick the in-memory
+                // weld's own buckets: from the same bits, a bucket of ours would fall in one or
+                // two of those, resolved on one thread with a table out of cache.
+                let b = (u128::from(hash << 12) * u128::from(buckets)) >> 64;
+                let bits = p.map(f32::to_bits);
+                let record = [bits[0], bits[1], bits[2], index as u32];
+                files[b as usize].write_all(bytemuck::cast_slice(&record))?;
+                counts[b as usize] += 1;
                 index += 1;
-                continue;
             }
-            *slot = (key, index as u32);
-            // The bucket from the hash's bits below its top 12, which pick the in-memory
-            // weld's own buckets: from the same bits, a bucket of ours would fall in one or
-            // two of those, resolved on one thread with a table out of cache.
-            let b = (u128::from(hash << 12) * u128::from(buckets)) >> 64;
-            let bits = p.map(f32::to_bits);
-            let record = [bits[0], bits[1], bits[2], index as u32];
-            files[b as usize].write_all(bytemuck::cast_slice(&record))?;
-            counts[b as usize] += 1;
-            index += 1;
-        }
-        Ok::<(), std::io::Error>(())
-    })
-    .map_err(io)?;
+            Ok::<(), std::io::Error>(())
+        })
+        .map_err(|e| match e {
+            RunError::Io(cause) | RunError::Caller(cause) => io(cause),
+            RunError::Import(e) => e,
+        })?;
     for (file, count) in files.into_iter().zip(counts) {
         let file = file.into_inner().map_err(|e| io(e.into_error()))?;
         let mut bucket = Vec::with_capacity(count as usize);
@@ -508,7 +709,6 @@ fn representatives(
                 bucket.push([r[0], r[1], r[2]].map(f32::from_bits));
                 global.push(r[3]);
             }
-            Ok::<(), std::io::Error>(())
         })
         .map_err(io)?;
         drop(file);
@@ -628,6 +828,7 @@ mod file_tests {
     use std::io::Write;
     use std::path::{Path, PathBuf};
 
+    use super::SoupFiles;
     use crate::{ImportOptions, Weld, load_files};
 
     /// A grid of `n × n` vertices (each written twice, so that welding joins them) and its
@@ -808,6 +1009,7 @@ mod file_tests {
             write(f, "h.ply.gz", &gzip(&binary_ply(true, false))),
             write(f, "i.stl", &ascii_stl("\n")),
             write(f, "j.stl", &ascii_stl("\r\n")),
+            write(f, "k.ply", &signed_ply_without_parts()),
         ];
         let options = ImportOptions {
             weld: Weld::Exact,
@@ -853,5 +1055,104 @@ mod file_tests {
             .to_string();
         assert_eq!(spilled, in_memory);
         assert!(in_memory.contains("face"), "{in_memory}");
+    }
+
+    /// A binary PLY whose faces have `int` indices and no part.
+    fn signed_ply_without_parts() -> Vec<u8> {
+        let (positions, triangles) = grid(5);
+        let mut out = format!(
+            "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\n\
+             property float y\nproperty float z\nelement face {}\n\
+             property list uchar int vertex_indices\nend_header\n",
+            positions.len(),
+            triangles.len()
+        )
+        .into_bytes();
+        for p in &positions {
+            out.extend(p.iter().flat_map(|c| c.to_le_bytes()));
+        }
+        for t in &triangles {
+            out.push(3);
+            out.extend(t.iter().flat_map(|&v| (v as i32).to_le_bytes()));
+        }
+        out
+    }
+
+    /// `paths` read into spill files in pieces of `rows` rows, not yet welded.
+    fn read_spilled(paths: &[PathBuf], folder: &Path, rows: usize) -> SoupFiles {
+        let mut files = SoupFiles::create(folder).unwrap();
+        let options = ImportOptions::default();
+        for path in paths {
+            let mut soup = crate::MeshSoup::default();
+            soup.spill.0 = Some(Box::new(files.for_file(rows)));
+            crate::read_into(path, &options, u64::MAX, &mut soup).unwrap();
+            soup.spill_now();
+            let spill = soup.spill.0.take().unwrap();
+            files = spill.finish(soup).unwrap();
+        }
+        files
+    }
+
+    #[test]
+    fn binary_ply_rows_are_read_again_from_the_map_not_spilled() {
+        let folder = tempfile::tempdir().unwrap();
+        let f = folder.path();
+        let paths = [
+            write(f, "a.ply", &binary_ply(true, false)),
+            write(f, "k.ply", &signed_ply_without_parts()),
+        ];
+        let files = read_spilled(&paths, f, 7);
+        // Nothing spilled, and the pieces of each file's rows joined into one run per file.
+        assert_eq!(
+            (files.position_runs.spilled, files.triangle_runs.spilled),
+            (0, 0)
+        );
+        assert_eq!(files.position_runs.runs.len(), 2);
+        assert_eq!(files.triangle_runs.runs.len(), 2);
+        let options = ImportOptions {
+            weld: Weld::Exact,
+            ..ImportOptions::default()
+        };
+        let expected = load_files(&paths, &options).unwrap();
+        assert_eq!(files.weld().unwrap().to_scene().unwrap(), expected);
+
+        // A piece with a quad is spilled; the pieces around it are still mapped.
+        let quad = [write(f, "b.ply", &binary_ply(false, true))];
+        let files = read_spilled(&quad, f, 7);
+        assert_eq!(
+            files.triangle_runs.spilled, 8,
+            "the quad's piece: 6 triangles and 2"
+        );
+        assert_eq!(files.triangle_runs.runs.len(), 3);
+    }
+
+    #[test]
+    fn a_file_changed_after_it_was_read_is_an_error_naming_the_row() {
+        let folder = tempfile::tempdir().unwrap();
+        let bytes = binary_ply(false, false);
+        let path = write(folder.path(), "changing.ply", &bytes);
+        // The 101st face's first corner (count byte, three corners, part, three colours).
+        let face = 101u64;
+        let faces = grid(9).1.len();
+        let at = bytes.len() - (faces - face as usize) * (1 + 12 + 4 + 3) + 1;
+        for (value, problem) in [(9_999u32, "out of range"), (u32::MAX, "out of range")] {
+            let files = read_spilled(std::slice::from_ref(&path), folder.path(), 7);
+            let mut changed = bytes.clone();
+            changed[at..at + 4].copy_from_slice(&value.to_le_bytes());
+            std::fs::write(&path, &changed).unwrap();
+            let message = files.weld().unwrap_err().to_string();
+            assert!(message.contains("changing.ply"), "{message}");
+            assert!(message.contains(&format!("face {face}")), "{message}");
+            assert!(message.contains(problem), "{message}");
+            std::fs::write(&path, &bytes).unwrap();
+        }
+        // A part value the first read never saw.
+        let files = read_spilled(std::slice::from_ref(&path), folder.path(), 7);
+        let mut changed = bytes.clone();
+        changed[at + 12..at + 16].copy_from_slice(&77_777u32.to_le_bytes());
+        std::fs::write(&path, &changed).unwrap();
+        let message = files.weld().unwrap_err().to_string();
+        assert!(message.contains("part 77777"), "{message}");
+        assert!(message.contains(&format!("face {face}")), "{message}");
     }
 }

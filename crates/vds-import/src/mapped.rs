@@ -1,0 +1,305 @@
+//! Rows that a spilling import reads again from the input's map instead of copying them to
+//! its spill files: a binary PLY's fixed-size vertex and face rows, in the layouts nearly
+//! every such file uses (little-endian `float` coordinates; a `uchar` count with `int` or
+//! `uint` indices and an optional `uint` part).
+//!
+//! Spilling copies every row into the page cache, which costs about as much as reading it (on
+//! the dev VM, about 350 MB/s a core), and the input's own pages are already there: rows
+//! that can be decoded again from the map are only described (where they start, how many,
+//! their layout), and decoded a run at a time whenever the weld or the plan reads them.
+//!
+//! The first read checked every row. The file is read again later, so each row is checked
+//! again as it is decoded: a file changed in between is an error naming the file and the row,
+//! never a panic or a scene made of both versions' rows.
+
+use std::ops::Range;
+use std::path::PathBuf;
+use std::sync::{Arc, OnceLock};
+
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+
+use crate::ImportError;
+use crate::error::{FormatError, Problem};
+use crate::soup::check_position;
+use crate::source::Bytes;
+
+/// Rows decoded per parallel task.
+const ROWS_PER_TASK: usize = 1 << 14;
+
+/// What a reader found of a run of rows it decoded on a fast path: where the rows' bytes are
+/// (the address of the first, and their length: a part of the input's map), the index of the
+/// first in its element, the row size and the layout.
+pub(crate) struct FoundRows {
+    pub(crate) address: usize,
+    pub(crate) bytes: usize,
+    pub(crate) first_row: u64,
+    pub(crate) stride: usize,
+    pub(crate) layout: RowLayout,
+}
+
+/// The layout of a run of rows, and what their decoded records need besides their bytes.
+#[derive(Debug, Clone)]
+pub(crate) enum RowLayout {
+    /// Vertex rows: `x`, `y`, `z` as little-endian `f32` at these offsets.
+    Positions { at: [usize; 3] },
+    /// Face rows of triangles.
+    Triangles(FaceRows),
+}
+
+/// Face rows: a `uchar` count (3 in every row) at `list_at`, followed by three little-endian
+/// 32-bit indices, and the face's part.
+#[derive(Debug, Clone)]
+pub(crate) struct FaceRows {
+    pub(crate) list_at: usize,
+    /// The indices are `int`, not `uint`.
+    pub(crate) signed: bool,
+    /// The file's vertices: every index must be below.
+    pub(crate) vertex_count: u64,
+    /// Added to every index: the scene's vertices in the files before this one (set by the
+    /// spill).
+    pub(crate) vertex_base: u32,
+    /// Added to every part: the scene's parts in the files before this one (set by the
+    /// spill).
+    pub(crate) part_base: u32,
+    pub(crate) parts: FaceParts,
+}
+
+/// Where a face's part comes from (in the file's soup's numbering).
+#[derive(Debug, Clone)]
+pub(crate) enum FaceParts {
+    /// Every face is in this part.
+    Whole(u32),
+    /// A little-endian `uint` at this offset, looked up in `table` (each value's part, set by
+    /// the reader once it has read every face of the file).
+    Values {
+        at: usize,
+        table: Arc<OnceLock<FxHashMap<u32, u32>>>,
+    },
+}
+
+/// A run of rows in an input's map, decoded again on every read.
+#[derive(Debug)]
+pub(crate) struct MappedRows {
+    pub(crate) bytes: Arc<Bytes>,
+    pub(crate) path: PathBuf,
+    /// Byte offset of the first row in the map.
+    pub(crate) offset: usize,
+    /// The first row's index in its element (for errors).
+    pub(crate) first_row: u64,
+    pub(crate) rows: u64,
+    pub(crate) stride: usize,
+    pub(crate) layout: RowLayout,
+}
+
+impl MappedRows {
+    /// The bytes of rows `range` (indices into this run).
+    fn raw(&self, range: &Range<u64>) -> &[u8] {
+        let start = self.offset + range.start as usize * self.stride;
+        let end = self.offset + range.end as usize * self.stride;
+        &self.bytes[start..end]
+    }
+
+    /// Whether `other` continues this run: the next rows of the same map, same layout.
+    pub(crate) fn continued_by(&self, other: &MappedRows) -> bool {
+        let same_layout = match (&self.layout, &other.layout) {
+            (RowLayout::Positions { at: a }, RowLayout::Positions { at: b }) => a == b,
+            (RowLayout::Triangles(a), RowLayout::Triangles(b)) => {
+                a.list_at == b.list_at
+                    && a.signed == b.signed
+                    && a.vertex_count == b.vertex_count
+                    && a.vertex_base == b.vertex_base
+                    && a.part_base == b.part_base
+                    && match (&a.parts, &b.parts) {
+                        (FaceParts::Whole(p), FaceParts::Whole(q)) => p == q,
+                        (
+                            FaceParts::Values { at: p, table: s },
+                            FaceParts::Values { at: q, table: t },
+                        ) => p == q && Arc::ptr_eq(s, t),
+                        _ => false,
+                    }
+            }
+            _ => false,
+        };
+        Arc::ptr_eq(&self.bytes, &other.bytes)
+            && self.stride == other.stride
+            && same_layout
+            && other.offset == self.offset + self.rows as usize * self.stride
+            && other.first_row == self.first_row + self.rows
+    }
+
+    /// The error for row `row` of this run.
+    fn error(&self, element: &str, row: u64, problem: Problem) -> ImportError {
+        FormatError::at_element(element, self.first_row + row, problem).in_file(&self.path)
+    }
+
+    /// Decodes rows `range` of a vertex run into `out` (its length made the rows').
+    pub(crate) fn positions(
+        &self,
+        range: Range<u64>,
+        out: &mut Vec<[f32; 3]>,
+    ) -> Result<(), ImportError> {
+        let RowLayout::Positions { at } = self.layout else {
+            unreachable!("positions are read from vertex rows only");
+        };
+        let raw = self.raw(&range);
+        let decode = |row: &[u8]| at.map(|a| f32::from_le_bytes(four(&row[a..])));
+        let failed = decode_rows(raw, self.stride, out, |rows, out| {
+            for (k, (row, p)) in rows.chunks_exact(self.stride).zip(out).enumerate() {
+                *p = decode(row);
+                if check_position(*p).is_err() {
+                    return Err(k);
+                }
+            }
+            Ok(())
+        });
+        if let Err(bad) = failed {
+            let row = &raw[bad * self.stride..];
+            let problem = check_position(decode(row)).expect_err("a row that failed");
+            return Err(self.error("vertex", range.start + bad as u64, problem));
+        }
+        self.bytes.release(raw);
+        Ok(())
+    }
+
+    /// Decodes rows `range` of a face run into `[a, b, c, part]` records with the scene's
+    /// indices and parts, into `out` (its length made the rows').
+    pub(crate) fn triangles(
+        &self,
+        range: Range<u64>,
+        out: &mut Vec<[u32; 4]>,
+    ) -> Result<(), ImportError> {
+        let RowLayout::Triangles(faces) = &self.layout else {
+            unreachable!("triangles are read from face rows only");
+        };
+        let raw = self.raw(&range);
+        let failed = match &faces.parts {
+            FaceParts::Whole(part) => decode_rows(raw, self.stride, out, |rows, out| {
+                faces
+                    .decode(rows, self.stride, out, |_| Ok(*part))
+                    .map_err(|(k, _)| k)
+            }),
+            FaceParts::Values { at, table } => {
+                let Some(table) = table.get() else {
+                    let problem = Problem::Syntax("the faces' parts were never read".into());
+                    return Err(self.error("face", range.start, problem));
+                };
+                decode_rows(raw, self.stride, out, |rows, out| {
+                    // Faces of one part come in runs: the last value's part is kept.
+                    let mut last = None;
+                    faces
+                        .decode(rows, self.stride, out, |row| {
+                            let value = u32::from_le_bytes(four(&row[*at..]));
+                            match last {
+                                Some((v, part)) if v == value => Ok(part),
+                                _ => {
+                                    let part = *table.get(&value).ok_or_else(|| {
+                                    Problem::Syntax(format!(
+                                        "part {value} was not in the file when it was first read"
+                                    ))
+                                })?;
+                                    last = Some((value, part));
+                                    Ok(part)
+                                }
+                            }
+                        })
+                        .map_err(|(k, _)| k)
+                })
+            }
+        };
+        if let Err(bad) = failed {
+            // Decoded again alone, for its problem.
+            let row = &raw[bad * self.stride..(bad + 1) * self.stride];
+            let mut one = [[0u32; 4]];
+            let problem = match &faces.parts {
+                FaceParts::Whole(part) => faces.decode(row, self.stride, &mut one, |_| Ok(*part)),
+                FaceParts::Values { at, table } => {
+                    faces.decode(row, self.stride, &mut one, |row| {
+                        let value = u32::from_le_bytes(four(&row[*at..]));
+                        table
+                            .get()
+                            .and_then(|t| t.get(&value))
+                            .copied()
+                            .ok_or_else(|| {
+                                Problem::Syntax(format!(
+                                    "part {value} was not in the file when it was first read"
+                                ))
+                            })
+                    })
+                }
+            }
+            .map_err(|(_, problem)| problem)
+            .expect_err("a row that failed");
+            return Err(self.error("face", range.start + bad as u64, problem));
+        }
+        self.bytes.release(raw);
+        Ok(())
+    }
+}
+
+impl FaceRows {
+    /// Decodes the face rows of `rows` into `out`, with `part` reading each row's part; the
+    /// first row that fails is returned with its index and problem.
+    #[inline]
+    fn decode(
+        &self,
+        rows: &[u8],
+        stride: usize,
+        out: &mut [[u32; 4]],
+        mut part: impl FnMut(&[u8]) -> Result<u32, Problem>,
+    ) -> Result<(), (usize, Problem)> {
+        for (k, (row, record)) in rows.chunks_exact(stride).zip(out).enumerate() {
+            if row[self.list_at] != 3 {
+                let problem = "no longer a triangle: the file changed while it was read";
+                return Err((k, Problem::Syntax(problem.into())));
+            }
+            for c in 0..3 {
+                let bytes = four(&row[self.list_at + 1 + 4 * c..]);
+                let index = if self.signed {
+                    i64::from(i32::from_le_bytes(bytes))
+                } else {
+                    i64::from(u32::from_le_bytes(bytes))
+                };
+                if index < 0 || index as u64 >= self.vertex_count {
+                    let vertex_count = self.vertex_count;
+                    return Err((
+                        k,
+                        Problem::IndexOutOfRange {
+                            index,
+                            vertex_count,
+                        },
+                    ));
+                }
+                record[c] = self.vertex_base.wrapping_add(index as u32);
+            }
+            record[3] = self.part_base + part(row).map_err(|problem| (k, problem))?;
+        }
+        Ok(())
+    }
+}
+
+/// Decodes the rows of `raw` (of `stride` bytes) into `out`, sized to them, a share of
+/// [`ROWS_PER_TASK`] rows per task with `decode(rows, records)`, which returns the index of
+/// a row it failed on; the first failing row's index, if any.
+fn decode_rows<T: Copy + Default + Send>(
+    raw: &[u8],
+    stride: usize,
+    out: &mut Vec<T>,
+    decode: impl Fn(&[u8], &mut [T]) -> Result<(), usize> + Sync,
+) -> Result<(), usize> {
+    let rows = raw.len() / stride;
+    out.clear();
+    out.resize(rows, T::default());
+    let decoded = raw
+        .par_chunks(stride * ROWS_PER_TASK)
+        .zip(out.par_chunks_mut(ROWS_PER_TASK))
+        .try_for_each(|(rows, out)| decode(rows, out));
+    // Tasks stop at whichever failure they meet first: the first in file order is found
+    // again on one thread (rows fail only in a file changed since it was first read).
+    decoded.or_else(|_| decode(raw, out))
+}
+
+/// The first four bytes of `bytes`.
+fn four(bytes: &[u8]) -> [u8; 4] {
+    bytes[..4].try_into().expect("4 bytes")
+}
