@@ -45,6 +45,18 @@ pub(crate) enum RowLayout {
     Positions { at: [usize; 3] },
     /// Face rows of triangles.
     Triangles(FaceRows),
+    /// A binary STL's 50-byte facets: three positions each (little-endian `f32` at bytes 12,
+    /// 24 and 36), and one triangle of those three vertices.
+    Facets(FacetRows),
+}
+
+/// What a facet's triangle needs besides its row: the file's part, and the scene's vertices
+/// and parts before the file (set by the spill).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct FacetRows {
+    pub(crate) part: u32,
+    pub(crate) vertex_base: u32,
+    pub(crate) part_base: u32,
 }
 
 /// Face rows: a `uchar` count (3 in every row) at `list_at`, followed by three little-endian
@@ -104,6 +116,7 @@ impl MappedRows {
     pub(crate) fn continued_by(&self, other: &MappedRows) -> bool {
         let same_layout = match (&self.layout, &other.layout) {
             (RowLayout::Positions { at: a }, RowLayout::Positions { at: b }) => a == b,
+            (RowLayout::Facets(a), RowLayout::Facets(b)) => a == b,
             (RowLayout::Triangles(a), RowLayout::Triangles(b)) => {
                 a.list_at == b.list_at
                     && a.signed == b.signed
@@ -139,8 +152,10 @@ impl MappedRows {
         range: Range<u64>,
         out: &mut Vec<[f32; 3]>,
     ) -> Result<(), ImportError> {
-        let RowLayout::Positions { at } = self.layout else {
-            unreachable!("positions are read from vertex rows only");
+        let at = match &self.layout {
+            RowLayout::Positions { at } => *at,
+            RowLayout::Facets(_) => return self.facet_positions(range, out),
+            RowLayout::Triangles(_) => unreachable!("positions are not read from face rows"),
         };
         let raw = self.raw(&range);
         let decode = |row: &[u8]| at.map(|a| f32::from_le_bytes(four(&row[a..])));
@@ -169,8 +184,23 @@ impl MappedRows {
         range: Range<u64>,
         out: &mut Vec<[u32; 4]>,
     ) -> Result<(), ImportError> {
-        let RowLayout::Triangles(faces) = &self.layout else {
-            unreachable!("triangles are read from face rows only");
+        let faces = match &self.layout {
+            RowLayout::Triangles(faces) => faces,
+            RowLayout::Facets(facets) => {
+                // Facet `r` of the file is its vertices `3r`, `3r + 1`, `3r + 2`: nothing
+                // to read.
+                let first = (self.first_row + range.start) as u32;
+                out.clear();
+                out.extend((first..first + (range.end - range.start) as u32).map(|r| {
+                    // Wrapping as the spill's indices do: inputs past 2³² vertices are
+                    // refused before their records are read.
+                    let v = facets.vertex_base.wrapping_add(r.wrapping_mul(3));
+                    let [a, b, c] = [0, 1, 2].map(|k| v.wrapping_add(k));
+                    [a, b, c, facets.part_base + facets.part]
+                }));
+                return Ok(());
+            }
+            RowLayout::Positions { .. } => unreachable!("triangles are not read from vertex rows"),
         };
         let raw = self.raw(&range);
         let failed = match &faces.parts {
@@ -232,6 +262,41 @@ impl MappedRows {
             .expect_err("a row that failed");
             return Err(self.error("face", range.start + bad as u64, problem));
         }
+        self.bytes.release(raw);
+        Ok(())
+    }
+}
+
+impl MappedRows {
+    /// [`MappedRows::positions`] of a run of STL facets: three per facet.
+    fn facet_positions(
+        &self,
+        range: Range<u64>,
+        out: &mut Vec<[f32; 3]>,
+    ) -> Result<(), ImportError> {
+        let raw = self.raw(&range);
+        let corner = |row: &[u8], k: usize| {
+            [0, 1, 2].map(|i| f32::from_le_bytes(four(&row[12 + 12 * k + 4 * i..])))
+        };
+        let mut corners: Vec<[[f32; 3]; 3]> = Vec::new();
+        let failed = decode_rows(raw, self.stride, &mut corners, |rows, out| {
+            for (r, (row, corners)) in rows.chunks_exact(self.stride).zip(out).enumerate() {
+                *corners = [0, 1, 2].map(|k| corner(row, k));
+                if corners.iter().any(|&p| check_position(p).is_err()) {
+                    return Err(r);
+                }
+            }
+            Ok(())
+        });
+        if let Err(bad) = failed {
+            let row = &raw[bad * self.stride..];
+            let problem = (0..3)
+                .find_map(|k| check_position(corner(row, k)).err())
+                .expect("a facet that failed");
+            return Err(self.error("triangle", range.start + bad as u64, problem));
+        }
+        out.clear();
+        out.extend(corners.iter().flatten());
         self.bytes.release(raw);
         Ok(())
     }

@@ -161,16 +161,14 @@ impl MeshSoup {
     /// them as rows to read again from the map ([`crate::mapped`]) rather than writing them.
     pub(crate) fn spill_found(&mut self, found: crate::mapped::FoundRows) {
         if let Some(spill) = self.spill.0.as_mut() {
+            let held = (self.positions.len(), self.triangles.len());
             let vertices = matches!(found.layout, crate::mapped::RowLayout::Positions { .. });
-            let records = if vertices {
-                self.positions.len()
-            } else {
-                self.triangles.len()
-            };
-            if spill.take_mapped(found, records as u64) {
-                if vertices {
+            let triangles = matches!(found.layout, crate::mapped::RowLayout::Triangles(_));
+            if spill.take_mapped(found, held) {
+                if !triangles {
                     self.positions.clear();
-                } else {
+                }
+                if !vertices {
                     self.triangles.clear();
                     self.triangle_parts.clear();
                 }

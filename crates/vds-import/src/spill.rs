@@ -291,12 +291,18 @@ impl FileSpill {
     /// runs read again from the input's map rather than spilled, when the input is mapped
     /// and the rows lie in it: returns whether it did (the caller then clears the arrays);
     /// otherwise the rows are spilled as usual.
-    pub(crate) fn take_mapped(&mut self, found: FoundRows, records: u64) -> bool {
+    pub(crate) fn take_mapped(&mut self, found: FoundRows, held: (usize, usize)) -> bool {
         let (Some(input), Some(path)) = (&self.input, &self.input_path) else {
             return false;
         };
         let Bytes::Mapped(map) = &**input else {
             return false;
+        };
+        // Rows, and the vertices and triangles they make, which the soup must hold.
+        let (rows, made) = match &found.layout {
+            RowLayout::Positions { .. } => (held.0, (held.0, 0)),
+            RowLayout::Triangles(_) => (held.1, (0, held.1)),
+            RowLayout::Facets(_) => (held.1, (3 * held.1, held.1)),
         };
         let base = map.as_ptr() as usize;
         let start = found.address;
@@ -304,33 +310,50 @@ impl FileSpill {
             || found.stride == 0
             || start < base
             || start + found.bytes > base + map.len()
-            || found.bytes as u64 != records * found.stride as u64
+            || found.bytes != rows * found.stride
+            || made != held
         {
             return false;
         }
         let mut layout = found.layout;
-        if let RowLayout::Triangles(faces) = &mut layout {
-            faces.vertex_base = self.vertex_base as u32;
-            faces.part_base = self.part_base;
+        match &mut layout {
+            RowLayout::Positions { .. } => {}
+            RowLayout::Triangles(faces) => {
+                faces.vertex_base = self.vertex_base as u32;
+                faces.part_base = self.part_base;
+            }
+            RowLayout::Facets(facets) => {
+                facets.vertex_base = self.vertex_base as u32;
+                facets.part_base = self.part_base;
+            }
         }
         let rows = MappedRows {
             bytes: input.clone(),
             path: path.clone(),
             offset: start - base,
             first_row: found.first_row,
-            rows: records,
+            rows: rows as u64,
             stride: found.stride,
             layout,
         };
         let files = &mut self.files;
-        if matches!(rows.layout, RowLayout::Positions { .. }) {
-            self.spilled.0 += records as usize;
-            files.vertex_count += records;
-            files.position_runs.push_mapped(rows);
-        } else {
-            self.spilled.1 += records as usize;
-            files.triangle_count += records;
-            files.triangle_runs.push_mapped(rows);
+        self.spilled.0 += made.0;
+        self.spilled.1 += made.1;
+        files.vertex_count += made.0 as u64;
+        files.triangle_count += made.1 as u64;
+        match rows.layout {
+            RowLayout::Positions { .. } => files.position_runs.push_mapped(rows),
+            RowLayout::Triangles(_) => files.triangle_runs.push_mapped(rows),
+            RowLayout::Facets(_) => {
+                let positions = MappedRows {
+                    bytes: rows.bytes.clone(),
+                    path: rows.path.clone(),
+                    layout: rows.layout.clone(),
+                    ..rows
+                };
+                files.position_runs.push_mapped(positions);
+                files.triangle_runs.push_mapped(rows);
+            }
         }
         true
     }
@@ -1100,6 +1123,7 @@ mod file_tests {
         let paths = [
             write(f, "a.ply", &binary_ply(true, false)),
             write(f, "k.ply", &signed_ply_without_parts()),
+            write(f, "d.stl", &binary_stl()),
         ];
         let files = read_spilled(&paths, f, 7);
         // Nothing spilled, and the pieces of each file's rows joined into one run per file.
@@ -1107,8 +1131,8 @@ mod file_tests {
             (files.position_runs.spilled, files.triangle_runs.spilled),
             (0, 0)
         );
-        assert_eq!(files.position_runs.runs.len(), 2);
-        assert_eq!(files.triangle_runs.runs.len(), 2);
+        assert_eq!(files.position_runs.runs.len(), 3);
+        assert_eq!(files.triangle_runs.runs.len(), 3);
         let options = ImportOptions {
             weld: Weld::Exact,
             ..ImportOptions::default()
@@ -1154,5 +1178,21 @@ mod file_tests {
         let message = files.weld().unwrap_err().to_string();
         assert!(message.contains("part 77777"), "{message}");
         assert!(message.contains(&format!("face {face}")), "{message}");
+    }
+
+    #[test]
+    fn an_stl_changed_after_it_was_read_is_an_error_naming_the_facet() {
+        let folder = tempfile::tempdir().unwrap();
+        let bytes = binary_stl();
+        let path = write(folder.path(), "changing.stl", &bytes);
+        let files = read_spilled(std::slice::from_ref(&path), folder.path(), 7);
+        // Facet 40's second corner's y (80-byte header, 4-byte count, 50-byte facets).
+        let at = 84 + 40 * 50 + 24 + 4;
+        let mut changed = bytes.clone();
+        changed[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        std::fs::write(&path, &changed).unwrap();
+        let message = files.weld().unwrap_err().to_string();
+        assert!(message.contains("changing.stl"), "{message}");
+        assert!(message.contains("triangle 40"), "{message}");
     }
 }

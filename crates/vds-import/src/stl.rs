@@ -15,6 +15,7 @@
 //! is checked against the file size before anything is allocated.
 
 use crate::error::{FormatError, Location, Problem};
+use crate::mapped::{FacetRows, FoundRows, RowLayout};
 use crate::soup::MeshSoup;
 
 const HEADER_BYTES: usize = 80;
@@ -92,9 +93,24 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
             })?;
         }
         soup.push_polygon(part, &corners);
-        if soup.spills() && (index + 1) % soup.spill_rows() == 0 {
-            soup.spill_now();
-            soup.done_with_input(&data[..HEADER_BYTES + 4 + (index + 1) * RECORD_BYTES as usize]);
+        let read = index + 1;
+        if soup.spills() && (read % soup.spill_rows() == 0 || read as u64 == count) {
+            // Every facet of the piece made three vertices and one triangle: a spilling
+            // soup reads them again from the map ([`crate::mapped`]).
+            let first = read - soup.triangles.len();
+            let piece = &body[first * RECORD_BYTES as usize..read * RECORD_BYTES as usize];
+            soup.spill_found(FoundRows {
+                address: piece.as_ptr() as usize,
+                bytes: piece.len(),
+                first_row: first as u64,
+                stride: RECORD_BYTES as usize,
+                layout: RowLayout::Facets(FacetRows {
+                    part,
+                    vertex_base: 0,
+                    part_base: 0,
+                }),
+            });
+            soup.done_with_input(&data[..HEADER_BYTES + 4 + read * RECORD_BYTES as usize]);
         }
     }
     soup.parts[part as usize].color = color.mean();

@@ -371,6 +371,57 @@ pub fn write_obj(target_triangles: u64, out: &mut impl std::io::Write) -> std::i
     Ok(totals)
 }
 
+/// Writes the scene [`generate`] makes for `target_triangles` as binary STL, one cell at a
+/// time (memory stays at one cell): each triangle its unit normal (zero for one without
+/// area) and its three corners; STL has neither shared vertices nor parts, so the reader's
+/// weld joins the corners again and the scene is one part. Fails for more than 2³² − 1
+/// triangles, which an STL's count cannot hold.
+pub fn write_stl(target_triangles: u64, out: &mut impl std::io::Write) -> std::io::Result<Totals> {
+    let totals = totals(target_triangles);
+    let count = u32::try_from(totals.triangles).map_err(|_| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "an STL file holds at most 2^32 - 1 triangles",
+        )
+    })?;
+    let mut header = [b' '; 80];
+    let title = b"vds-gen CAD-like scene";
+    header[..title.len()].copy_from_slice(title);
+    out.write_all(&header)?;
+    out.write_all(&count.to_le_bytes())?;
+    let mut buffer = Vec::with_capacity(1 << 20);
+    for cell in cells(target_triangles) {
+        for t in &cell.triangles {
+            let [a, b, c] = t.map(|v| cell.positions[v as usize]);
+            let normal = unit_normal(a, b, c);
+            for value in normal.iter().chain(&a).chain(&b).chain(&c) {
+                buffer.extend_from_slice(&value.to_le_bytes());
+            }
+            buffer.extend_from_slice(&[0, 0]);
+            flush_full(&mut buffer, out)?;
+        }
+    }
+    out.write_all(&buffer)?;
+    Ok(totals)
+}
+
+/// The unit normal of triangle `a b c` (counter-clockwise), zero when it has no area.
+fn unit_normal(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> [f32; 3] {
+    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+    let n = [
+        u[1] * v[2] - u[2] * v[1],
+        u[2] * v[0] - u[0] * v[2],
+        u[0] * v[1] - u[1] * v[0],
+    ];
+    let length = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if length > 0.0 {
+        n.map(|x| x / length)
+    } else {
+        [0.0; 3]
+    }
+}
+
 /// How large a generated scene is.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Totals {
@@ -488,6 +539,31 @@ mod tests {
             assert_eq!(streamed, whole);
             assert_eq!(totals.triangles, scene.triangles.len() as u64);
             assert_eq!(totals.parts, scene.part_count);
+        }
+    }
+
+    #[test]
+    fn stl_holds_every_triangle_s_corners_in_order() {
+        let scene = generate(5_000);
+        let mut stl = Vec::new();
+        let totals = write_stl(5_000, &mut stl).unwrap();
+        let count = scene.triangles.len();
+        assert_eq!(totals.triangles, count as u64);
+        assert_eq!(stl.len(), 84 + 50 * count);
+        assert_eq!(
+            u32::from_le_bytes(stl[80..84].try_into().unwrap()) as usize,
+            count
+        );
+        let f32_at = |at: usize| f32::from_le_bytes(stl[at..at + 4].try_into().unwrap());
+        for (t, corners) in scene.triangles.iter().enumerate() {
+            let record = 84 + 50 * t;
+            for (k, &v) in corners.iter().enumerate() {
+                let p = [0, 1, 2].map(|i| f32_at(record + 12 + 12 * k + 4 * i));
+                assert_eq!(p, scene.positions[v as usize], "triangle {t}, corner {k}");
+            }
+            let normal = [0, 1, 2].map(|i| f32_at(record + 4 * i));
+            let length = normal.iter().map(|x| x * x).sum::<f32>();
+            assert!(length == 0.0 || (length - 1.0).abs() < 1e-5, "{normal:?}");
         }
     }
 }

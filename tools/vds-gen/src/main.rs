@@ -1,6 +1,6 @@
-//! `vds-gen`: writes a deterministic CAD-like scene of about N triangles as binary PLY, or as
-//! Wavefront OBJ when the output's name ends in `.obj`. Either is written one machine cell
-//! at a time, so memory stays flat whatever the size.
+//! `vds-gen`: writes a deterministic CAD-like scene of about N triangles as binary PLY, as
+//! Wavefront OBJ when the output's name ends in `.obj`, or as binary STL when it ends in
+//! `.stl`. Each is written one machine cell at a time, so memory stays flat whatever the size.
 //!
 //! Exit codes: 0 success, 1 the file could not be written, 2 bad command line (a count that
 //! is not a finite number from 1 to 1000M).
@@ -13,13 +13,14 @@ use clap::Parser;
 
 #[derive(Parser)]
 #[command(
-    about = "Generate a deterministic CAD-like scene as binary PLY (or OBJ for a .obj output), in flat memory"
+    about = "Generate a deterministic CAD-like scene as binary PLY (OBJ for a .obj output, binary STL for .stl), in flat memory"
 )]
 struct Args {
     /// Approximate triangle count, from 1 to 1000M (suffixes k and M accepted: 1M, 250k).
     #[arg(long, short, default_value = "1M", value_parser = parse_count)]
     triangles: u64,
-    /// Output file: `.obj` writes Wavefront OBJ, anything else binary PLY.
+    /// Output file: `.obj` writes Wavefront OBJ, `.stl` binary STL (one part, no shared
+    /// vertices), anything else binary PLY.
     #[arg(long, short)]
     out: PathBuf,
 }
@@ -51,10 +52,12 @@ fn parse_count(text: &str) -> Result<u64, String> {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let obj = args
-        .out
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+    let extension_is = |name: &str| {
+        args.out
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case(name))
+    };
+    let (obj, stl) = (extension_is("obj"), extension_is("stl"));
     // Write beside the target and rename, so an interrupted run leaves no partial file.
     let mut temporary = args.out.clone().into_os_string();
     temporary.push(".partial");
@@ -65,6 +68,8 @@ fn main() -> Result<()> {
         let mut out = BufWriter::new(file);
         let totals = if obj {
             vds_gen::write_obj(args.triangles, &mut out)
+        } else if stl {
+            vds_gen::write_stl(args.triangles, &mut out)
         } else {
             vds_gen::write_ply_streamed(args.triangles, &mut out)
         };
@@ -74,12 +79,21 @@ fn main() -> Result<()> {
     };
     std::fs::rename(&temporary, &args.out)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
-    eprintln!(
-        "{}: {} vertices, {} triangles, {} parts",
-        args.out.display(),
-        totals.vertices,
-        totals.triangles,
-        totals.parts
-    );
+    if stl {
+        eprintln!(
+            "{}: {} triangles (STL: one part, {} vertices once welded)",
+            args.out.display(),
+            totals.triangles,
+            totals.vertices
+        );
+    } else {
+        eprintln!(
+            "{}: {} vertices, {} triangles, {} parts",
+            args.out.display(),
+            totals.vertices,
+            totals.triangles,
+            totals.parts
+        );
+    }
     Ok(())
 }
