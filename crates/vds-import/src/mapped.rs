@@ -1,12 +1,14 @@
-//! Rows that a spilling import reads again from the input's map instead of copying them to
-//! its spill files: a binary PLY's fixed-size vertex and face rows, in the layouts nearly
-//! every such file uses (little-endian `float` coordinates; a `uchar` count with `int` or
-//! `uint` indices and an optional `uint` part).
+//! Rows that a spilling import reads again from its input instead of copying them to its
+//! spill files: a binary PLY's fixed-size vertex and face rows, in the layouts nearly every
+//! such file uses (little-endian `float` coordinates; a `uchar` count with `int` or `uint`
+//! indices and an optional `uint` part), and a binary STL's facets.
 //!
 //! Spilling copies every row into the page cache, which costs about as much as reading it (on
 //! the dev VM, about 350 MB/s a core), and the input's own pages are already there: rows
-//! that can be decoded again from the map are only described (where they start, how many,
-//! their layout), and decoded a run at a time whenever the weld or the plan reads them.
+//! that can be decoded again are only described (where they start in the file, how many,
+//! their layout), and decoded from the input's map a run at a time whenever the weld or the
+//! plan reads them, each run's pages let go behind it. The file's length is checked before
+//! each run, so a file truncated since is an error, not SIGBUS.
 //!
 //! The first read checked every row. The file is read again later, so each row is checked
 //! again as it is decoded: a file changed in between is an error naming the file and the row,
@@ -105,11 +107,38 @@ pub(crate) struct MappedRows {
 }
 
 impl MappedRows {
-    /// The bytes of rows `range` (indices into this run).
-    fn raw(&self, range: &Range<u64>) -> &[u8] {
+    /// The bytes of rows `range` (indices into this run), in the map, once the file is
+    /// found to still hold them.
+    ///
+    /// The file may have been truncated since it was first read, and touching the map past
+    /// its end would raise SIGBUS: its length is checked first, so that a file cut short (a
+    /// model written again while a build reads it) is an error naming it. Only a truncation
+    /// in the microseconds between the check and the decode can still raise SIGBUS, the
+    /// contract every read of a mapped input accepts (`source.rs`). Reading the runs by
+    /// offset instead closed even that gap but cost the 20 M scene's plan 0.6 s more: a copy
+    /// of every row, each pass over the model.
+    fn raw(&self, range: &Range<u64>) -> Result<&[u8], ImportError> {
+        let Bytes::Mapped(map, file) = &*self.bytes else {
+            unreachable!("rows are read again only from mapped inputs");
+        };
         let start = self.offset + range.start as usize * self.stride;
         let end = self.offset + range.end as usize * self.stride;
-        &self.bytes[start..end]
+        let length = file.metadata().map_err(|cause| self.io_error(cause))?.len();
+        if length < end as u64 || map.len() < end {
+            let cause = std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                format!("{length} bytes, shorter than when it was first read"),
+            );
+            return Err(self.io_error(cause));
+        }
+        Ok(&map[start..end])
+    }
+
+    fn io_error(&self, cause: std::io::Error) -> ImportError {
+        ImportError::Io {
+            path: self.path.clone(),
+            cause,
+        }
     }
 
     /// Whether `other` continues this run: the next rows of the same map, same layout.
@@ -157,7 +186,7 @@ impl MappedRows {
             RowLayout::Facets(_) => return self.facet_positions(range, out),
             RowLayout::Triangles(_) => unreachable!("positions are not read from face rows"),
         };
-        let raw = self.raw(&range);
+        let raw = self.raw(&range)?;
         let decode = |row: &[u8]| at.map(|a| f32::from_le_bytes(four(&row[a..])));
         let failed = decode_rows(raw, self.stride, out, |rows, out| {
             for (k, (row, p)) in rows.chunks_exact(self.stride).zip(out).enumerate() {
@@ -202,7 +231,7 @@ impl MappedRows {
             }
             RowLayout::Positions { .. } => unreachable!("triangles are not read from vertex rows"),
         };
-        let raw = self.raw(&range);
+        let raw = self.raw(&range)?;
         let failed = match &faces.parts {
             FaceParts::Whole(part) => decode_rows(raw, self.stride, out, |rows, out| {
                 faces
@@ -274,7 +303,7 @@ impl MappedRows {
         range: Range<u64>,
         out: &mut Vec<[f32; 3]>,
     ) -> Result<(), ImportError> {
-        let raw = self.raw(&range);
+        let raw = self.raw(&range)?;
         let corner = |row: &[u8], k: usize| {
             [0, 1, 2].map(|i| f32::from_le_bytes(four(&row[12 + 12 * k + 4 * i..])))
         };

@@ -41,8 +41,10 @@ pub fn format_of(path: &Path) -> Option<(Format, bool)> {
 
 /// An input file's bytes: memory-mapped, or (empty) in memory.
 pub enum Bytes {
-    /// A plain file, or a gzipped file's decompressed temporary copy, mapped.
-    Mapped(memmap2::Mmap),
+    /// A plain file, or a gzipped file's decompressed temporary copy, mapped; with the open
+    /// file, which a spilling import reads again by offset ([`crate::mapped`]): a read past
+    /// a file truncated since is an error, where reading the map would raise SIGBUS.
+    Mapped(memmap2::Mmap, std::fs::File),
     /// An empty file, which cannot be mapped.
     Owned(Vec<u8>),
 }
@@ -51,7 +53,7 @@ impl std::ops::Deref for Bytes {
     type Target = [u8];
     fn deref(&self) -> &[u8] {
         match self {
-            Bytes::Mapped(map) => map,
+            Bytes::Mapped(map, _) => map,
             Bytes::Owned(bytes) => bytes,
         }
     }
@@ -60,7 +62,7 @@ impl std::ops::Deref for Bytes {
 impl std::fmt::Debug for Bytes {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let kind = match self {
-            Bytes::Mapped(_) => "mapped",
+            Bytes::Mapped(..) => "mapped",
             Bytes::Owned(_) => "owned",
         };
         write!(f, "Bytes({kind}, {} bytes)", self.len())
@@ -74,7 +76,7 @@ impl Bytes {
     /// in memory or outside the map.
     #[allow(unsafe_code)]
     pub(crate) fn release(&self, part: &[u8]) {
-        let Bytes::Mapped(map) = self else {
+        let Bytes::Mapped(map, _) = self else {
             return;
         };
         let base = map.as_ptr() as usize;
@@ -198,12 +200,14 @@ pub fn read_bytes(
         if written == 0 {
             return Ok(Bytes::Owned(Vec::new()));
         }
-        return map(&decompressed).map(Bytes::Mapped).map_err(io_error);
+        return map(&decompressed)
+            .map(|m| Bytes::Mapped(m, decompressed))
+            .map_err(io_error);
     }
     if file.metadata().map_err(io_error)?.len() == 0 {
         return Ok(Bytes::Owned(Vec::new()));
     }
-    map(&file).map(Bytes::Mapped).map_err(io_error)
+    map(&file).map(|m| Bytes::Mapped(m, file)).map_err(io_error)
 }
 
 /// Reads a gzipped OBJ file into `soup` as a stream: the decompressed text is never held

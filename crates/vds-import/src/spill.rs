@@ -295,7 +295,7 @@ impl FileSpill {
         let (Some(input), Some(path)) = (&self.input, &self.input_path) else {
             return false;
         };
-        let Bytes::Mapped(map) = &**input else {
+        let Bytes::Mapped(map, _) = &**input else {
             return false;
         };
         // Rows, and the vertices and triangles they make, which the soup must hold.
@@ -1194,5 +1194,25 @@ mod file_tests {
         let message = files.weld().unwrap_err().to_string();
         assert!(message.contains("changing.stl"), "{message}");
         assert!(message.contains("triangle 40"), "{message}");
+    }
+
+    #[test]
+    fn an_input_truncated_after_it_was_read_is_an_error_naming_it() {
+        let folder = tempfile::tempdir().unwrap();
+        for (name, bytes) in [
+            ("cut.ply", binary_ply(false, false)),
+            ("cut.stl", binary_stl()),
+        ] {
+            let path = write(folder.path(), name, &bytes);
+            let files = read_spilled(std::slice::from_ref(&path), folder.path(), 7);
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open(&path)
+                .unwrap()
+                .set_len(bytes.len() as u64 / 2)
+                .unwrap();
+            let message = files.weld().unwrap_err().to_string();
+            assert!(message.contains(name), "{message}");
+        }
     }
 }
