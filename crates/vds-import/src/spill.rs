@@ -20,6 +20,7 @@ use std::io::{BufWriter, Write};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use rayon::prelude::*;
 
@@ -581,24 +582,39 @@ impl SoupFiles {
             .filter(|&(i, &r)| i as u32 == r)
             .count() as u64;
 
-        // Which representatives a triangle that stays uses, and how many triangles go.
-        let mut used = vec![0u64; (vertices as usize).div_ceil(64)];
+        // Which representatives a triangle that stays uses, and how many triangles go; each
+        // run on every core (a bit is set by whichever triangle reaches it first: a load
+        // first, so that the vertex's later triangles, about five, take no atomic write).
+        let used: Vec<AtomicU64> = (0..(vertices as usize).div_ceil(64))
+            .map(|_| AtomicU64::new(0))
+            .collect();
         let mut degenerate = 0u64;
         triangles
             .triangles(|records| {
-                for r in records {
-                    let [a, b, c] = [r[0], r[1], r[2]].map(|v| representative[v as usize]);
-                    if a != b && b != c && a != c {
-                        for v in [a, b, c] {
-                            used[v as usize / 64] |= 1 << (v % 64);
+                degenerate += records
+                    .par_chunks(1 << 14)
+                    .map(|chunk| {
+                        let mut dropped = 0u64;
+                        for r in chunk {
+                            let [a, b, c] = [r[0], r[1], r[2]].map(|v| representative[v as usize]);
+                            if a != b && b != c && a != c {
+                                for v in [a, b, c] {
+                                    let (word, bit) = (&used[v as usize / 64], 1 << (v % 64));
+                                    if word.load(Ordering::Relaxed) & bit == 0 {
+                                        word.fetch_or(bit, Ordering::Relaxed);
+                                    }
+                                }
+                            } else {
+                                dropped += 1;
+                            }
                         }
-                    } else {
-                        degenerate += 1;
-                    }
-                }
+                        dropped
+                    })
+                    .sum::<u64>();
                 Ok::<(), ImportError>(())
             })
             .map_err(|e| e.into(&folder))?;
+        let used: Vec<u64> = used.into_iter().map(AtomicU64::into_inner).collect();
 
         // New indices for the used representatives in input order, and their positions; then
         // every vertex's index through its representative, in place: a representative is

@@ -129,6 +129,7 @@ pub(crate) fn build_within(
         .prefix(".vds-build-")
         .tempdir_in(folder_of(output))
         .with_context(|| format!("cannot make a temporary folder beside {}", output.display()))?;
+    let hashes = crate::hash_files_aside(inputs);
     let mut scene = vds_import::spill_files(inputs, &options, work.path())?;
     if !args.quiet {
         for warning in &scene.warnings {
@@ -138,7 +139,7 @@ pub(crate) fn build_within(
     progress.phase("planning the shards");
     let plan_path = work.path().join("plan.json");
     let threads = rayon::current_num_threads();
-    let basis = plan_basis(&mut scene, inputs, args.pages)?;
+    let basis = plan_basis(&mut scene, inputs, hashes, args.pages)?;
     // Shards enough for one per core to run side by side and for the merge to hold a part,
     // by the measured figures; the plan's shares are only about equal, so its actual shard
     // sizes are checked, and the model cut finer while the merge or a single shard would not

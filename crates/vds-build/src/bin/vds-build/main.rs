@@ -401,6 +401,13 @@ fn hash_file(path: &std::path::Path) -> Result<(u64, u64)> {
     Ok((hasher.digest(), total))
 }
 
+/// The inputs' hashes and sizes ([`hash_file`]), taken on a thread of their own so that
+/// reading the meshes does not wait for them (reading is one thread's work for much of it).
+fn hash_files_aside(inputs: &[PathBuf]) -> std::thread::JoinHandle<Result<Vec<(u64, u64)>>> {
+    let inputs = inputs.to_vec();
+    std::thread::spawn(move || inputs.iter().map(|p| hash_file(p)).collect())
+}
+
 fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) -> Result<Report> {
     if let Some(output) = output {
         check_output(output, inputs)?;
@@ -414,15 +421,7 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
     // The inputs' hashes (for the metadata) are taken on a thread of their own while the
     // meshes are read: reading an OBJ is one thread's work, and the hash costs the bunny's
     // build 4 % of its time when it waits for its turn.
-    let hashes = output.map(|_| {
-        let inputs = inputs.to_vec();
-        std::thread::spawn(move || {
-            inputs
-                .iter()
-                .map(|p| hash_file(p))
-                .collect::<Result<Vec<_>>>()
-        })
-    });
+    let hashes = output.map(|_| hash_files_aside(inputs));
     let bar = spinner(show_progress, "reading meshes");
     let mut scene = vds_import::load_files(inputs, &options)?;
     if !args.quiet {

@@ -18,7 +18,7 @@ use clap::{Parser, Subcommand};
 use vds_build::shard::{self, Plan, PlanMetadata};
 use vds_import::{SpilledScene, Weld};
 
-use crate::{ImportLimits, MAX_THREADS, PageOptions, check_output, hash_file};
+use crate::{ImportLimits, MAX_THREADS, PageOptions, check_output, hash_files_aside};
 
 /// The first arguments that select the sharded build's commands.
 pub const COMMANDS: [&str; 3] = ["plan", "shard", "merge"];
@@ -117,6 +117,7 @@ pub fn main() -> Result<()> {
             check_output(&output, &inputs)?;
             let options = limits.options(Weld::Exact);
             progress.phase("reading meshes");
+            let hashes = hash_files_aside(&inputs);
             let mut scene = vds_import::spill_files(&inputs, &options, &folder_of(&output))?;
             if !cli.quiet {
                 for warning in &scene.warnings {
@@ -124,7 +125,7 @@ pub fn main() -> Result<()> {
                 }
             }
             progress.phase("planning the top of the tree");
-            let basis = plan_basis(&mut scene, &inputs, pages)?;
+            let basis = plan_basis(&mut scene, &inputs, hashes, pages)?;
             let planned = plan_scene(&scene, &basis, &inputs, shards, &output)?;
             let plan = write_plan(
                 scene,
@@ -221,18 +222,23 @@ pub(crate) struct PlanBasis {
     metadata: PlanMetadata,
 }
 
-/// Snaps `scene` to its grid and reads what its plans record.
+/// The inputs' hashes, taken while the scene is read ([`hash_files_aside`]).
+pub(crate) type InputHashes = std::thread::JoinHandle<Result<Vec<(u64, u64)>>>;
+
+/// Snaps `scene` to its grid and reads what its plans record; `hashes` are the inputs'.
 pub(crate) fn plan_basis(
     scene: &mut SpilledScene,
     inputs: &[PathBuf],
+    hashes: InputHashes,
     pages: PageOptions,
 ) -> Result<PlanBasis> {
     let grid = vds_build::snap_positions(&mut scene.positions);
-    let mut files = Vec::new();
-    for input in inputs {
-        let (content_hash, bytes) = hash_file(input)?;
-        files.push((file_name(input), bytes, content_hash));
-    }
+    let hashes = hashes.join().expect("hashing a file does not panic")?;
+    let files = inputs
+        .iter()
+        .zip(hashes)
+        .map(|(input, (content_hash, bytes))| (file_name(input), bytes, content_hash))
+        .collect();
     let metadata = PlanMetadata::of_parts(
         &scene.part_names,
         &scene.parts,
