@@ -38,6 +38,11 @@ const BUCKET_BUFFER: usize = 64 << 10;
 const RECENT_POSITIONS: usize = 1 << 16;
 /// Triangles or vertices read from a spill file at a time (4 MB of triangles).
 const RUN: usize = 1 << 18;
+/// Rows decoded from an input's map at a time ([`crate::mapped`]): the map's pages of a
+/// run are resident until it is decoded (a budgeted build counts them), about 1 MB of a
+/// PLY's faces. (Letting each task's rows go as soon as it had decoded them instead left
+/// more resident: the kernel maps a fault's neighbours, which may be rows already let go.)
+const MAPPED_RUN: u64 = 1 << 16;
 
 /// Where a soup's records lie, run by run in order: in a spill file (the next records of
 /// it) or in an input's map ([`crate::mapped`]).
@@ -105,7 +110,7 @@ impl Segments {
                 Segment::Mapped(rows) => {
                     let mut done = 0;
                     while done < rows.rows {
-                        let n = (rows.rows - done).min(RUN as u64);
+                        let n = (rows.rows - done).min(MAPPED_RUN);
                         decode(rows, done..done + n, &mut buffer).map_err(RunError::Import)?;
                         each(&buffer).map_err(RunError::Caller)?;
                         done += n;
