@@ -24,10 +24,11 @@ use rustc_hash::FxHashMap;
 use crate::ImportError;
 use crate::error::{FormatError, Problem};
 use crate::soup::check_position;
-use crate::source::Bytes;
+use crate::source::{Bytes, FileIdentity};
 
-/// Rows decoded per parallel task.
-const ROWS_PER_TASK: usize = 1 << 14;
+/// Rows decoded per parallel task: a run of rows read again (64 k rows, `spill.rs`) makes
+/// 16 tasks.
+const ROWS_PER_TASK: usize = 1 << 12;
 
 /// How far around a faulting address the kernel may map a file's cached pages too: its
 /// fault-around window (64 KiB by default), or the whole large folio the page cache holds
@@ -39,9 +40,13 @@ const FAULT_AROUND: usize = 2 << 20;
 /// (the address of the first, and their length: a part of the input's map), the index of the
 /// first in its element, the row size and the layout.
 pub(crate) struct FoundRows {
+    /// The address of the first row's first byte.
     pub(crate) address: usize,
+    /// The rows' bytes: their count times `stride`.
     pub(crate) bytes: usize,
+    /// The first row's index in its element.
     pub(crate) first_row: u64,
+    /// Bytes per row.
     pub(crate) stride: usize,
     pub(crate) layout: RowLayout,
 }
@@ -103,6 +108,9 @@ pub(crate) enum FaceParts {
 pub(crate) struct MappedRows {
     pub(crate) bytes: Arc<Bytes>,
     pub(crate) path: PathBuf,
+    /// What the file was when it was mapped (none for a gzipped input's decompressed copy,
+    /// which has no name), checked before each read ([`MappedRows::raw`]).
+    pub(crate) identity: Option<FileIdentity>,
     /// Byte offset of the first row in the map.
     pub(crate) offset: usize,
     /// The first row's index in its element (for errors).
@@ -114,29 +122,31 @@ pub(crate) struct MappedRows {
 
 impl MappedRows {
     /// The bytes of rows `range` (indices into this run), in the map, once the file is
-    /// found to still hold them.
+    /// found to be as it was when it was mapped.
     ///
-    /// The file may have been truncated since it was first read, and touching the map past
-    /// its end would raise SIGBUS: its length is checked first, so that a file cut short (a
-    /// model written again while a build reads it) is an error naming it. Only a truncation
-    /// in the microseconds between the check and the decode can still raise SIGBUS, the
-    /// contract every read of a mapped input accepts (`source.rs`). Reading the runs by
-    /// offset instead closed even that gap but cost the 20 M scene's plan 0.6 s more: a copy
-    /// of every row, each pass over the model.
+    /// The file may have been written since it was first read: truncated (touching the map
+    /// past its end would raise SIGBUS), or changed in place (rows that each still pass
+    /// their checks, but not the model the earlier passes read). Its identity (device,
+    /// inode, length, times of change) is checked first, so that either is an error naming
+    /// it. Only a write in the microseconds between the check and the decode can still get
+    /// through, the contract every read of a mapped input accepts (`source.rs`). Reading the
+    /// runs by offset instead would close the SIGBUS gap but cost the 20 M scene's plan 0.6 s
+    /// more: a copy of every row, each pass over the model.
     fn raw(&self, range: &Range<u64>) -> Result<&[u8], ImportError> {
-        let Bytes::Mapped(map, file) = &*self.bytes else {
+        let Bytes::Mapped(map, _) = &*self.bytes else {
             unreachable!("rows are read again only from mapped inputs");
         };
+        if let Some(identity) = &self.identity {
+            let now = std::fs::metadata(&self.path).map_err(|cause| self.io_error(cause))?;
+            if FileIdentity::of(&now) != *identity {
+                let cause = std::io::Error::other(
+                    "the file changed while the build read it (it is read more than once)",
+                );
+                return Err(self.io_error(cause));
+            }
+        }
         let start = self.offset + range.start as usize * self.stride;
         let end = self.offset + range.end as usize * self.stride;
-        let length = file.metadata().map_err(|cause| self.io_error(cause))?.len();
-        if length < end as u64 || map.len() < end {
-            let cause = std::io::Error::new(
-                std::io::ErrorKind::UnexpectedEof,
-                format!("{length} bytes, shorter than when it was first read"),
-            );
-            return Err(self.io_error(cause));
-        }
         Ok(&map[start..end])
     }
 
@@ -193,39 +203,53 @@ impl MappedRows {
         FormatError::at_element(element, self.first_row + row, problem).in_file(&self.path)
     }
 
-    /// Decodes rows `range` of a vertex run into `out` (its length made the rows').
+    /// Decodes rows `range` of a vertex run (or a run of STL facets, three positions each)
+    /// into `out`.
     pub(crate) fn positions(
         &self,
         range: Range<u64>,
         out: &mut Vec<[f32; 3]>,
     ) -> Result<(), ImportError> {
-        let at = match &self.layout {
-            RowLayout::Positions { at } => *at,
-            RowLayout::Facets(_) => return self.facet_positions(range, out),
+        let raw = self.raw(&range)?;
+        let stride = self.stride;
+        let failed = match &self.layout {
+            RowLayout::Positions { at } => {
+                let at = *at;
+                self.decode_rows(raw, out, 1, |rows, out| {
+                    for (k, (row, p)) in rows.chunks_exact(stride).zip(out).enumerate() {
+                        *p = at.map(|a| f32::from_le_bytes(four(&row[a..])));
+                        check_position(*p).map_err(|problem| (k, problem))?;
+                    }
+                    Ok(())
+                })
+            }
+            RowLayout::Facets(_) => self.decode_rows(raw, out, 3, |rows, out| {
+                for (k, (row, corners)) in
+                    rows.chunks_exact(stride).zip(out.chunks_mut(3)).enumerate()
+                {
+                    for (c, p) in corners.iter_mut().enumerate() {
+                        *p = [0, 1, 2]
+                            .map(|i| f32::from_le_bytes(four(&row[12 + 12 * c + 4 * i..])));
+                        check_position(*p).map_err(|problem| (k, problem))?;
+                    }
+                }
+                Ok(())
+            }),
             RowLayout::Triangles(_) => unreachable!("positions are not read from face rows"),
         };
-        let raw = self.raw(&range)?;
-        let decode = |row: &[u8]| at.map(|a| f32::from_le_bytes(four(&row[a..])));
-        let failed = self.decode_rows(raw, out, |rows, out| {
-            for (k, (row, p)) in rows.chunks_exact(self.stride).zip(out).enumerate() {
-                *p = decode(row);
-                if check_position(*p).is_err() {
-                    return Err(k);
-                }
-            }
-            Ok(())
-        });
-        if let Err(bad) = failed {
-            let row = &raw[bad * self.stride..];
-            let problem = check_position(decode(row)).expect_err("a row that failed");
-            return Err(self.error("vertex", range.start + bad as u64, problem));
+        if let Err((bad, problem)) = failed {
+            let element = match self.layout {
+                RowLayout::Facets(_) => "triangle",
+                _ => "vertex",
+            };
+            return Err(self.error(element, range.start + bad as u64, problem));
         }
         self.let_go(raw);
         Ok(())
     }
 
-    /// Decodes rows `range` of a face run into `[a, b, c, part]` records with the scene's
-    /// indices and parts, into `out` (its length made the rows').
+    /// Decodes rows `range` of a face run (or a run of STL facets) into `[a, b, c, part]`
+    /// records with the scene's indices and parts, into `out`.
     pub(crate) fn triangles(
         &self,
         range: Range<u64>,
@@ -250,102 +274,65 @@ impl MappedRows {
             RowLayout::Positions { .. } => unreachable!("triangles are not read from vertex rows"),
         };
         let raw = self.raw(&range)?;
+        let stride = self.stride;
         let failed = match &faces.parts {
-            FaceParts::Whole(part) => self.decode_rows(raw, out, |rows, out| {
-                faces
-                    .decode(rows, self.stride, out, |_| Ok(*part))
-                    .map_err(|(k, _)| k)
+            FaceParts::Whole(part) => self.decode_rows(raw, out, 1, |rows, out| {
+                faces.decode(rows, stride, out, |_| Ok(*part))
             }),
             FaceParts::Values { at, table } => {
                 let Some(table) = table.get() else {
                     let problem = Problem::Syntax("the faces' parts were never read".into());
                     return Err(self.error("face", range.start, problem));
                 };
-                self.decode_rows(raw, out, |rows, out| {
+                self.decode_rows(raw, out, 1, |rows, out| {
                     // Faces of one part come in runs: the last value's part is kept.
                     let mut last = None;
-                    faces
-                        .decode(rows, self.stride, out, |row| {
-                            let value = u32::from_le_bytes(four(&row[*at..]));
-                            match last {
-                                Some((v, part)) if v == value => Ok(part),
-                                _ => {
-                                    let part = *table.get(&value).ok_or_else(|| {
+                    faces.decode(rows, stride, out, |row| {
+                        let value = u32::from_le_bytes(four(&row[*at..]));
+                        match last {
+                            Some((v, part)) if v == value => Ok(part),
+                            _ => {
+                                let part = *table.get(&value).ok_or_else(|| {
                                     Problem::Syntax(format!(
                                         "part {value} was not in the file when it was first read"
                                     ))
                                 })?;
-                                    last = Some((value, part));
-                                    Ok(part)
-                                }
+                                last = Some((value, part));
+                                Ok(part)
                             }
-                        })
-                        .map_err(|(k, _)| k)
+                        }
+                    })
                 })
             }
         };
-        if let Err(bad) = failed {
-            // Decoded again alone, for its problem.
-            let row = &raw[bad * self.stride..(bad + 1) * self.stride];
-            let mut one = [[0u32; 4]];
-            let problem = match &faces.parts {
-                FaceParts::Whole(part) => faces.decode(row, self.stride, &mut one, |_| Ok(*part)),
-                FaceParts::Values { at, table } => {
-                    faces.decode(row, self.stride, &mut one, |row| {
-                        let value = u32::from_le_bytes(four(&row[*at..]));
-                        table
-                            .get()
-                            .and_then(|t| t.get(&value))
-                            .copied()
-                            .ok_or_else(|| {
-                                Problem::Syntax(format!(
-                                    "part {value} was not in the file when it was first read"
-                                ))
-                            })
-                    })
-                }
-            }
-            .map_err(|(_, problem)| problem)
-            .expect_err("a row that failed");
+        if let Err((bad, problem)) = failed {
             return Err(self.error("face", range.start + bad as u64, problem));
         }
         self.let_go(raw);
         Ok(())
     }
-}
 
-impl MappedRows {
-    /// [`MappedRows::positions`] of a run of STL facets: three per facet.
-    fn facet_positions(
+    /// Decodes the rows of `raw` (this run's, in the map) into `out`, `per_row` records a
+    /// row, a share of [`ROWS_PER_TASK`] rows per task with `decode(rows, records)`, which
+    /// returns the first row it failed on and why; the first failing row in file order, if
+    /// any.
+    fn decode_rows<T: Copy + Default + Send>(
         &self,
-        range: Range<u64>,
-        out: &mut Vec<[f32; 3]>,
-    ) -> Result<(), ImportError> {
-        let raw = self.raw(&range)?;
-        let corner = |row: &[u8], k: usize| {
-            [0, 1, 2].map(|i| f32::from_le_bytes(four(&row[12 + 12 * k + 4 * i..])))
-        };
-        let mut corners: Vec<[[f32; 3]; 3]> = Vec::new();
-        let failed = self.decode_rows(raw, &mut corners, |rows, out| {
-            for (r, (row, corners)) in rows.chunks_exact(self.stride).zip(out).enumerate() {
-                *corners = [0, 1, 2].map(|k| corner(row, k));
-                if corners.iter().any(|&p| check_position(p).is_err()) {
-                    return Err(r);
-                }
-            }
-            Ok(())
-        });
-        if let Err(bad) = failed {
-            let row = &raw[bad * self.stride..];
-            let problem = (0..3)
-                .find_map(|k| check_position(corner(row, k)).err())
-                .expect("a facet that failed");
-            return Err(self.error("triangle", range.start + bad as u64, problem));
-        }
+        raw: &[u8],
+        out: &mut Vec<T>,
+        per_row: usize,
+        decode: impl Fn(&[u8], &mut [T]) -> Result<(), (usize, Problem)> + Sync,
+    ) -> Result<(), (usize, Problem)> {
+        let rows = raw.len() / self.stride;
         out.clear();
-        out.extend(corners.iter().flatten());
-        self.let_go(raw);
-        Ok(())
+        out.resize(rows * per_row, T::default());
+        let decoded = raw
+            .par_chunks(self.stride * ROWS_PER_TASK)
+            .zip(out.par_chunks_mut(ROWS_PER_TASK * per_row))
+            .try_for_each(|(rows, out)| decode(rows, out));
+        // Tasks stop at whichever failure they meet first: the first in file order is found
+        // again on one thread (rows fail only in a file changed since it was first read).
+        decoded.or_else(|_| decode(raw, out))
     }
 }
 
@@ -387,30 +374,6 @@ impl FaceRows {
             record[3] = self.part_base + part(row).map_err(|problem| (k, problem))?;
         }
         Ok(())
-    }
-}
-
-impl MappedRows {
-    /// Decodes the rows of `raw` (this run's, in the map) into `out`, sized to them, a share
-    /// of [`ROWS_PER_TASK`] rows per task with `decode(rows, records)`, which returns the
-    /// index of a row it failed on; the first failing row's index, if any.
-    fn decode_rows<T: Copy + Default + Send>(
-        &self,
-        raw: &[u8],
-        out: &mut Vec<T>,
-        decode: impl Fn(&[u8], &mut [T]) -> Result<(), usize> + Sync,
-    ) -> Result<(), usize> {
-        let rows = raw.len() / self.stride;
-        out.clear();
-        out.resize(rows, T::default());
-        let decoded = raw
-            .par_chunks(self.stride * ROWS_PER_TASK)
-            .zip(out.par_chunks_mut(ROWS_PER_TASK))
-            .try_for_each(|(rows, out)| decode(rows, out));
-        // Tasks stop at whichever failure they meet first: the first in file order is
-        // found again on one thread (rows fail only in a file changed since it was first
-        // read).
-        decoded.or_else(|_| decode(raw, out))
     }
 }
 

@@ -741,7 +741,7 @@ impl PartMap {
             .iter()
             .filter_map(|(&value, &part)| Some((u32::try_from(value).ok()?, part)))
             .collect();
-        // Set once: a file has one face element that reaches here.
+        // The map's only `set`: each face element has a map of its own.
         let _ = self.table.set(table);
     }
 
@@ -1027,15 +1027,9 @@ mod fast {
             return Ok(false);
         }
         let raw = &raw[..bytes];
-        let positions = if [x.1, y.1, z.1] == [Scalar::F32; 3] && !big_endian {
+        let little_f32 = [x.1, y.1, z.1] == [Scalar::F32; 3] && !big_endian;
+        let positions = if little_f32 {
             let offsets = [x.0, y.0, z.0];
-            *found = Some(FoundRows {
-                address: raw.as_ptr() as usize,
-                bytes,
-                first_row,
-                stride,
-                layout: RowLayout::Positions { at: offsets },
-            });
             positions(raw, stride, |row| {
                 offsets.map(|at| f32::from_le_bytes(four(&row[at..])))
             })
@@ -1065,6 +1059,18 @@ mod fast {
         }
         if let Some(found) = row_colors(element, raw, stride, big_endian) {
             colors.extend(found);
+        }
+        // The layout the map's rows are read again in ([`crate::mapped`]).
+        if little_f32 {
+            *found = Some(FoundRows {
+                address: raw.as_ptr() as usize,
+                bytes,
+                first_row,
+                stride,
+                layout: RowLayout::Positions {
+                    at: [x.0, y.0, z.0],
+                },
+            });
         }
         values.skip_bytes(bytes);
         Ok(true)

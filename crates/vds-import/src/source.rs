@@ -41,12 +41,38 @@ pub fn format_of(path: &Path) -> Option<(Format, bool)> {
 
 /// An input file's bytes: memory-mapped, or (empty) in memory.
 pub enum Bytes {
-    /// A plain file, or a gzipped file's decompressed temporary copy, mapped; with the open
-    /// file, which a spilling import reads again by offset ([`crate::mapped`]): a read past
-    /// a file truncated since is an error, where reading the map would raise SIGBUS.
-    Mapped(memmap2::Mmap, std::fs::File),
+    /// A plain file, or a gzipped file's decompressed temporary copy, mapped; for a plain
+    /// file, what it was when it was mapped, which a spilling import checks before it reads
+    /// rows of the map again ([`crate::mapped`]). (A decompressed copy has no name: nothing
+    /// else can change it.)
+    Mapped(memmap2::Mmap, Option<FileIdentity>),
     /// An empty file, which cannot be mapped.
     Owned(Vec<u8>),
+}
+
+/// What tells a file apart from itself changed or replaced: its device and inode, length and
+/// times of last change.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FileIdentity {
+    device: u64,
+    inode: u64,
+    length: u64,
+    modified: (i64, i64),
+    changed: (i64, i64),
+}
+
+impl FileIdentity {
+    /// The identity in `metadata`.
+    pub fn of(metadata: &std::fs::Metadata) -> FileIdentity {
+        use std::os::unix::fs::MetadataExt;
+        FileIdentity {
+            device: metadata.dev(),
+            inode: metadata.ino(),
+            length: metadata.len(),
+            modified: (metadata.mtime(), metadata.mtime_nsec()),
+            changed: (metadata.ctime(), metadata.ctime_nsec()),
+        }
+    }
 }
 
 impl std::ops::Deref for Bytes {
@@ -201,13 +227,17 @@ pub fn read_bytes(
             return Ok(Bytes::Owned(Vec::new()));
         }
         return map(&decompressed)
-            .map(|m| Bytes::Mapped(m, decompressed))
+            .map(|m| Bytes::Mapped(m, None))
             .map_err(io_error);
     }
-    if file.metadata().map_err(io_error)?.len() == 0 {
+    let metadata = file.metadata().map_err(io_error)?;
+    if metadata.len() == 0 {
         return Ok(Bytes::Owned(Vec::new()));
     }
-    map(&file).map(|m| Bytes::Mapped(m, file)).map_err(io_error)
+    let identity = FileIdentity::of(&metadata);
+    map(&file)
+        .map(|m| Bytes::Mapped(m, Some(identity)))
+        .map_err(io_error)
 }
 
 /// Reads a gzipped OBJ file into `soup` as a stream: the decompressed text is never held

@@ -81,7 +81,7 @@ fn main() -> Result<()> {
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     if stl {
         eprintln!(
-            "{}: {} triangles (STL: one part, {} vertices once welded)",
+            "{}: {} triangles (STL: one part; the PLY form has {} vertices)",
             args.out.display(),
             totals.triangles,
             totals.vertices
