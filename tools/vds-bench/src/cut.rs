@@ -75,6 +75,12 @@ fn play(
 ) -> Result<()> {
     let settled = timed != Timed::Adjusts;
     let file = VdtFile::from_bytes(bytes.to_vec())?;
+    // Each page's first node, to count the pages a frame's changes touch.
+    let page_firsts: Vec<u32> = file
+        .directory()
+        .iter()
+        .map(|e| e.first_node.get())
+        .collect();
     let mut runtime = Runtime::new(Box::new(file), tracking)?;
     runtime.set_adjust_threads(threads);
     if resident {
@@ -89,6 +95,10 @@ fn play(
     // What a frame costs per active triangle, and per node folded or unfolded (frames with
     // changes only): the two costs the per-frame-work issue sets out to separate.
     let (mut ns_per_active, mut ns_per_change) = (vec![], vec![]);
+    // Rank tracking's changed nodes a frame, and the pages they lie in: how many units of
+    // change a cut that changed a page's nodes together would make.
+    let (mut changed_nodes, mut changed_pages) = (vec![], vec![]);
+    let mut pages = Vec::new();
     let mut first_ms = 0.0;
     // Folds and unfolds of the timed adjusts: none when each first adjust settled its cut.
     let mut settled_changes = 0u64;
@@ -105,6 +115,13 @@ fn play(
             continue;
         }
         ms.push(elapsed);
+        let nodes = frame.changes.unfolded.iter().chain(&frame.changes.folded);
+        pages.clear();
+        pages.extend(nodes.map(|&id| page_firsts.partition_point(|&f| f <= id)));
+        changed_nodes.push(pages.len() as f64);
+        pages.sort_unstable();
+        pages.dedup();
+        changed_pages.push(pages.len() as f64);
         let changes = frame.stats.folds + frame.stats.unfolds;
         settled_changes += u64::from(changes);
         ns_per_active.push(elapsed * 1e6 / n);
@@ -173,7 +190,8 @@ fn play(
     );
     println!(
         "  {:<28} per frame: {:6.1} ns per active triangle, {:7.0} ns per node folded or \
-         unfolded (medians; {} of {} frames changed)",
+         unfolded (medians; {} of {} frames changed); {:.0} nodes changed in {:.0} pages \
+         (medians, rank tracking)",
         "",
         median(&ns_per_active),
         if ns_per_change.is_empty() {
@@ -183,6 +201,8 @@ fn play(
         },
         ns_per_change.len(),
         ms.len(),
+        median(&changed_nodes),
+        median(&changed_pages),
     );
     Ok(())
 }
