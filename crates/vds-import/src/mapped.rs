@@ -7,12 +7,14 @@
 //! the dev VM, about 350 MB/s a core), and the input's own pages are already there: rows
 //! that can be decoded again are only described (where they start in the file, how many,
 //! their layout), and decoded from the input's map a run at a time whenever the weld or the
-//! plan reads them, each run's pages let go behind it. The file's length is checked before
-//! each run, so a file truncated since is an error, not SIGBUS.
+//! plan reads them, each run's pages let go behind it.
 //!
-//! The first read checked every row. The file is read again later, so each row is checked
-//! again as it is decoded: a file changed in between is an error naming the file and the row,
-//! never a panic or a scene made of both versions' rows.
+//! The first read checked every row, and the file is read again later. Before each run, the
+//! file's identity (device, inode, length, times of change) is compared with what it was when
+//! it was mapped, so a file truncated or written since is an error naming it, not SIGBUS or
+//! a scene made of both versions' rows. A write in the microseconds before a read can still
+//! get through: every row is checked again as it is decoded (an error naming the row), and
+//! the plan refuses a triangle whose corner the weld dropped; never a panic.
 
 use std::ops::Range;
 use std::path::PathBuf;
