@@ -189,8 +189,7 @@ fn read_into(
         temp_folder,
     )?);
     if let Some(spill) = file_soup.spill.0.as_mut() {
-        spill.input = Some(bytes.clone());
-        spill.input_path = Some(path.to_path_buf());
+        spill.input = Some((bytes.clone(), path.to_path_buf()));
     }
     let result = match format {
         Format::Obj => obj::read_obj(&bytes, &name, Some(&materials), file_soup),
@@ -208,7 +207,6 @@ fn read_into(
     };
     if let Some(spill) = file_soup.spill.0.as_mut() {
         spill.input = None;
-        spill.input_path = None;
     }
     result.map_err(|e| e.in_file(path))
 }

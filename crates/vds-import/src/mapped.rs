@@ -106,7 +106,7 @@ pub(crate) enum FaceParts {
 }
 
 /// A run of rows in an input's map, decoded again on every read.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub(crate) struct MappedRows {
     pub(crate) bytes: Arc<Bytes>,
     pub(crate) path: PathBuf,

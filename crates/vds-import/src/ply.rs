@@ -512,10 +512,7 @@ fn read_body(
                     )? {
                         read_vertices(rows, first, values, soup, &mut vertex_colors)?;
                     }
-                    match found {
-                        Some(found) => soup.spill_found(found),
-                        None => soup.spill_now(),
-                    }
+                    soup.spill_found(found);
                     soup.done_with_input(values.consumed());
                 }
             }
@@ -546,10 +543,7 @@ fn read_body(
                         &triangle_colors,
                     );
                     triangle_colors.clear();
-                    match found {
-                        Some(found) => soup.spill_found(found),
-                        None => soup.spill_now(),
-                    }
+                    soup.spill_found(found);
                     soup.done_with_input(values.consumed());
                 }
                 parts.publish();

@@ -156,22 +156,18 @@ impl MeshSoup {
         }
     }
 
-    /// [`MeshSoup::spill_now`] for rows a reader just decoded on a fast path (`found`, now
-    /// the soup's positions or its triangles): a spilling soup whose input is mapped keeps
-    /// them as rows to read again from the map ([`crate::mapped`]) rather than writing them.
-    pub(crate) fn spill_found(&mut self, found: crate::mapped::FoundRows) {
-        if let Some(spill) = self.spill.0.as_mut() {
+    /// [`MeshSoup::spill_now`] after a reader's fast path: when it `found` the rows it just
+    /// decoded (now the soup's positions or triangles) in a mapped input, a spilling soup
+    /// keeps them as rows to read again from the map ([`crate::mapped`]) rather than
+    /// writing them.
+    pub(crate) fn spill_found(&mut self, found: Option<crate::mapped::FoundRows>) {
+        if let (Some(spill), Some(found)) = (self.spill.0.as_mut(), found) {
+            // Taken only when the rows make everything the soup holds.
             let held = (self.positions.len(), self.triangles.len());
-            let vertices = matches!(found.layout, crate::mapped::RowLayout::Positions { .. });
-            let triangles = matches!(found.layout, crate::mapped::RowLayout::Triangles(_));
             if spill.take_mapped(found, held) {
-                if !triangles {
-                    self.positions.clear();
-                }
-                if !vertices {
-                    self.triangles.clear();
-                    self.triangle_parts.clear();
-                }
+                self.positions.clear();
+                self.triangles.clear();
+                self.triangle_parts.clear();
             }
         }
         self.spill_now();

@@ -213,7 +213,6 @@ impl SoupFiles {
             files: self,
             error: None,
             input: None,
-            input_path: None,
             released_to: 0,
         }
     }
@@ -233,10 +232,9 @@ pub(crate) struct FileSpill {
     spilled: (usize, usize),
     /// The first write error; nothing is written after it.
     error: Option<std::io::Error>,
-    /// The file's mapped bytes, whose pages the reader may let go of as it goes.
-    pub(crate) input: Option<Arc<Bytes>>,
-    /// The file's path, for the errors of rows read again from its map.
-    pub(crate) input_path: Option<PathBuf>,
+    /// The file's mapped bytes, whose pages the reader may let go of as it goes, and its
+    /// path (for the errors of rows read again from the map).
+    pub(crate) input: Option<(Arc<Bytes>, PathBuf)>,
     /// The address up to which the input has been released.
     released_to: usize,
 }
@@ -300,10 +298,11 @@ impl FileSpill {
 
     /// Takes rows the reader decoded on a fast path (`found`, now in the soup's arrays) as
     /// runs read again from the input's map rather than spilled, when the input is mapped
-    /// and the rows lie in it: returns whether it did (the caller then clears the arrays);
-    /// otherwise the rows are spilled as usual.
+    /// and the rows lie in it and make all the soup holds (`held`: its vertices and
+    /// triangles): returns whether it did (the caller then clears the arrays); otherwise the
+    /// rows are spilled as usual.
     pub(crate) fn take_mapped(&mut self, found: FoundRows, held: (usize, usize)) -> bool {
-        let (Some(input), Some(path)) = (&self.input, &self.input_path) else {
+        let Some((input, path)) = &self.input else {
             return false;
         };
         let Bytes::Mapped(map, identity) = &**input else {
@@ -357,14 +356,7 @@ impl FileSpill {
             RowLayout::Positions { .. } => files.position_runs.push_mapped(rows),
             RowLayout::Triangles(_) => files.triangle_runs.push_mapped(rows),
             RowLayout::Facets(_) => {
-                let positions = MappedRows {
-                    bytes: rows.bytes.clone(),
-                    path: rows.path.clone(),
-                    identity: rows.identity,
-                    layout: rows.layout.clone(),
-                    ..rows
-                };
-                files.position_runs.push_mapped(positions);
+                files.position_runs.push_mapped(rows.clone());
                 files.triangle_runs.push_mapped(rows);
             }
         }
@@ -374,7 +366,7 @@ impl FileSpill {
     /// Lets the input map drop the pages of `bytes` (the input up to where the reader is)
     /// from this process's memory; only what follows the last call's end is released again.
     pub(crate) fn done_with_input(&mut self, bytes: &[u8]) {
-        if let Some(input) = &self.input {
+        if let Some((input, _)) = &self.input {
             let end = bytes.as_ptr() as usize + bytes.len();
             let start = (bytes.as_ptr() as usize).max(self.released_to);
             if start < end {

@@ -99,7 +99,7 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
             // soup reads them again from the map ([`crate::mapped`]).
             let first = read - soup.triangles.len();
             let piece = &body[first * RECORD_BYTES as usize..read * RECORD_BYTES as usize];
-            soup.spill_found(FoundRows {
+            soup.spill_found(Some(FoundRows {
                 address: piece.as_ptr() as usize,
                 bytes: piece.len(),
                 first_row: first as u64,
@@ -109,7 +109,7 @@ fn read_binary(data: &[u8], name: &str, soup: &mut MeshSoup) -> Result<(), Forma
                     vertex_base: 0,
                     part_base: 0,
                 }),
-            });
+            }));
             soup.done_with_input(&data[..HEADER_BYTES + 4 + read * RECORD_BYTES as usize]);
         }
     }
