@@ -1,11 +1,11 @@
 //! The layout both of the sharded build's files share (a shard's input, `.vdtin`, and its
-//! part, `.vdtpart`): a 32-byte header, one LZ4 frame of the body, and a 24-byte trailer.
-//! Every number is little-endian.
+//! part, `.vdtpart`): a 32-byte header, the body, and a 24-byte trailer. Every number is
+//! little-endian.
 //!
 //! | bytes | field |
 //! |---|---|
 //! | header 0..8 | magic: [`super::INPUT_MAGIC`] or [`super::PART_MAGIC`] |
-//! | header 8..12 | format version (3) |
+//! | header 8..12 | format version (4) |
 //! | header 12..16 | shard index |
 //! | header 16..24 | the plan's id |
 //! | header 24..32 | XXH3-64 of header bytes 0..24 |
@@ -18,16 +18,21 @@
 //! checks the header and trailer, bounds the stated length by what its caller allows before
 //! it allocates, decodes exactly that many bytes and checks the checksum.
 //!
-//! The body is an LZ4 frame (the LZ4 frame format, independent of this crate; independent
-//! blocks of 64 KiB, no checksums of LZ4's own: the trailer's covers the body). Each file is
-//! written once and read once or twice by the next step of the build, so the codec is chosen
-//! for speed over size: on 60-byte records of triangles with their corners' positions (a
-//! shard input's, before its vertices were stored apart) LZ4 compresses twice as fast as
-//! zstd at level −1 and decodes four times as fast (955 against 470 MB/s, 4.9 against
-//! 1.3 GB/s; `lz4 -b1` with its own 4 MiB blocks and `zstd -b --fast=1`), for files 1.6 times
-//! the size (2.8× against 4.5×), and the 20 M scene's build within 512 MiB took a tenth less
-//! time. Blocks of 64 KiB keep an encoder's buffers at about 150 KB: a plan writes many files
-//! at once.
+//! How the body is stored depends on the kind of file ([`Codec::of`]):
+//!
+//! - A shard input's body is an LZ4 frame (the LZ4 frame format, independent of this crate;
+//!   independent blocks of 64 KiB, no checksums of LZ4's own: the trailer's covers the
+//!   body). Each input is written once and read once, so the codec is chosen for speed over
+//!   size: on 60-byte records of triangles with their corners' positions (a shard input's,
+//!   before its vertices were stored apart) LZ4 compresses twice as fast as zstd at level −1
+//!   and decodes four times as fast (955 against 470 MB/s, 4.9 against 1.3 GB/s; `lz4 -b1`
+//!   with its own 4 MiB blocks and `zstd -b --fast=1`), for files 1.6 times the size (2.8×
+//!   against 4.5×), and the 20 M scene's build within 512 MiB took a tenth less time. Blocks
+//!   of 64 KiB keep an encoder's buffers at about 150 KB: a plan writes many files at once.
+//! - A part's body is stored as it is. Most of it is pages already compressed with zstd and
+//!   leaf positions (float bits), on which LZ4 gained only a factor 1.6 (the 20 M scene's
+//!   parts, 42 MB a shard) while its decoding was the largest single cost of the merge, on
+//!   the merge's one reading thread.
 
 use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
@@ -37,19 +42,67 @@ use zerocopy::{FromBytes, IntoBytes};
 
 use super::ShardError;
 
-const VERSION: u32 = 3;
+const VERSION: u32 = 4;
 /// Bytes before the body.
 pub(crate) const HEADER_BYTES: u64 = 32;
 /// Bytes after the body.
 pub(crate) const TRAILER_BYTES: u64 = 24;
 
-/// The most bytes the body of `raw` bytes takes in a file: LZ4's bound for each block of
-/// 64 KiB, its 4-byte length, and the frame's header and end mark.
-pub(crate) fn compressed_bound(raw: u64) -> u64 {
-    const BLOCK: u64 = 64 << 10;
-    let blocks = raw.div_ceil(BLOCK);
-    let per_block = lz4_flex::block::get_maximum_output_size(BLOCK as usize) as u64 + 4;
-    blocks.saturating_mul(per_block).saturating_add(32)
+/// How a file's body is stored (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Codec {
+    /// One LZ4 frame.
+    Lz4,
+    /// The bytes themselves.
+    Raw,
+}
+
+impl Codec {
+    /// The codec of the files that start with `magic`: parts are stored raw, inputs in LZ4.
+    pub(crate) fn of(magic: [u8; 8]) -> Codec {
+        if magic == super::PART_MAGIC {
+            Codec::Raw
+        } else {
+            Codec::Lz4
+        }
+    }
+
+    /// The most bytes a body of `raw` bytes takes in a file: for LZ4, its bound for each
+    /// block of 64 KiB, its 4-byte length, and the frame's header and end mark.
+    pub(crate) fn stored_bound(self, raw: u64) -> u64 {
+        match self {
+            Codec::Raw => raw,
+            Codec::Lz4 => {
+                const BLOCK: u64 = 64 << 10;
+                let blocks = raw.div_ceil(BLOCK);
+                let per_block = lz4_flex::block::get_maximum_output_size(BLOCK as usize) as u64 + 4;
+                blocks.saturating_mul(per_block).saturating_add(32)
+            }
+        }
+    }
+}
+
+/// Where a body being written goes: through an LZ4 frame encoder, or straight to the file.
+enum BodyOut {
+    Lz4(lz4_flex::frame::FrameEncoder<vds_format::AtomicFile>),
+    Raw(vds_format::AtomicFile),
+}
+
+impl BodyOut {
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        match self {
+            BodyOut::Lz4(out) => out.write_all(bytes),
+            BodyOut::Raw(out) => out.write_all(bytes),
+        }
+    }
+
+    /// Ends the body and hands back the file.
+    fn finish(self) -> std::io::Result<vds_format::AtomicFile> {
+        match self {
+            BodyOut::Lz4(out) => out.finish().map_err(Into::into),
+            BodyOut::Raw(out) => Ok(out),
+        }
+    }
 }
 
 /// A new LZ4 frame encoder over `out`: 64 KiB blocks, no checksums of its own.
@@ -72,11 +125,12 @@ pub(crate) struct Trailer {
     body_checksum: u64,
 }
 
-/// A file being written: the body streamed through LZ4 into an [`vds_format::AtomicFile`]
-/// and hashed on the way; [`BodyWriter::finish`] adds the trailer and renames it into place.
+/// A file being written: the body streamed (through LZ4 where its [`Codec`] says so) into an
+/// [`vds_format::AtomicFile`] and hashed on the way; [`BodyWriter::finish`] adds the trailer
+/// and renames it into place.
 pub(crate) struct BodyWriter {
     path: PathBuf,
-    out: lz4_flex::frame::FrameEncoder<vds_format::AtomicFile>,
+    out: BodyOut,
     hasher: Xxh3,
     bytes: u64,
 }
@@ -101,7 +155,10 @@ impl BodyWriter {
         header.extend_from_slice(&plan_id.to_le_bytes());
         header.extend_from_slice(&xxh3_64(&header).to_le_bytes());
         file.write_all(&header).map_err(io)?;
-        let out = encoder(file);
+        let out = match Codec::of(magic) {
+            Codec::Lz4 => BodyOut::Lz4(encoder(file)),
+            Codec::Raw => BodyOut::Raw(file),
+        };
         Ok(BodyWriter {
             path: path.to_path_buf(),
             out,
@@ -127,7 +184,7 @@ impl BodyWriter {
             path: self.path.clone(),
             source,
         };
-        let mut file = self.out.finish().map_err(|e| io(e.into()))?;
+        let mut file = self.out.finish().map_err(io)?;
         let mut trailer = Vec::with_capacity(TRAILER_BYTES as usize);
         trailer.extend_from_slice(&self.bytes.to_le_bytes());
         trailer.extend_from_slice(&self.hasher.digest().to_le_bytes());
@@ -226,18 +283,21 @@ pub(crate) fn read_ends(
 /// body is made); [`BodyReader::finish`] checks that it was read to its end and that its
 /// checksum holds. Until then the bytes are unchecked: readers check every value they take.
 pub(crate) struct BodyReader<'r> {
-    decoder: lz4_flex::frame::FrameDecoder<Box<dyn Read + 'r>>,
+    decoder: Box<dyn Read + 'r>,
     hasher: Xxh3,
     left: u64,
     checksum: u64,
 }
 
 impl<'r> BodyReader<'r> {
-    /// Reads the LZ4 frame `compressed` of the body `trailer` describes.
-    pub(crate) fn new(compressed: impl Read + 'r, trailer: &Trailer) -> Self {
-        let boxed: Box<dyn Read + 'r> = Box::new(compressed);
+    /// Reads `stored`, the body `trailer` describes as `codec` stores it.
+    pub(crate) fn new(stored: impl Read + 'r, codec: Codec, trailer: &Trailer) -> Self {
+        let boxed: Box<dyn Read + 'r> = Box::new(stored);
         BodyReader {
-            decoder: lz4_flex::frame::FrameDecoder::new(boxed),
+            decoder: match codec {
+                Codec::Lz4 => Box::new(lz4_flex::frame::FrameDecoder::new(boxed)),
+                Codec::Raw => boxed,
+            },
             hasher: Xxh3::new(),
             left: trailer.body_bytes,
             checksum: trailer.body_checksum,
@@ -313,7 +373,7 @@ pub(crate) fn file_size(path: &Path) -> Result<u64, ShardError> {
         })
 }
 
-/// The LZ4 frame of file `path`'s body (whose ends [`read_ends`] read).
+/// The stored body of file `path` (whose ends [`read_ends`] read).
 pub(crate) fn body_stream(path: &Path) -> Result<impl Read + use<>, ShardError> {
     let io = |source| ShardError::Io {
         path: path.to_path_buf(),
@@ -323,7 +383,8 @@ pub(crate) fn body_stream(path: &Path) -> Result<impl Read + use<>, ShardError> 
     let size = file.metadata().map_err(io)?.len();
     file.seek(std::io::SeekFrom::Start(HEADER_BYTES))
         .map_err(io)?;
-    // Buffered: the decoder reads each block's 4-byte length before the block.
+    // Buffered: the LZ4 decoder reads each block's 4-byte length before the block, and a
+    // part's records are read a few bytes at a time.
     let body = file.take(size.saturating_sub(HEADER_BYTES + TRAILER_BYTES));
     Ok(std::io::BufReader::with_capacity(1 << 17, body))
 }
@@ -337,9 +398,14 @@ pub(crate) fn encoded(magic: [u8; 8], index: u32, plan_id: u64, body: &[u8]) -> 
     file.extend_from_slice(&index.to_le_bytes());
     file.extend_from_slice(&plan_id.to_le_bytes());
     file.extend_from_slice(&xxh3_64(&file).to_le_bytes());
-    let mut frame = encoder(Vec::new());
-    frame.write_all(body).expect("in memory");
-    file.extend(frame.finish().expect("in memory"));
+    match Codec::of(magic) {
+        Codec::Lz4 => {
+            let mut frame = encoder(Vec::new());
+            frame.write_all(body).expect("in memory");
+            file.extend(frame.finish().expect("in memory"));
+        }
+        Codec::Raw => file.extend_from_slice(body),
+    }
     let mut trailer = Vec::new();
     trailer.extend_from_slice(&(body.len() as u64).to_le_bytes());
     trailer.extend_from_slice(&xxh3_64(body).to_le_bytes());

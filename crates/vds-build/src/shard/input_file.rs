@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use zerocopy::{FromZeros, IntoBytes};
 
-use super::container::{BodyReader, BodyWriter, body_stream, read_ends};
+use super::container::{BodyReader, BodyWriter, Codec, body_stream, read_ends};
 use super::part::{InputTriangle, InputVertex, ShardInput, input_triangle, input_vertex};
 use super::{Plan, PlanScene, ShardError};
 
@@ -302,7 +302,7 @@ pub fn read_shard_input(path: &Path, plan: &Plan, index: u32) -> Result<ShardInp
     let mut vertices = zeroed::<InputVertex>(own + elsewhere).ok_or_else(too_many)?;
     let mut input_triangles = zeroed::<InputTriangle>(triangles).ok_or_else(too_many)?;
     let (own_vertices, other_vertices) = vertices.split_at_mut(own as usize);
-    let mut body = BodyReader::new(body_stream(path)?, &trailer);
+    let mut body = BodyReader::new(body_stream(path)?, Codec::of(INPUT_MAGIC), &trailer);
     body.read_exact(own_vertices.as_mut_bytes()).map_err(bad)?;
     body.read_exact(input_triangles.as_mut_bytes())
         .map_err(bad)?;

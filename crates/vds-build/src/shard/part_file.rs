@@ -37,8 +37,8 @@ use vds_format::{NO_NODE, NodeRecord, TriangleRecord};
 use zerocopy::IntoBytes;
 
 use super::container::{
-    BodyReader, BodyWriter, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, compressed_bound,
-    file_size, parse_header, parse_trailer, read_ends,
+    BodyReader, BodyWriter, Codec, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, file_size,
+    parse_header, parse_trailer, read_ends,
 };
 use super::part::{CrossCorner, OpenPage, RegionPage, RegionPart, RootPart, ShardInput, ShardPart};
 use super::{Plan, ShardError};
@@ -211,13 +211,15 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     };
     let (header, trailer) = read_ends(path, PART_MAGIC, WHAT)?;
     check_stated(plan, header.plan_id, header.index, &trailer).map_err(bad)?;
-    // A file larger than its shard's body could compress to is refused before it is read.
-    let most = HEADER_BYTES + TRAILER_BYTES + compressed_bound(body_limit(plan, header.index));
+    // A file larger than its shard's body is refused before it is read.
+    let most = HEADER_BYTES
+        + TRAILER_BYTES
+        + Codec::of(PART_MAGIC).stored_bound(body_limit(plan, header.index));
     let size = file_size(path)?;
     if size > most {
         return Err(bad(format!("{size} bytes, more than its shard can hold")));
     }
-    let mut body = BodyReader::new(body_stream(path)?, &trailer);
+    let mut body = BodyReader::new(body_stream(path)?, Codec::of(PART_MAGIC), &trailer);
     let part = parse_body(&mut body, plan, header.index).map_err(bad)?;
     body.finish().map_err(bad)?;
     Ok(part)
@@ -254,8 +256,8 @@ pub fn part_from_bytes(data: &[u8], plan: &Plan) -> Result<ShardPart, String> {
     let header = parse_header(data, PART_MAGIC, WHAT)?;
     let trailer = parse_trailer(data)?;
     check_stated(plan, header.plan_id, header.index, &trailer)?;
-    let compressed = &data[HEADER_BYTES as usize..data.len() - TRAILER_BYTES as usize];
-    let mut body = BodyReader::new(compressed, &trailer);
+    let stored = &data[HEADER_BYTES as usize..data.len() - TRAILER_BYTES as usize];
+    let mut body = BodyReader::new(stored, Codec::of(PART_MAGIC), &trailer);
     let part = parse_body(&mut body, plan, header.index)?;
     body.finish()?;
     Ok(part)
@@ -678,7 +680,6 @@ fn check_records(
 mod tests {
     use super::super::container::encoded;
     use super::*;
-    use std::io::Read;
     use vds_import::Scene;
 
     /// A small scene: a bumpy grid of triangles, some sharing corners across cells.
@@ -724,12 +725,8 @@ mod tests {
             let path = dir.path().join("p.vdtpart");
             write_part(&path, &part).unwrap();
             let file = std::fs::read(&path).unwrap();
-            let mut body = Vec::new();
-            lz4_flex::frame::FrameDecoder::new(
-                &file[HEADER_BYTES as usize..file.len() - TRAILER_BYTES as usize],
-            )
-            .read_to_end(&mut body)
-            .unwrap();
+            // A part's body is stored raw.
+            let body = file[HEADER_BYTES as usize..file.len() - TRAILER_BYTES as usize].to_vec();
             let mut seed = 0x9e37_79b9_7f4a_7c15u64;
             let mut random = move || {
                 seed ^= seed << 13;
