@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use vds_format::{EncodedPage, NodeRecord, TriangleRecord};
 use vds_import::Scene;
 use zerocopy::little_endian::{F32, U32, U64};
-use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout, Unaligned};
+use zerocopy::{FromBytes, FromZeros, Immutable, IntoBytes, KnownLayout, Unaligned};
 
 use super::numbering::Mismatch;
 use super::{Plan, PlanScene, ShardError};
@@ -659,16 +659,32 @@ impl Subtree {
 
     /// The subtree's records, with subtri ranges over its triangles, grouped by node and
     /// sorted within a node as the file stores them.
-    fn into_records(mut self, mut owned: Vec<(u32, TriangleRecord)>) -> SubtreeRecords {
-        owned.sort_unstable_by_key(|(node, t)| (*node, t.corners.map(|c| c.get()), t.part.get()));
-        let mut at = 0usize;
-        for (id, node) in self.nodes.iter_mut().enumerate() {
-            let begin = at;
-            while at < owned.len() && owned[at].0 == id as u32 {
-                at += 1;
+    fn into_records(mut self, owned: Vec<(u32, TriangleRecord)>) -> SubtreeRecords {
+        // Grouped by node with a counting sort, then each node's run sorted alone: one
+        // comparison sort of every triangle by (node, corners, part) was 6 % of a shard.
+        // `ends[id]` starts as where node `id`'s run starts and is advanced past each of its
+        // triangles placed: at the end it is where the run ends.
+        let mut ends = vec![0u32; self.nodes.len() + 1];
+        for &(node, _) in &owned {
+            ends[node as usize + 1] += 1;
+        }
+        for i in 0..self.nodes.len() {
+            ends[i + 1] += ends[i];
+        }
+        let mut triangles = vec![TriangleRecord::new_zeroed(); owned.len()];
+        for (node, t) in owned {
+            triangles[ends[node as usize] as usize] = t;
+            ends[node as usize] += 1;
+        }
+        let mut begin = 0usize;
+        for (node, &end) in self.nodes.iter_mut().zip(&ends) {
+            let run = &mut triangles[begin..end as usize];
+            if run.len() > 1 {
+                run.sort_unstable_by_key(|t| (t.corners.map(|c| c.get()), t.part.get()));
             }
             node.subtri_begin = begin as u32;
-            node.subtri_end = at as u32;
+            node.subtri_end = end;
+            begin = end as usize;
         }
         let nodes = self
             .nodes
@@ -681,7 +697,7 @@ impl Subtree {
             .collect();
         SubtreeRecords {
             nodes,
-            triangles: owned.into_iter().map(|(_, t)| t).collect(),
+            triangles,
             sums: self.sums,
             sphere: self.sphere,
         }
