@@ -1003,8 +1003,6 @@ impl Cut {
         starts.clear();
         self.store
             .children_leaf_begins(node.first_child, u32::from(node.child_count), &mut starts);
-        let child_of =
-            |rank: u32| node.first_child + starts.partition_point(|&b| b <= rank) as u32 - 1;
         // A corner outside `id` but inside its parent is, in `id`'s own cut, the sibling
         // holding it: found from the parent's children's ranks, read once.
         let mut siblings = std::mem::take(&mut self.sibling_starts);
@@ -1020,26 +1018,21 @@ impl Cut {
                 &mut siblings,
             );
         }
-        let sibling_of =
-            |rank: u32| parent_first + siblings.partition_point(|&b| b <= rank) as u32 - 1;
+        let own_cut = crate::repeats::OwnCut {
+            node,
+            children: &starts,
+            parent_ranks,
+            parent_first,
+            siblings: &siblings,
+        };
         let mut own = std::mem::take(&mut self.own_corners);
         own.clear();
         for (t, leaves) in (node.subtri_begin..).zip(self.store.subtri_corners(id)) {
-            // Exact where cheap, NIL beyond the parent: a NIL corner (a node outside the
-            // parent) never equals an exact one, so equal own corners give equal signatures.
-            let mut signature = leaves.map(|r| {
-                if node.supports_rank(r) {
-                    child_of(r)
-                } else if parent_ranks.contains(&r) {
-                    sibling_of(r)
-                } else {
-                    NIL
-                }
-            });
-            signature.sort_unstable();
-            own.push((signature, t));
+            own.push((own_cut.signature(*leaves), t));
         }
         self.sibling_starts = siblings;
+        let child_of =
+            |rank: u32| node.first_child + starts.partition_point(|&b| b <= rank) as u32 - 1;
         own.sort_unstable();
         let mut candidates = Vec::new();
         for shared in own.chunk_by(|a, b| a.0 == b.0).filter(|c| c.len() > 1) {
@@ -1775,5 +1768,69 @@ fn shrink_if_sparse<T>(v: &mut Vec<T>, expected: usize) {
     let keep = expected.max(v.len()).max(1024);
     if v.capacity() > 4 * keep {
         v.shrink_to(keep);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vds_format::{VdtFile, WriteOptions};
+
+    /// `name` from `../shared/data` built by `builder` into a `.vdt` file of small pages.
+    fn file_of(name: &str, builder: vds_build::Builder) -> VdtFile<Vec<u8>> {
+        let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/data")
+            .join(name);
+        let mut scene = vds_import::load_file(path, &Default::default()).unwrap();
+        let grid = vds_build::snap_to_grid(&mut scene);
+        let (tree, _) = vds_build::build_tree_by(&scene, builder);
+        let metadata = vds_format::Metadata {
+            part_names: scene.part_names.clone(),
+            ..Default::default()
+        };
+        let content = vds_build::tree_content(&tree, &scene, metadata, grid);
+        let options = WriteOptions {
+            zstd_level: 1,
+            page_bytes: 4096,
+        };
+        VdtFile::from_bytes(vds_format::encode(&content, &options).unwrap().0).unwrap()
+    }
+
+    /// The store marks a node's subtris as unable to repeat when their pages arrive
+    /// (`NodeStore::establish_on_arrival`) only where grouping them at an unfold, the slow
+    /// way, finds no group; and it decides most nodes, the others left to the unfold.
+    #[test]
+    fn subtris_marked_unrepeatable_on_arrival_form_no_group_when_unfolded() {
+        for builder in [vds_build::Builder::Octree, vds_build::Builder::Qem] {
+            for name in ["bunny.obj", "as1_assembly.obj"] {
+                let store = NodeStore::new(Box::new(file_of(name, builder))).unwrap();
+                let mut cut = Cut::new(store, CornerTracking::Ranks);
+                cut.store_mut().load_every_page().unwrap();
+                let (mut marked, mut grouped, mut several) = (0, 0, 0);
+                for id in 0..cut.store().node_count() {
+                    let node = cut.store().node(id);
+                    if node.subtri_count < 2 {
+                        continue;
+                    }
+                    several += 1;
+                    let unrepeatable = cut.store().is_unrepeated(id);
+                    let groups = cut.group_by_ranks(id, &node);
+                    assert!(
+                        !(unrepeatable && groups),
+                        "{name}: node {id} was marked on arrival but its subtris group"
+                    );
+                    marked += usize::from(unrepeatable);
+                    grouped += usize::from(groups);
+                }
+                let what = format!("{name}, {} builder", builder.name());
+                assert!(
+                    marked * 10 > several * 9,
+                    "{what}: {marked} of {several} marked"
+                );
+                if builder == vds_build::Builder::Octree {
+                    assert!(grouped > 0, "{what}: no node's subtris group");
+                }
+            }
+        }
     }
 }

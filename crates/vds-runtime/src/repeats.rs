@@ -31,6 +31,51 @@
 
 use rustc_hash::FxHashMap;
 
+use crate::store::Node;
+
+/// What a subtri's corners are in its node's own cut, as far as that is cheap to find: a
+/// corner under the node is the child holding it, one under the node's parent the sibling
+/// holding it (from the children's and siblings' first leaf ranks, read once per node), and
+/// one further out stands as [`crate::cut::NIL`], which never equals an exact corner. Two
+/// subtris whose [`OwnCut::signature`]s differ therefore differ in the own cut, and cannot
+/// repeat.
+pub(crate) struct OwnCut<'a> {
+    /// The node whose subtris these are.
+    pub(crate) node: &'a Node,
+    /// The first leaf ranks of its children, in order.
+    pub(crate) children: &'a [u32],
+    /// Its parent's leaf range (empty for the root).
+    pub(crate) parent_ranks: std::ops::Range<u32>,
+    /// Its parent's first child.
+    pub(crate) parent_first: u32,
+    /// The first leaf ranks of its parent's children, in order.
+    pub(crate) siblings: &'a [u32],
+}
+
+impl OwnCut<'_> {
+    /// The child of the node that holds `rank`, which the node must support.
+    #[inline]
+    pub(crate) fn child_of(&self, rank: u32) -> u32 {
+        self.node.first_child + self.children.partition_point(|&b| b <= rank) as u32 - 1
+    }
+
+    /// A subtri's corners (leaf ranks) as far as they are known in the own cut, sorted.
+    #[inline]
+    pub(crate) fn signature(&self, leaves: [u32; 3]) -> [u32; 3] {
+        let mut signature = leaves.map(|r| {
+            if self.node.supports_rank(r) {
+                self.child_of(r)
+            } else if self.parent_ranks.contains(&r) {
+                self.parent_first + self.siblings.partition_point(|&b| b <= r) as u32 - 1
+            } else {
+                crate::cut::NIL
+            }
+        });
+        signature.sort_unstable();
+        signature
+    }
+}
+
 /// `corners` rotated to start at the smallest node id: equal for two triangles with the same
 /// corners and winding, different for a triangle and its reverse.
 #[inline]

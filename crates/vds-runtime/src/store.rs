@@ -664,6 +664,10 @@ pub struct NodeStore {
     scratch: Page,
     /// Scratch of [`NodeStore::load_children`]: the children's records.
     children_scratch: Vec<ChildRecords>,
+    /// Working arrays of [`NodeStore::subtris_cannot_repeat`].
+    starts_scratch: Vec<u32>,
+    siblings_scratch: Vec<u32>,
+    signatures_scratch: Vec<([u32; 3], u32)>,
 }
 
 /// The records of one child that [`NodeStore::load_children`] checks.
@@ -792,6 +796,9 @@ impl NodeStore {
             loaded: Vec::new(),
             scratch: empty_page(),
             children_scratch: Vec::new(),
+            starts_scratch: Vec::new(),
+            siblings_scratch: Vec::new(),
+            signatures_scratch: Vec::new(),
         };
         store.load_node(0)?;
         let root = store.node(0);
@@ -1791,6 +1798,14 @@ impl NodeStore {
         if self.is_checked(id) {
             return Ok(());
         }
+        self.check_and_bound(id)?;
+        Ok(())
+    }
+
+    /// [`NodeStore::load_children`]'s checks of resident node `id`'s resident children, and
+    /// then its group bound ([`Hot::group_radius`], [`Hot::group_error`]); marks the node
+    /// checked when they pass.
+    fn check_and_bound(&mut self, id: u32) -> Result<(), VdtError> {
         // The children's records, read a page's run at a time rather than a look-up each.
         let mut children = std::mem::take(&mut self.children_scratch);
         self.gather_children(id, &mut children);
@@ -1814,6 +1829,155 @@ impl NodeStore {
         hot.group_error = error;
         page.checked[(p.local / 64) as usize] |= 1 << (p.local % 64);
         Ok(())
+    }
+
+    /// What a node's first unfold needs to know of the tree, established when a page
+    /// arrives instead, for the parents of the page's sibling groups and for the page's own
+    /// inner nodes, wherever every page it takes is resident: the checks of its children and
+    /// its group bound ([`NodeStore::load_children`]), and whether two of its subtris can
+    /// repeat ([`NodeStore::mark_unrepeated`]). The arriving page's records are in cache here,
+    /// where a fly-through's unfolds, nearly all first ones, found them cold. A node left out
+    /// (a page it takes is not resident, or its children fail the checks) is left to its
+    /// first unfold, which reports any failure.
+    fn establish_on_arrival(&mut self, index: u32) {
+        let slot = self.page_slot[index as usize];
+        let first = self.page_first_node[index as usize];
+        let count = self.resident(slot).hot.len() as u32;
+        let mut previous = NIL;
+        for local in 0..count as usize {
+            let parent = self.resident(slot).topology[local].parent;
+            if parent != previous {
+                previous = parent;
+                self.establish(parent);
+            }
+        }
+        for id in first..first + count {
+            self.establish(id);
+        }
+    }
+
+    /// [`NodeStore::establish_on_arrival`] for node `id` (any id: one not resident, or with
+    /// pages it takes not resident, is left alone).
+    fn establish(&mut self, id: u32) {
+        let Some(p) = self.place(id) else {
+            return;
+        };
+        let page = self.resident(p.slot);
+        let (children, subtris) = (
+            page.hot[p.local as usize].child_count,
+            page.topology[p.local as usize].subtri_count,
+        );
+        if children == 0 || !self.children_resident(id) {
+            return;
+        }
+        if !self.is_checked(id) && self.check_and_bound(id).is_err() {
+            return;
+        }
+        if subtris > 1 && !self.is_unrepeated(id) && self.subtris_cannot_repeat(id) {
+            self.mark_unrepeated(id);
+        }
+    }
+
+    /// True when no two subtris of resident node `id` (checked, its children resident) can
+    /// repeat: none share their [`crate::repeats::OwnCut::signature`], or those that do have
+    /// different corners in `id`'s own cut ([`crate::repeats::groups_of`] finds no group);
+    /// false also when a page that takes is not resident, or a node on the way is not checked
+    /// (its structure is then not known to hold).
+    fn subtris_cannot_repeat(&mut self, id: u32) -> bool {
+        let node = self.node(id);
+        let mut starts = std::mem::take(&mut self.starts_scratch);
+        let mut siblings = std::mem::take(&mut self.siblings_scratch);
+        let mut signatures = std::mem::take(&mut self.signatures_scratch);
+        starts.clear();
+        siblings.clear();
+        signatures.clear();
+        let mut known = true;
+        let (mut parent_ranks, mut parent_first) = (0..0, 0);
+        if node.parent != NO_NODE {
+            if self.place(node.parent).is_some()
+                && self.is_checked(node.parent)
+                && self.children_resident(node.parent)
+            {
+                let parent = self.node(node.parent);
+                parent_ranks = parent.leaf_begin..parent.leaf_end;
+                parent_first = parent.first_child;
+                self.children_leaf_begins(
+                    parent.first_child,
+                    u32::from(parent.child_count),
+                    &mut siblings,
+                );
+            } else {
+                known = false;
+            }
+        }
+        let mut cannot = false;
+        if known {
+            self.children_leaf_begins(node.first_child, u32::from(node.child_count), &mut starts);
+            let own_cut = crate::repeats::OwnCut {
+                node: &node,
+                children: &starts,
+                parent_ranks,
+                parent_first,
+                siblings: &siblings,
+            };
+            let corners = self.subtri_corners(id);
+            signatures.extend(
+                (0..)
+                    .zip(corners)
+                    .map(|(k, &leaves)| (own_cut.signature(leaves), k)),
+            );
+            signatures.sort_unstable();
+            // Subtris sharing a signature: their corners outside the parent, found as the
+            // unfold would, decide.
+            let mut candidates = Vec::new();
+            cannot = signatures
+                .chunk_by(|a, b| a.0 == b.0)
+                .filter(|shared| shared.len() > 1)
+                .flatten()
+                .all(|&(_, k)| {
+                    let exact = corners[k as usize].map(|r| {
+                        if node.supports_rank(r) {
+                            Some(own_cut.child_of(r))
+                        } else {
+                            self.own_cut_corner(r, id)
+                        }
+                    });
+                    match exact {
+                        [Some(a), Some(b), Some(c)] => {
+                            candidates.push(([a, b, c], k));
+                            true
+                        }
+                        _ => false,
+                    }
+                })
+                && crate::repeats::groups_of(&mut candidates).is_empty();
+        }
+        self.starts_scratch = starts;
+        self.siblings_scratch = siblings;
+        self.signatures_scratch = signatures;
+        cannot
+    }
+
+    /// Where leaf rank `rank`, outside resident node `near`, stands in `near`'s own cut: the
+    /// child holding it of the first ancestor that supports it. `None` when an ancestor on
+    /// the way is not resident or not checked, or its children are not resident. (Parents
+    /// precede their children, which the reader checks, so the walk ends.)
+    fn own_cut_corner(&self, rank: u32, near: u32) -> Option<u32> {
+        let mut node = near;
+        loop {
+            let parent = self.parent(node);
+            if parent == NO_NODE
+                || self.place(parent).is_none()
+                || !self.is_checked(parent)
+                || !self.children_resident(parent)
+            {
+                return None;
+            }
+            if self.supports_rank(parent, rank) {
+                return Some(self.child_supporting(parent, rank));
+            }
+            node = parent;
+        }
     }
 
     /// The records of resident node `id`'s resident children, in order, into `out`: one
@@ -1971,6 +2135,7 @@ impl NodeStore {
         self.pages_loaded += 1;
         self.loaded
             .push(page.first_node..page.first_node + page.nodes.len() as u32);
+        self.establish_on_arrival(index);
     }
 
     /// Reads every page of the file that is not resident and makes it resident, over the
