@@ -1030,16 +1030,13 @@ impl Cut {
         for (t, leaves) in (node.subtri_begin..).zip(self.store.subtri_corners(id)) {
             own.push((own_cut.signature(*leaves), t));
         }
-        self.sibling_starts = siblings;
-        let child_of =
-            |rank: u32| node.first_child + starts.partition_point(|&b| b <= rank) as u32 - 1;
         own.sort_unstable();
         let mut candidates = Vec::new();
         for shared in own.chunk_by(|a, b| a.0 == b.0).filter(|c| c.len() > 1) {
             for &(_, t) in shared {
                 let corners = self.store.triangle_corners(t).map(|r| {
                     if node.supports_rank(r) {
-                        child_of(r)
+                        own_cut.child_of(r)
                     } else {
                         self.outside_child(r, id)
                     }
@@ -1049,6 +1046,7 @@ impl Cut {
         }
         self.own_corners = own;
         self.child_starts = starts;
+        self.sibling_starts = siblings;
         if candidates.is_empty() {
             return false;
         }

@@ -39,6 +39,10 @@ use crate::store::Node;
 /// one further out stands as [`crate::cut::NIL`], which never equals an exact corner. Two
 /// subtris whose [`OwnCut::signature`]s differ therefore differ in the own cut, and cannot
 /// repeat.
+///
+/// The node and its parent must be checked (`NodeStore::check_and_bound`): their children
+/// then partition their leaf ranges, so `children[0]` and `siblings[0]` are the node's and
+/// the parent's first leaf ranks, and every rank looked up has a child at or below it.
 pub(crate) struct OwnCut<'a> {
     /// The node whose subtris these are.
     pub(crate) node: &'a Node,

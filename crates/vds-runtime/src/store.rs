@@ -140,7 +140,8 @@ pub struct Hot {
     /// The node's error radius.
     pub error_radius: f32,
     /// Radius of a ball around this node's proxy holding every child's error ball
-    /// (`max ‖child proxy − proxy‖ + child error radius`); zero until the children load.
+    /// (`max ‖child proxy − proxy‖ + child error radius`); zero until the node is checked
+    /// ([`NodeStore::check_and_bound`]).
     pub group_radius: f32,
     /// The largest error radius among the children.
     pub group_error: f32,
@@ -334,10 +335,11 @@ struct ResidentPage {
     /// The page's index in the file.
     index: u32,
     first_triangle: u32,
-    /// One bit per node: its children were checked against it ([`NodeStore::load_children`]).
+    /// One bit per node: its children were checked against it ([`NodeStore::check_and_bound`]).
     checked: Vec<u64>,
-    /// One bit per node: no two of its subtris can ever repeat (found when it last unfolded
-    /// under rank tracking; a fact of the tree, kept while the page is resident).
+    /// One bit per node: no two of its subtris can ever repeat (found on the arrival of a
+    /// page, [`NodeStore::establish_on_arrival`], or when it last unfolded under rank
+    /// tracking; a fact of the tree, kept while the page is resident).
     unrepeated: Vec<u64>,
     corners: Vec<[u32; 3]>,
     parts: Vec<u32>,
@@ -662,15 +664,19 @@ pub struct NodeStore {
     /// Node id ranges of the pages loaded since the last [`NodeStore::take_loaded`].
     loaded: Vec<std::ops::Range<u32>>,
     scratch: Page,
-    /// Scratch of [`NodeStore::load_children`]: the children's records.
+    /// Scratch of [`NodeStore::check_and_bound`]: the children's records.
     children_scratch: Vec<ChildRecords>,
-    /// Working arrays of [`NodeStore::subtris_cannot_repeat`].
+    /// Scratch of [`NodeStore::subtris_cannot_repeat`]: the children's first leaf ranks,
     starts_scratch: Vec<u32>,
+    /// the siblings' first leaf ranks,
     siblings_scratch: Vec<u32>,
+    /// each subtri's signature with its place among the node's subtris,
     signatures_scratch: Vec<([u32; 3], u32)>,
+    /// and the corners of those that share a signature.
+    candidates_scratch: Vec<([u32; 3], u32)>,
 }
 
-/// The records of one child that [`NodeStore::load_children`] checks.
+/// The records of one child that [`NodeStore::check_and_bound`] checks.
 struct ChildRecords {
     hot: Hot,
     shape: Shape,
@@ -799,6 +805,7 @@ impl NodeStore {
             starts_scratch: Vec::new(),
             siblings_scratch: Vec::new(),
             signatures_scratch: Vec::new(),
+            candidates_scratch: Vec::new(),
         };
         store.load_node(0)?;
         let root = store.node(0);
@@ -1782,7 +1789,8 @@ impl NodeStore {
     /// and that they partition `id`'s leaf range in order, as the traversal assumes, and
     /// that their bounds nest in `id`'s as far as quantisation allows ([`VdtError::Bounds`]
     /// otherwise, naming the child's page). The reader validates each page on its own; this
-    /// is the part of the tree that spans pages, checked where it is first relied on.
+    /// is the part of the tree that spans pages, checked where it is first relied on unless the
+    /// arrival of a page checked it before ([`NodeStore::establish_on_arrival`]).
     ///
     /// Fails with [`LoadError::OverBudget`] when the children's pages do not fit in the
     /// memory budget.
@@ -1873,7 +1881,13 @@ impl NodeStore {
         if !self.is_checked(id) && self.check_and_bound(id).is_err() {
             return;
         }
-        if subtris > 1 && !self.is_unrepeated(id) && self.subtris_cannot_repeat(id) {
+        // Only rank tracking reads the mark (a store keeping triangle slots serves the
+        // others).
+        if !self.triangle_slots
+            && subtris > 1
+            && !self.is_unrepeated(id)
+            && self.subtris_cannot_repeat(id)
+        {
             self.mark_unrepeated(id);
         }
     }
@@ -1888,6 +1902,7 @@ impl NodeStore {
         let mut starts = std::mem::take(&mut self.starts_scratch);
         let mut siblings = std::mem::take(&mut self.siblings_scratch);
         let mut signatures = std::mem::take(&mut self.signatures_scratch);
+        let mut candidates = std::mem::take(&mut self.candidates_scratch);
         starts.clear();
         siblings.clear();
         signatures.clear();
@@ -1929,7 +1944,7 @@ impl NodeStore {
             signatures.sort_unstable();
             // Subtris sharing a signature: their corners outside the parent, found as the
             // unfold would, decide.
-            let mut candidates = Vec::new();
+            candidates.clear();
             cannot = signatures
                 .chunk_by(|a, b| a.0 == b.0)
                 .filter(|shared| shared.len() > 1)
@@ -1955,6 +1970,7 @@ impl NodeStore {
         self.starts_scratch = starts;
         self.siblings_scratch = siblings;
         self.signatures_scratch = signatures;
+        self.candidates_scratch = candidates;
         cannot
     }
 
@@ -2008,7 +2024,10 @@ impl NodeStore {
         let mut next_rank = node.leaf_begin;
         for (c, child) in node.children().zip(children) {
             let (leaf_begin, topology) = (child.leaf_begin, &child.topology);
-            if topology.parent != id || leaf_begin != next_rank || topology.depth != node.depth + 1
+            // In u32: a hostile node at the deepest u16 depth must fail, not overflow.
+            if topology.parent != id
+                || leaf_begin != next_rank
+                || u32::from(topology.depth) != u32::from(node.depth) + 1
             {
                 return Err(VdtError::invalid(
                     format!("node {c}"),

@@ -60,24 +60,11 @@ pub(crate) enum Codec {
 impl Codec {
     /// The codec of the files that start with `magic`: parts are stored raw, inputs in LZ4.
     pub(crate) fn of(magic: [u8; 8]) -> Codec {
+        debug_assert!(magic == super::PART_MAGIC || magic == super::INPUT_MAGIC);
         if magic == super::PART_MAGIC {
             Codec::Raw
         } else {
             Codec::Lz4
-        }
-    }
-
-    /// The most bytes a body of `raw` bytes takes in a file: for LZ4, its bound for each
-    /// block of 64 KiB, its 4-byte length, and the frame's header and end mark.
-    pub(crate) fn stored_bound(self, raw: u64) -> u64 {
-        match self {
-            Codec::Raw => raw,
-            Codec::Lz4 => {
-                const BLOCK: u64 = 64 << 10;
-                let blocks = raw.div_ceil(BLOCK);
-                let per_block = lz4_flex::block::get_maximum_output_size(BLOCK as usize) as u64 + 4;
-                blocks.saturating_mul(per_block).saturating_add(32)
-            }
         }
     }
 }

@@ -211,13 +211,15 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     };
     let (header, trailer) = read_ends(path, PART_MAGIC, WHAT)?;
     check_stated(plan, header.plan_id, header.index, &trailer).map_err(bad)?;
-    // A file larger than its shard's body is refused before it is read.
-    let most = HEADER_BYTES
-        + TRAILER_BYTES
-        + Codec::of(PART_MAGIC).stored_bound(body_limit(plan, header.index));
+    // A body is stored raw: the file holds exactly the body its trailer states (which
+    // `check_stated` bounded by the shard's largest body), or it is refused before it is read.
+    debug_assert_eq!(Codec::of(PART_MAGIC), Codec::Raw);
     let size = file_size(path)?;
-    if size > most {
-        return Err(bad(format!("{size} bytes, more than its shard can hold")));
+    if size != HEADER_BYTES + TRAILER_BYTES + trailer.body_bytes {
+        return Err(bad(format!(
+            "{size} bytes, not the {} its trailer states",
+            HEADER_BYTES + TRAILER_BYTES + trailer.body_bytes
+        )));
     }
     let mut body = BodyReader::new(body_stream(path)?, Codec::of(PART_MAGIC), &trailer);
     let part = parse_body(&mut body, plan, header.index).map_err(bad)?;
