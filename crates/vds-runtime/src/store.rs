@@ -141,7 +141,7 @@ pub struct Hot {
     pub error_radius: f32,
     /// Radius of a ball around this node's proxy holding every child's error ball
     /// (`max ‖child proxy − proxy‖ + child error radius`); zero until the node is checked
-    /// ([`NodeStore::check_and_bound`]).
+    /// (`NodeStore::check_and_bound`).
     pub group_radius: f32,
     /// The largest error radius among the children.
     pub group_error: f32,
@@ -1790,7 +1790,7 @@ impl NodeStore {
     /// that their bounds nest in `id`'s as far as quantisation allows ([`VdtError::Bounds`]
     /// otherwise, naming the child's page). The reader validates each page on its own; this
     /// is the part of the tree that spans pages, checked where it is first relied on unless the
-    /// arrival of a page checked it before ([`NodeStore::establish_on_arrival`]).
+    /// arrival of a page checked it before (`NodeStore::establish_on_arrival`).
     ///
     /// Fails with [`LoadError::OverBudget`] when the children's pages do not fit in the
     /// memory budget.
