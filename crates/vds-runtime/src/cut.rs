@@ -1099,9 +1099,12 @@ impl Cut {
     #[inline]
     fn note_ranks_moved(&mut self, begin: u32, end: u32) {
         if !self.watched.is_empty() {
+            // Open-ended and cut short by hand: a bounded range searches the tree for both
+            // ends, and nearly every fold or unfold finds nothing past the first.
             self.repeats.dirty.extend(
                 self.watched
-                    .range((begin, 0)..(end, 0))
+                    .range((begin, 0)..)
+                    .take_while(|&&(rank, _)| rank < end)
                     .map(|&(_, owner)| owner),
             );
         }
