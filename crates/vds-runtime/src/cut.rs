@@ -233,6 +233,8 @@ pub struct Cut {
     repeats: Repeats,
     /// Scratch of `unfold_node`: its subtris' corners in its own cut, for grouping.
     own_corners: Vec<([u32; 3], u32)>,
+    /// Scratch of rank tracking's grouping: the subtris that share their inside corners.
+    candidates: Vec<([u32; 3], u32)>,
     /// Scratch of rank tracking's grouping: the first leaf ranks of the node's siblings.
     sibling_starts: Vec<u32>,
     /// Rank tracking: the nodes whose state changed since the last `take_changes`, with
@@ -285,6 +287,7 @@ impl Cut {
             drawn_len: 0,
             repeats: Repeats::default(),
             own_corners: Vec::new(),
+            candidates: Vec::new(),
             sibling_starts: Vec::new(),
             node_journal: Journal::default(),
             watched: Default::default(),
@@ -1026,31 +1029,20 @@ impl Cut {
             siblings: &siblings,
         };
         let mut own = std::mem::take(&mut self.own_corners);
-        own.clear();
-        for (t, leaves) in (node.subtri_begin..).zip(self.store.subtri_corners(id)) {
-            own.push((own_cut.signature(*leaves), t));
-        }
-        own.sort_unstable();
-        let mut candidates = Vec::new();
-        for shared in own.chunk_by(|a, b| a.0 == b.0).filter(|c| c.len() > 1) {
-            for &(_, t) in shared {
-                let corners = self.store.triangle_corners(t).map(|r| {
-                    if node.supports_rank(r) {
-                        own_cut.child_of(r)
-                    } else {
-                        self.outside_child(r, id)
-                    }
-                });
-                candidates.push((corners, t));
-            }
-        }
+        let mut candidates = std::mem::take(&mut self.candidates);
+        let groups = own_cut
+            .groups(
+                node.subtri_begin,
+                self.store.subtri_corners(id),
+                |r| Some(self.outside_child(r, id)),
+                &mut own,
+                &mut candidates,
+            )
+            .expect("every corner outside an unfolding node is found");
         self.own_corners = own;
+        self.candidates = candidates;
         self.child_starts = starts;
         self.sibling_starts = siblings;
-        if candidates.is_empty() {
-            return false;
-        }
-        let groups = groups_of(&mut candidates);
         if groups.is_empty() {
             return false;
         }

@@ -78,6 +78,45 @@ impl OwnCut<'_> {
         signature.sort_unstable();
         signature
     }
+
+    /// The groups ([`groups_of`]) of the node's subtris `corners`, subtri `k` being triangle
+    /// `first + k`: each subtri's [`OwnCut::signature`] first, then, for those that share
+    /// one, their exact corners, a corner outside the node given by `outside(rank)`. `None`
+    /// when `outside` does not know a corner. `signatures` and `candidates` are scratch.
+    pub(crate) fn groups(
+        &self,
+        first: u32,
+        corners: &[[u32; 3]],
+        mut outside: impl FnMut(u32) -> Option<u32>,
+        signatures: &mut Vec<([u32; 3], u32)>,
+        candidates: &mut Vec<([u32; 3], u32)>,
+    ) -> Option<Vec<Vec<u32>>> {
+        signatures.clear();
+        signatures.extend(
+            (0..)
+                .zip(corners)
+                .map(|(k, &leaves)| (self.signature(leaves), k)),
+        );
+        signatures.sort_unstable();
+        candidates.clear();
+        for shared in signatures
+            .chunk_by(|a, b| a.0 == b.0)
+            .filter(|s| s.len() > 1)
+        {
+            for &(_, k) in shared {
+                let mut exact = [0; 3];
+                for (e, &r) in exact.iter_mut().zip(&corners[k as usize]) {
+                    *e = if self.node.supports_rank(r) {
+                        self.child_of(r)
+                    } else {
+                        outside(r)?
+                    };
+                }
+                candidates.push((exact, first + k));
+            }
+        }
+        Some(groups_of(candidates))
+    }
 }
 
 /// `corners` rotated to start at the smallest node id: equal for two triangles with the same

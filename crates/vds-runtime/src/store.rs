@@ -1905,7 +1905,6 @@ impl NodeStore {
         let mut candidates = std::mem::take(&mut self.candidates_scratch);
         starts.clear();
         siblings.clear();
-        signatures.clear();
         let mut known = true;
         let (mut parent_ranks, mut parent_first) = (0..0, 0);
         if node.parent != NO_NODE {
@@ -1935,37 +1934,15 @@ impl NodeStore {
                 parent_first,
                 siblings: &siblings,
             };
-            let corners = self.subtri_corners(id);
-            signatures.extend(
-                (0..)
-                    .zip(corners)
-                    .map(|(k, &leaves)| (own_cut.signature(leaves), k)),
-            );
-            signatures.sort_unstable();
-            // Subtris sharing a signature: their corners outside the parent, found as the
-            // unfold would, decide.
-            candidates.clear();
-            cannot = signatures
-                .chunk_by(|a, b| a.0 == b.0)
-                .filter(|shared| shared.len() > 1)
-                .flatten()
-                .all(|&(_, k)| {
-                    let exact = corners[k as usize].map(|r| {
-                        if node.supports_rank(r) {
-                            Some(own_cut.child_of(r))
-                        } else {
-                            self.own_cut_corner(r, id)
-                        }
-                    });
-                    match exact {
-                        [Some(a), Some(b), Some(c)] => {
-                            candidates.push(([a, b, c], k));
-                            true
-                        }
-                        _ => false,
-                    }
-                })
-                && crate::repeats::groups_of(&mut candidates).is_empty();
+            cannot = own_cut
+                .groups(
+                    0,
+                    self.subtri_corners(id),
+                    |r| self.own_cut_corner(r, id),
+                    &mut signatures,
+                    &mut candidates,
+                )
+                .is_some_and(|groups| groups.is_empty());
         }
         self.starts_scratch = starts;
         self.siblings_scratch = siblings;
