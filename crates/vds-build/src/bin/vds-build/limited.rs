@@ -3,8 +3,8 @@
 //! the limit. The file is the in-memory build's, byte for byte.
 //!
 //! The shard count comes from what the jobs were measured to hold (`docs/benchmarks.md`,
-//! "Sharded build"): a shard about 105 bytes per triangle it reads, the merge about 175 bytes
-//! per triangle of the part it holds. Shards run side by side, as many as the cores and the
+//! "Sharded build"): a shard about 140–150 bytes per triangle it reads when another runs beside
+//! it, the merge about 175 bytes per triangle of the part it holds. Shards run side by side, as many as the cores and the
 //! limit allow. Their inputs and parts, and the merge's spilled pages, go beside the output
 //! (not `TMPDIR`, which may be memory) and are removed at the end. The import spills the
 //! model to that folder as it reads it and welds it there ([`vds_import::spill_files`]); the
@@ -27,8 +27,10 @@ use crate::sharded::{
 };
 use crate::{Args, check_output, memory_status, peak_rss_bytes};
 
-/// Bytes a shard holds per triangle it reads, with a margin over the 105 measured.
-const SHARD_BYTES_PER_TRIANGLE: u64 = 120;
+/// Bytes a shard holds per triangle it reads, with a margin over the 140–150 measured with
+/// two shards side by side in one process (a shard job alone holds about 113: side by side,
+/// the pages one frees wait up to [`crate::allocator::LIMITED_DECAY_MS`] for reuse).
+const SHARD_BYTES_PER_TRIANGLE: u64 = 160;
 /// Bytes the merge holds per triangle of the part it reads, with a margin over the 175
 /// measured. (Making a part's pages side by side holds them until they are spilled: the
 /// merge job of the 20 M scene's 8 parts then peaked at 107 MB, from 94.)
@@ -76,6 +78,27 @@ struct LimitedOutput {
     path: String,
     bytes: u64,
     pages: u32,
+}
+
+/// The shard count the plan tries first for `triangles` on `threads` cores within `budget`
+/// bytes: enough for one shard per core side by side, each with its fixed overhead, and for
+/// the merge, when the largest shard is an eighth over the mean (the generated scenes' are
+/// 4–5 % over); past `threads` shards, rounded up to a multiple of it so that the last shards
+/// built side by side finish together. A guess short of that makes the plan cut the model
+/// again: 0.5 s of the 20 M scene's 11.5 s in 512 MiB.
+fn first_shard_count(triangles: u64, threads: usize, budget: u64) -> u32 {
+    let threads = threads.max(1) as u64;
+    let per_triangle = MERGE_BYTES_PER_TRIANGLE.max(threads * SHARD_BYTES_PER_TRIANGLE);
+    let room = budget
+        .saturating_sub(threads * SHARD_OVERHEAD_BYTES)
+        .max(budget / 2)
+        .max(1);
+    let bytes = (triangles.saturating_mul(per_triangle) / 8).saturating_mul(9);
+    let mut shards = bytes.div_ceil(room);
+    if shards > threads {
+        shards = shards.div_ceil(threads) * threads;
+    }
+    u32::try_from(shards.clamp(1, u64::from(MAX_SHARDS))).expect("at most MAX_SHARDS")
 }
 
 /// Restarts the count of the process's peak resident memory (`VmHWM`) from what it holds
@@ -144,14 +167,7 @@ pub(crate) fn build_within(
     // by the measured figures; the plan's shares are only about equal, so its actual shard
     // sizes are checked, and the model cut finer while the merge or a single shard would not
     // fit. Fewer shards run side by side where the limit does not hold one per core.
-    let triangles = scene.triangle_count;
-    let per_triangle = MERGE_BYTES_PER_TRIANGLE.max(threads as u64 * SHARD_BYTES_PER_TRIANGLE);
-    let mut shards = u32::try_from(
-        (triangles * per_triangle)
-            .div_ceil(budget)
-            .clamp(1, u64::from(MAX_SHARDS)),
-    )
-    .expect("at most MAX_SHARDS");
+    let mut shards = first_shard_count(scene.triangle_count, threads, budget);
     let mut previous_largest = u64::MAX;
     let (planned, concurrent) = loop {
         let planned = plan_scene(&scene, &basis, inputs, shards, &plan_path)?;
@@ -340,5 +356,47 @@ fn build_shards(
     match failure.into_inner().expect("not poisoned") {
         Some(error) => Err(error),
         None => Ok(parts),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_shard_count_leaves_room_for_shards_side_by_side_and_the_merge() {
+        for threads in [1usize, 2, 16] {
+            for (triangles, budget) in [
+                (1_000u64, 64u64 << 20),
+                (20_000_000, 491 << 20),
+                (200_000_000, 4 << 30),
+                (3_000_000_000, 2 << 30),
+            ] {
+                let case = format!("{triangles} triangles in {budget} bytes on {threads} cores");
+                let shards = first_shard_count(triangles, threads, budget);
+                assert!(shards >= 1, "{case}");
+                if shards == MAX_SHARDS {
+                    continue;
+                }
+                let (shards, cores) = (f64::from(shards), threads as f64);
+                if shards > cores {
+                    assert_eq!(shards % cores, 0.0, "{case}");
+                }
+                // A largest shard an eighth over the mean fits the merge, and beside as many
+                // others as there are cores where their overheads take at most half the budget.
+                let largest = triangles as f64 / shards * 1.125;
+                let budget = budget as f64;
+                assert!(
+                    largest * MERGE_BYTES_PER_TRIANGLE as f64 <= budget,
+                    "{case}"
+                );
+                if cores * (SHARD_OVERHEAD_BYTES as f64) <= budget / 2.0 {
+                    let each =
+                        largest * SHARD_BYTES_PER_TRIANGLE as f64 + SHARD_OVERHEAD_BYTES as f64;
+                    assert!(cores.min(shards) * each <= budget * 1.0001, "{case}");
+                }
+            }
+        }
+        assert_eq!(first_shard_count(1_000, 16, 64 << 20), 1);
     }
 }
