@@ -5,7 +5,7 @@
 //! | bytes | field |
 //! |---|---|
 //! | header 0..8 | magic: [`super::INPUT_MAGIC`] or [`super::PART_MAGIC`] |
-//! | header 8..12 | format version (4) |
+//! | header 8..12 | format version (5) |
 //! | header 12..16 | shard index |
 //! | header 16..24 | the plan's id |
 //! | header 24..32 | XXH3-64 of header bytes 0..24 |
@@ -20,7 +20,8 @@
 //!
 //! How the body is stored depends on the kind of file ([`Codec::of`]):
 //!
-//! - A shard input's body is an LZ4 frame (the LZ4 frame format, independent of this crate;
+//! - A shard input's body (its records in shuffled blocks, [`super::input_file`]) is an LZ4
+//!   frame (the LZ4 frame format, independent of this crate;
 //!   independent blocks of 64 KiB, no checksums of LZ4's own: the trailer's covers the
 //!   body). Each input is written once and read once, so the codec is chosen for speed over
 //!   size: on 60-byte records of triangles with their corners' positions (a shard input's,
@@ -42,7 +43,7 @@ use zerocopy::{FromBytes, IntoBytes};
 
 use super::ShardError;
 
-const VERSION: u32 = 4;
+const VERSION: u32 = 5;
 /// Bytes before the body.
 pub(crate) const HEADER_BYTES: u64 = 32;
 /// Bytes after the body.
