@@ -652,7 +652,10 @@ impl SoupFiles {
         // every vertex's index through its representative, in place: a representative is
         // the lowest index of its group, so it comes first and is already renumbered.
         let mut welded_index = representative;
-        let mut welded = Vec::new();
+        // Room for every representative at once (the kept ones are among them): grown by
+        // doubling, the positions were copied and faulted in again, 0.2 s of the 20 M
+        // scene's plan.
+        let mut welded = Vec::with_capacity(distinct as usize);
         let mut v = 0usize;
         positions
             .positions(|run| {
