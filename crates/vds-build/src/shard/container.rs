@@ -21,15 +21,15 @@
 //! How the body is stored depends on the kind of file ([`Codec::of`]):
 //!
 //! - A shard input's body (its records in shuffled blocks, [`super::input_file`]) is an LZ4
-//!   frame (the LZ4 frame format, independent of this crate;
-//!   independent blocks of 64 KiB, no checksums of LZ4's own: the trailer's covers the
-//!   body). Each input is written once and read once, so the codec is chosen for speed over
-//!   size: on 60-byte records of triangles with their corners' positions (a shard input's,
-//!   before its vertices were stored apart) LZ4 compresses twice as fast as zstd at level −1
-//!   and decodes four times as fast (955 against 470 MB/s, 4.9 against 1.3 GB/s; `lz4 -b1`
-//!   with its own 4 MiB blocks and `zstd -b --fast=1`), for files 1.6 times the size (2.8×
-//!   against 4.5×), and the 20 M scene's build within 512 MiB took a tenth less time. Blocks
-//!   of 64 KiB keep an encoder's buffers at about 150 KB: a plan writes many files at once.
+//!   frame (the LZ4 frame format, independent of this crate; independent blocks of 64 KiB,
+//!   no checksums of LZ4's own: the trailer's covers the body). Each input is written once
+//!   and read once, so the codec is chosen for speed over size: on 60-byte records of
+//!   triangles with their corners' positions (a shard input's, before its vertices were
+//!   stored apart) LZ4 compresses twice as fast as zstd at level −1 and decodes four times
+//!   as fast (955 against 470 MB/s, 4.9 against 1.3 GB/s; `lz4 -b1` with its own 4 MiB
+//!   blocks and `zstd -b --fast=1`), for files 1.6 times the size (2.8× against 4.5×), and
+//!   the 20 M scene's build within 512 MiB took a tenth less time. Blocks of 64 KiB keep an
+//!   encoder's buffers at about 150 KB: a plan writes many files at once.
 //! - A part's body is stored as it is. Most of it is pages already compressed with zstd and
 //!   leaf positions (float bits), on which LZ4 gained only a factor 1.6 (the 20 M scene's
 //!   parts, 42 MB a shard) while its decoding was the largest single cost of the merge, on

@@ -16,7 +16,7 @@
 //! Each run is stored in *shuffled blocks*: its records [`BLOCK_RECORDS`] at a time from the
 //! start of the run (the last block of a run may hold fewer), each block as its records'
 //! first bytes, then their second bytes, and so on (a byte-plane transposition, as Blosc's and
-//! HDF5's shuffle filters make). Ids and positions of neighbouring records share their high
+//! HDF5's shuffle filters do). Ids and positions of neighbouring records share their high
 //! bytes, so the planes hold long repeats, which the body's LZ4 frame finds: the generated
 //! 20 M scene's shard inputs take 1.4 bytes a triangle where the records as they are took 15,
 //! and the scanned dragon's 10 where they took 20. Compressing and writing them were the
@@ -39,19 +39,23 @@ const WHAT: &str = "shard input file";
 const TRIANGLE_BYTES: u64 = size_of::<InputTriangle>() as u64;
 const VERTEX_BYTES: u64 = size_of::<InputVertex>() as u64;
 /// Bytes a shard input file holds while it is written: an open file, an LZ4 encoder (about
-/// 150 KB) and its share of a run of records (a `vds-build plan` of the 10 M scene peaked
-/// 2.8 MB higher per file from 1 to 96 shards, the plan's own records per root included),
-/// besides the ids of its corners in other shards, 4 bytes each once per run, held until the
-/// end of the pass (about 3 % of its triangles' on the generated scenes).
-pub const INPUT_WRITER_BYTES: u64 = 3 << 20;
+/// 150 KB), two shuffled blocks (192 KiB) and its share of a run of records (a `vds-build
+/// plan` of the 10 M scene peaked 2.8 MB higher per file from 1 to 96 shards, the plan's own
+/// records per root included, before blocks were shuffled), besides the ids of its corners in
+/// other shards, 4 bytes each once per run, held until the end of the pass (about 3 % of its
+/// triangles' on the generated scenes).
+pub const INPUT_WRITER_BYTES: u64 = (3 << 20) + (256 << 10);
 /// The most files written by one pass over the scene: many shards take several passes.
 pub const MAX_FILES_PER_PASS: usize = 128;
 /// Triangles or vertices gathered before the files compress them.
 const RECORDS_PER_RUN: usize = 1 << 16;
-/// Records per shuffled block (see the module documentation): 64 or 96 KB of vertices or
-/// triangles, held twice by each file being written. Blocks of 16 K records compressed the
-/// 20 M scene's shard inputs a third better, for four times the memory per file.
-pub const BLOCK_RECORDS: usize = 4096;
+/// Records per shuffled block (see the module documentation): 64 or 96 KiB of vertices or
+/// triangles, held twice by each file being written. Blocks of 16 K records made one of the
+/// 20 M scene's shard inputs a third smaller (shuffled by a script, then `lz4 -1`, whose
+/// blocks are larger than the frame's here), for four times the memory per file.
+const BLOCK_RECORDS: usize = 4096;
+/// Bytes of a block of the largest records, which each writer's buffers are made to hold.
+const BLOCK_BYTES: usize = BLOCK_RECORDS * TRIANGLE_BYTES as usize;
 
 /// How many of `scene`'s triangles each shard of `plan` reads: those with a corner under
 /// one of its roots (`root_of`, from [`super::roots_of_vertices`]).
@@ -219,13 +223,14 @@ impl InputWriter {
         Ok(InputWriter {
             body: BodyWriter::create(path, INPUT_MAGIC, index, plan_id)?,
             record_bytes: VERTEX_BYTES as usize,
-            block: Vec::new(),
-            planes: Vec::new(),
+            block: Vec::with_capacity(BLOCK_BYTES),
+            planes: Vec::with_capacity(BLOCK_BYTES),
         })
     }
 
     /// Appends whole records to the run being written.
     fn put(&mut self, mut records: &[u8]) -> Result<(), ShardError> {
+        debug_assert_eq!(records.len() % self.record_bytes, 0, "whole records");
         let full = BLOCK_RECORDS * self.record_bytes;
         while !records.is_empty() {
             let take = (full - self.block.len()).min(records.len());
@@ -241,11 +246,17 @@ impl InputWriter {
     /// Ends the run being written, with its last block; the next holds records of
     /// `record_bytes`.
     fn next_run(&mut self, record_bytes: usize) -> Result<(), ShardError> {
-        if !self.block.is_empty() {
-            self.write_block()?;
-        }
+        self.end_block()?;
         self.record_bytes = record_bytes;
         Ok(())
+    }
+
+    /// Writes the block gathered so far, if any, shuffled.
+    fn end_block(&mut self) -> Result<(), ShardError> {
+        if self.block.is_empty() {
+            return Ok(());
+        }
+        self.write_block()
     }
 
     fn write_block(&mut self) -> Result<(), ShardError> {
@@ -256,7 +267,7 @@ impl InputWriter {
 
     /// Ends the last run and the file.
     fn finish(mut self) -> Result<(), ShardError> {
-        self.next_run(VERTEX_BYTES as usize)?;
+        self.end_block()?;
         self.body.finish()
     }
 }
@@ -264,6 +275,7 @@ impl InputWriter {
 /// `records`, whole records of `record_bytes` each, as byte planes into `planes`: every
 /// record's first byte, then every record's second byte, and so on.
 fn shuffle(records: &[u8], record_bytes: usize, planes: &mut Vec<u8>) {
+    debug_assert_eq!(records.len() % record_bytes, 0, "whole records");
     let count = records.len() / record_bytes;
     planes.clear();
     planes.resize(records.len(), 0);
@@ -276,6 +288,8 @@ fn shuffle(records: &[u8], record_bytes: usize, planes: &mut Vec<u8>) {
 
 /// Undoes [`shuffle`]: `planes` of whole records of `record_bytes` each into `records`.
 fn unshuffle(planes: &[u8], record_bytes: usize, records: &mut [u8]) {
+    debug_assert_eq!(planes.len(), records.len());
+    debug_assert_eq!(planes.len() % record_bytes, 0, "whole records");
     let count = planes.len() / record_bytes;
     for (b, plane) in planes.chunks_exact(count.max(1)).enumerate() {
         for (&byte, record) in plane.iter().zip(records.chunks_exact_mut(record_bytes)) {
@@ -532,18 +546,17 @@ mod tests {
                     out.extend_from_slice(&planes);
                 }
             }
-            out.extend_from_slice(&bytes[runs[2].end..]);
             out
         };
         let read = |bytes: &[u8]| {
             std::fs::write(&path, encoded(INPUT_MAGIC, 0, plan.id, bytes)).unwrap();
             read_shard_input(&path, &plan, 0)
         };
-        assert_eq!(read(&stored(&good)).unwrap(), input);
+        let good_stored = stored(&good);
+        assert_eq!(read(&good_stored).unwrap(), input);
         let elsewhere = input.vertices.len() - own;
         assert!(elsewhere >= 2, "{elsewhere} vertices elsewhere");
         // Lengths first (the reader checks them before it reads), then contents.
-        let good_stored = stored(&good);
         let mut crafted: Vec<(&str, Vec<u8>)> = Vec::new();
         // Too short for the own vertices and triangles; not a whole vertex past them; more
         // vertices elsewhere than two a triangle.
@@ -574,6 +587,54 @@ mod tests {
                 other => panic!("{what}: {other:?}"),
             }
         }
+    }
+
+    /// Runs written through [`InputWriter`] in pieces that straddle blocks, one longer than a
+    /// block and one empty, come back record for record once each run is unshuffled.
+    #[test]
+    fn a_writer_stores_each_run_in_blocks_from_its_start() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("w.vdtin");
+        let record = |n: usize, bytes: usize, seed: usize| -> Vec<u8> {
+            (0..n * bytes)
+                .map(|i| (i * 31 + seed + i / 97) as u8)
+                .collect()
+        };
+        let vertex = VERTEX_BYTES as usize;
+        let triangle = TRIANGLE_BYTES as usize;
+        let runs = [
+            (record(BLOCK_RECORDS + 3, vertex, 1), vertex),
+            (Vec::new(), triangle),
+            (record(2 * BLOCK_RECORDS + 70, vertex, 2), vertex),
+        ];
+        let mut writer = InputWriter::create(&path, 0, 7).unwrap();
+        for (k, (bytes, record_bytes)) in runs.iter().enumerate() {
+            if k > 0 {
+                writer.next_run(*record_bytes).unwrap();
+            }
+            // Pieces of 1, 1,000 and 3,000 records in turn.
+            let mut rest = &bytes[..];
+            for pieces in [1usize, 1000, 3000].iter().cycle() {
+                if rest.is_empty() {
+                    break;
+                }
+                let (piece, tail) = rest.split_at((pieces * record_bytes).min(rest.len()));
+                writer.put(piece).unwrap();
+                rest = tail;
+            }
+        }
+        writer.finish().unwrap();
+        let (_, trailer) = read_ends(&path, INPUT_MAGIC, WHAT).unwrap();
+        let mut body = BodyReader::new(body_stream(&path).unwrap(), Codec::Lz4, &trailer);
+        let mut scratch = Vec::new();
+        for (bytes, record_bytes) in &runs {
+            let mut run = vec![0u8; bytes.len()];
+            body.read_exact(&mut run).unwrap();
+            assert!(bytes.is_empty() || &run != bytes, "stored shuffled");
+            unshuffle_run(&mut run, *record_bytes, &mut scratch);
+            assert_eq!(&run, bytes);
+        }
+        body.finish().unwrap();
     }
 
     #[test]

@@ -3,8 +3,8 @@
 //! the limit. The file is the in-memory build's, byte for byte.
 //!
 //! The shard count comes from what the jobs were measured to hold (`docs/benchmarks.md`,
-//! "Sharded build"): a shard about 140–150 bytes per triangle it reads when another runs beside
-//! it, the merge about 175 bytes per triangle of the part it holds. Shards run side by side, as many as the cores and the
+//! "Sharded build"): a shard about 140–150 bytes per triangle it reads when another runs
+//! beside it, the merge about 175 bytes per triangle of the part it holds. Shards run side by side, as many as the cores and the
 //! limit allow. Their inputs and parts, and the merge's spilled pages, go beside the output
 //! (not `TMPDIR`, which may be memory) and are removed at the end. The import spills the
 //! model to that folder as it reads it and welds it there ([`vds_import::spill_files`]); the
@@ -80,25 +80,38 @@ struct LimitedOutput {
     pages: u32,
 }
 
+/// How many shards can run side by side on `threads` cores within `budget` bytes whatever
+/// their size: as many as the cores, but no more than leave half the budget after their
+/// fixed overheads.
+fn side_by_side_at_most(threads: usize, budget: u64) -> u64 {
+    (threads.max(1) as u64)
+        .min(budget / 2 / SHARD_OVERHEAD_BYTES)
+        .max(1)
+}
+
 /// The shard count the plan tries first for `triangles` on `threads` cores within `budget`
-/// bytes: enough for one shard per core side by side, each with its fixed overhead, and for
-/// the merge, when the largest shard is an eighth over the mean (the generated scenes' are
-/// 4–5 % over); past `threads` shards, rounded up to a multiple of it so that the last shards
-/// built side by side finish together. A guess short of that makes the plan cut the model
-/// again: 0.5 s of the 20 M scene's 11.5 s in 512 MiB.
+/// bytes: enough for as many shards side by side as [`side_by_side_at_most`] allows, each
+/// with its fixed overhead, and for the merge, when the largest shard is an eighth over the
+/// mean (the generated scenes' are 4–5 % over); past that many shards, rounded up to a
+/// multiple of it so that the last shards built side by side finish together. A guess short
+/// of that makes the plan cut the model again: 0.6 s of the 20 M scene's 11.5 s in 512 MiB.
 fn first_shard_count(triangles: u64, threads: usize, budget: u64) -> u32 {
-    let threads = threads.max(1) as u64;
-    let per_triangle = MERGE_BYTES_PER_TRIANGLE.max(threads * SHARD_BYTES_PER_TRIANGLE);
-    let room = budget
-        .saturating_sub(threads * SHARD_OVERHEAD_BYTES)
-        .max(budget / 2)
-        .max(1);
-    let bytes = (triangles.saturating_mul(per_triangle) / 8).saturating_mul(9);
-    let mut shards = bytes.div_ceil(room);
-    if shards > threads {
-        shards = shards.div_ceil(threads) * threads;
+    let most = u64::from(MAX_SHARDS);
+    let side_by_side = side_by_side_at_most(threads, budget);
+    // The bytes of the largest of `n` shards (an eighth over the mean), times `n`.
+    let largest_bytes =
+        |per_triangle: u64| (triangles.saturating_mul(per_triangle) / 8).saturating_mul(9);
+    let for_merge = largest_bytes(MERGE_BYTES_PER_TRIANGLE).div_ceil(budget.max(1));
+    let for_shards = largest_bytes(side_by_side * SHARD_BYTES_PER_TRIANGLE).div_ceil(
+        budget
+            .saturating_sub(side_by_side * SHARD_OVERHEAD_BYTES)
+            .max(1),
+    );
+    let mut shards = for_merge.max(for_shards).clamp(1, most);
+    if shards > side_by_side {
+        shards = (shards.div_ceil(side_by_side) * side_by_side).min(most);
     }
-    u32::try_from(shards.clamp(1, u64::from(MAX_SHARDS))).expect("at most MAX_SHARDS")
+    u32::try_from(shards).expect("at most MAX_SHARDS")
 }
 
 /// Restarts the count of the process's peak resident memory (`VmHWM`) from what it holds
@@ -181,7 +194,7 @@ pub(crate) fn build_within(
         let merge_fits = largest * MERGE_BYTES_PER_TRIANGLE <= budget;
         let side_by_side =
             (budget / (largest * SHARD_BYTES_PER_TRIANGLE + SHARD_OVERHEAD_BYTES)) as usize;
-        let wanted = threads.min(shards as usize);
+        let wanted = (side_by_side_at_most(threads, budget) as usize).min(shards as usize);
         // Cutting finer lets more shards run side by side only while it still shrinks the
         // largest shard (by a quarter at least): past that, fewer run side by side.
         let still_shrinking = largest.saturating_mul(4) < previous_largest.saturating_mul(3);
@@ -363,40 +376,57 @@ fn build_shards(
 mod tests {
     use super::*;
 
+    /// Whether `shards` shards of `triangles` leave room within `budget` for `side_by_side`
+    /// of the largest, an eighth over the mean, and for the merge of one.
+    fn fits(triangles: u64, shards: u64, side_by_side: u64, budget: u64) -> bool {
+        let largest = triangles as f64 / shards as f64 * 1.125;
+        let each = largest * SHARD_BYTES_PER_TRIANGLE as f64 + SHARD_OVERHEAD_BYTES as f64;
+        largest * MERGE_BYTES_PER_TRIANGLE as f64 <= budget as f64
+            && side_by_side as f64 * each <= budget as f64 * 1.0001
+    }
+
     #[test]
-    fn the_first_shard_count_leaves_room_for_shards_side_by_side_and_the_merge() {
-        for threads in [1usize, 2, 16] {
+    fn the_first_shard_count_is_the_least_that_fits_in_a_multiple_of_the_shards_side_by_side() {
+        for threads in [1usize, 2, 16, 64] {
             for (triangles, budget) in [
                 (1_000u64, 64u64 << 20),
                 (20_000_000, 491 << 20),
                 (200_000_000, 4 << 30),
                 (3_000_000_000, 2 << 30),
+                (50_000_000, 64 << 20),
             ] {
                 let case = format!("{triangles} triangles in {budget} bytes on {threads} cores");
-                let shards = first_shard_count(triangles, threads, budget);
-                assert!(shards >= 1, "{case}");
-                if shards == MAX_SHARDS {
+                let shards = u64::from(first_shard_count(triangles, threads, budget));
+                let side_by_side = side_by_side_at_most(threads, budget);
+                assert!((1..=u64::from(MAX_SHARDS)).contains(&shards), "{case}");
+                if shards == u64::from(MAX_SHARDS) {
                     continue;
                 }
-                let (shards, cores) = (f64::from(shards), threads as f64);
-                if shards > cores {
-                    assert_eq!(shards % cores, 0.0, "{case}");
-                }
-                // A largest shard an eighth over the mean fits the merge, and beside as many
-                // others as there are cores where their overheads take at most half the budget.
-                let largest = triangles as f64 / shards * 1.125;
-                let budget = budget as f64;
                 assert!(
-                    largest * MERGE_BYTES_PER_TRIANGLE as f64 <= budget,
+                    fits(triangles, shards, side_by_side.min(shards), budget),
                     "{case}"
                 );
-                if cores * (SHARD_OVERHEAD_BYTES as f64) <= budget / 2.0 {
-                    let each =
-                        largest * SHARD_BYTES_PER_TRIANGLE as f64 + SHARD_OVERHEAD_BYTES as f64;
-                    assert!(cores.min(shards) * each <= budget * 1.0001, "{case}");
+                // The least such count: one step fewer does not fit.
+                let step = if shards > side_by_side {
+                    assert_eq!(shards % side_by_side, 0, "{case}");
+                    side_by_side
+                } else {
+                    1
+                };
+                if shards > step {
+                    let fewer = shards - step;
+                    assert!(
+                        !fits(triangles, fewer, side_by_side.min(fewer), budget),
+                        "{case}: {fewer} shards would do"
+                    );
                 }
             }
         }
-        assert_eq!(first_shard_count(1_000, 16, 64 << 20), 1);
+        // The counts `docs/benchmarks.md` reports on two cores.
+        let mib = 1u64 << 20;
+        assert_eq!(first_shard_count(20_010_880, 2, 491 * mib), 16);
+        assert_eq!(first_shard_count(1_000, 16, 64 * mib), 1);
+        // Sixteen cores in 64 MiB: overheads would take the budget, so fewer side by side.
+        assert_eq!(side_by_side_at_most(16, 64 * mib), 4);
     }
 }
