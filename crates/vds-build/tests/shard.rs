@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use vds_build::shard::{
     Plan, PlanMetadata, RegionPage, ShardError, ShardPart, build_shard, merge, plan, read_part,
-    write_part,
+    read_part_checked, write_part,
 };
 use vds_build::{build_tree, part_records, snap_to_grid, tree_content};
 use vds_format::{BuildInfo, Grid, Metadata, WriteOptions, encode};
@@ -330,13 +330,59 @@ fn merge_refuses_a_part_that_changes_between_its_passes() {
                 let node = &mut part.roots[0].top_nodes[0];
                 node.proxy[0] = (node.proxy[0].get() + 1.0).into();
             }
-            Ok(part)
+            Ok(part.into())
         },
         &mut Vec::new(),
         &std::env::temp_dir(),
     );
     let error = result.unwrap_err().to_string();
     assert!(error.contains("changed between"), "{error}");
+}
+
+/// Parts read from files are told apart by their checksums, not hashed again: a part file
+/// rewritten between the merge's passes (same plan, same shape) is refused, and one left as
+/// it was merges into the in-memory merge's bytes.
+#[test]
+fn merge_refuses_a_part_file_rewritten_between_its_passes() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned_with(&scene, grid, 2, 256);
+    let all = parts(&scene, &plan);
+    let dir = temp_dir();
+    let paths: Vec<PathBuf> = all
+        .iter()
+        .map(|part| {
+            let path = dir.path().join(format!("shard-{}.vdtpart", part.index));
+            write_part(&path, part).unwrap();
+            path
+        })
+        .collect();
+    let expected = merge(&plan, all.clone()).unwrap();
+    for rewrite in [false, true] {
+        let mut asked = 0;
+        let mut out = Vec::new();
+        let result = vds_build::shard::merge_to(
+            &plan,
+            |k| {
+                asked += 1;
+                if rewrite && asked == plan.shard_count() + 1 {
+                    let mut part = all[k as usize].clone();
+                    let node = &mut part.roots[0].top_nodes[0];
+                    node.proxy[0] = (node.proxy[0].get() + 1.0).into();
+                    write_part(&paths[k as usize], &part).unwrap();
+                }
+                read_part_checked(&paths[k as usize], &plan)
+            },
+            &mut out,
+            &std::env::temp_dir(),
+        );
+        if rewrite {
+            let error = result.unwrap_err().to_string();
+            assert!(error.contains("changed between"), "{error}");
+        } else {
+            result.unwrap();
+            assert_eq!(out, expected);
+        }
+    }
 }
 
 #[test]

@@ -110,7 +110,7 @@ pub(crate) struct Header {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Trailer {
     pub(crate) body_bytes: u64,
-    body_checksum: u64,
+    pub(crate) body_checksum: u64,
 }
 
 /// A file being written: the body streamed (through LZ4 where its [`Codec`] says so) into an

@@ -86,7 +86,7 @@ pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<Vec<u8>, ShardError> 
             } else {
                 slot.clone()
             };
-            Ok(part.expect("every shard is present, once"))
+            Ok(part.expect("every shard is present, once").into())
         },
         &mut out,
         &std::env::temp_dir(),
@@ -98,6 +98,33 @@ fn set(reason: String) -> ShardError {
     ShardError::PartSet(reason)
 }
 
+/// A part as [`merge_to`] is handed it, with the checksum of the file it was read from if it
+/// was (see [`super::read_part_checked`]): what tells the merge's two reads of a part apart
+/// without hashing it again. A part without one is hashed whole.
+#[derive(Debug, Clone)]
+pub struct PartRead {
+    /// The part.
+    pub part: ShardPart,
+    /// Its file's body checksum, verified as it was read.
+    pub checksum: Option<u64>,
+}
+
+impl From<ShardPart> for PartRead {
+    fn from(part: ShardPart) -> PartRead {
+        PartRead {
+            part,
+            checksum: None,
+        }
+    }
+}
+
+impl PartRead {
+    /// What must be the same in both passes: the file's checksum, or a hash of the part.
+    fn stamp(&self) -> u64 {
+        self.checksum.unwrap_or_else(|| digest(&self.part))
+    }
+}
+
 /// [`merge`], writing the file to `out` and asking `part` for each shard's part: twice, in
 /// index order both times (the two passes of the module doc), so that one part is held at a
 /// time; a part that differs between the passes is refused. The regions' pages wait in an
@@ -105,29 +132,29 @@ fn set(reason: String) -> ShardError {
 /// are encoded.
 pub fn merge_to(
     plan: &Plan,
-    mut part: impl FnMut(u32) -> Result<ShardPart, ShardError>,
+    mut part: impl FnMut(u32) -> Result<PartRead, ShardError>,
     out: &mut impl Write,
     spill_folder: &Path,
 ) -> Result<WriteReport, ShardError> {
     let mut top = Top::new(plan);
     let mut digests = Vec::with_capacity(plan.shard_count() as usize);
     for k in 0..plan.shard_count() {
-        let shard = part(k)?;
-        check_part(plan, &shard, k)?;
-        digests.push(digest(&shard));
-        top.gather(&shard)?;
+        let read = part(k)?;
+        check_part(plan, &read.part, k)?;
+        digests.push(read.stamp());
+        top.gather(&read.part)?;
     }
     let top = top.finish()?;
     let mut regions = RegionWriter::new(plan, &top, spill_folder)?;
     for k in 0..plan.shard_count() {
-        let shard = part(k)?;
-        check_part(plan, &shard, k)?;
-        if digest(&shard) != digests[k as usize] {
+        let read = part(k)?;
+        check_part(plan, &read.part, k)?;
+        if read.stamp() != digests[k as usize] {
             return Err(set(format!(
                 "shard {k}: its part changed between the merge's two passes"
             )));
         }
-        regions.write_part(&top, shard)?;
+        regions.write_part(&top, read.part)?;
     }
     regions.finish(top, out)
 }

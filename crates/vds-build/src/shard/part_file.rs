@@ -40,6 +40,7 @@ use super::container::{
     BodyReader, BodyWriter, Codec, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, file_size,
     parse_header, parse_trailer, read_ends,
 };
+use super::merge::PartRead;
 use super::part::{CrossCorner, OpenPage, RegionPage, RegionPart, RootPart, ShardInput, ShardPart};
 use super::{Plan, ShardError};
 use crate::bounds::{Aabb, NormalCone};
@@ -205,6 +206,12 @@ pub fn part_header(path: &Path) -> Result<(u32, u64), ShardError> {
 /// Reads part file `path`, which must be a shard of `plan`, and checks every index it holds.
 /// The body is decoded straight into the part's arrays, never held whole.
 pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
+    read_part_checked(path, plan).map(|read| read.part)
+}
+
+/// [`read_part`], with the file's body checksum (verified): what [`super::merge_to`] compares
+/// between its two reads of a part.
+pub fn read_part_checked(path: &Path, plan: &Plan) -> Result<PartRead, ShardError> {
     let bad = |reason: String| ShardError::BadFile {
         path: path.to_path_buf(),
         reason,
@@ -224,7 +231,10 @@ pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
     let mut body = BodyReader::new(body_stream(path)?, Codec::of(PART_MAGIC), &trailer);
     let part = parse_body(&mut body, plan, header.index).map_err(bad)?;
     body.finish().map_err(bad)?;
-    Ok(part)
+    Ok(PartRead {
+        part,
+        checksum: Some(trailer.body_checksum),
+    })
 }
 
 /// The checks of a part's header and stated body length against the plan, before anything

@@ -4,7 +4,7 @@
 //!
 //! The shard count comes from what the jobs were measured to hold (`docs/benchmarks.md`,
 //! "Sharded build"): a shard about 140–150 bytes per triangle it reads when another runs
-//! beside it, the merge about 175 bytes per triangle of the part it holds. Shards run side by side, as many as the cores and the
+//! beside it, the merge about 175 bytes per triangle of the part it holds, and the next part. Shards run side by side, as many as the cores and the
 //! limit allow. Their inputs and parts, and the merge's spilled pages, go beside the output
 //! (not `TMPDIR`, which may be memory) and are removed at the end. The import spills the
 //! model to that folder as it reads it and welds it there ([`vds_import::spill_files`]); the
@@ -32,9 +32,11 @@ use crate::{Args, check_output, memory_status, peak_rss_bytes};
 /// the pages one frees wait up to [`crate::allocator::LIMITED_DECAY_MS`] for reuse).
 const SHARD_BYTES_PER_TRIANGLE: u64 = 160;
 /// Bytes the merge holds per triangle of the part it reads, with a margin over the 175
-/// measured. (Making a part's pages side by side holds them until they are spilled: the
-/// merge job of the 20 M scene's 8 parts then peaked at 107 MB, from 94.)
-const MERGE_BYTES_PER_TRIANGLE: u64 = 200;
+/// measured, and the next part, read beside it: about 5-20 bytes per triangle more (the
+/// 10 M scene's merge of 2 parts peaked at 117-118 MB, from 90-94). (Making a part's pages
+/// side by side holds them until they are spilled: the merge job of the 20 M scene's 8
+/// parts then peaked at 107 MB, from 94.)
+const MERGE_BYTES_PER_TRIANGLE: u64 = 220;
 /// Bytes a shard job holds whatever its size (its zstd contexts, buffers, the allocator's
 /// caches of its threads).
 const SHARD_OVERHEAD_BYTES: u64 = 8 << 20;

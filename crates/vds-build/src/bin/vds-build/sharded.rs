@@ -333,29 +333,59 @@ pub(crate) fn build_shard_file(
     Ok(shard::write_shard(output, plan, index, input)?)
 }
 
-/// Merges the parts (in shard order) into `output`, one part in memory at a time, each read
-/// twice (the merge's two passes).
+/// Merges the parts (in shard order) into `output`, each read twice (the merge's two passes),
+/// at most two in memory at a time: the one merged and the next, read beside it.
 pub(crate) fn merge_parts(
     plan: &Plan,
     parts: &[&Path],
     output: &Path,
     progress: &Progress,
 ) -> Result<vds_format::WriteReport> {
-    let shards = u64::from(plan.shard_count());
+    let shards = plan.shard_count();
     progress.counted("joining the parts (shards), then writing their pages");
     let mut file = vds_format::AtomicFile::create(output)?;
-    let mut asked = 0u64;
-    let report = shard::merge_to(
-        plan,
-        |k| {
-            asked += 1;
-            progress.set(asked - 1, 2 * shards);
-            shard::read_part(parts[k as usize], plan)
-        },
-        &mut file,
-        // Beside the output, not in TMPDIR, which may be memory.
-        &folder_of(output),
-    )
+    // The merge asks for every part twice, in index order both times (`shard::merge_to`).
+    // Reading one is a core's work (the file copied out of the page cache, its records
+    // checked and its checksum taken), and the merge waited for each: a thread reads the next
+    // part while the merge works on the one before (the 20 M scene's merge of 16 parts
+    // 1.43-1.47 -> 1.13-1.19 s, peak 84-88 -> 108-111 MB).
+    let order = || (0..shards).chain(0..shards);
+    let report = std::thread::scope(|scope| {
+        let (send, receive) = std::sync::mpsc::sync_channel(0);
+        scope.spawn(move || {
+            // Within `--memory-limit` every thread allocates from the build's one arena.
+            crate::allocator::share_one_arena();
+            for k in order() {
+                let part = shard::read_part_checked(parts[k as usize], plan);
+                // The merge stopped (an error): nothing more is wanted.
+                if send.send((k, part)).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut asked = 0u64;
+        let mut expected = order();
+        shard::merge_to(
+            plan,
+            |k| {
+                asked += 1;
+                progress.set(asked - 1, 2 * u64::from(shards));
+                let (read, part) = receive
+                    .recv()
+                    .expect("the reader reads every part the merge asks for");
+                assert!(
+                    expected.next() == Some(k) && read == k,
+                    "the merge asks for the parts in the order they are read"
+                );
+                part
+            },
+            &mut file,
+            // Beside the output, not in TMPDIR, which may be memory.
+            &folder_of(output),
+        )
+        // `receive` is dropped as this returns: a reader still holding a part that nobody
+        // will ask for (after an error) stops, and the scope's wait for it ends.
+    })
     .with_context(|| format!("cannot merge into {}", output.display()))?;
     file.commit()?;
     Ok(report)
