@@ -98,15 +98,14 @@ fn set(reason: String) -> ShardError {
     ShardError::PartSet(reason)
 }
 
-/// A part as [`merge_to`] is handed it, with the checksum of the file it was read from if it
-/// was (see [`super::read_part_checked`]): what tells the merge's two reads of a part apart
-/// without hashing it again. A part without one is hashed whole.
+/// A part as [`merge_to`] is handed it, with what tells the merge's two reads of it apart: the
+/// verified body checksum of the file it was read from ([`super::read_part_checked`]), so that
+/// it is not hashed again, or, for a part made in memory (`From<ShardPart>`), a hash of the
+/// whole part. A part read from a file in one pass and made in memory in the other is refused.
 #[derive(Debug, Clone)]
 pub struct PartRead {
-    /// The part.
-    pub part: ShardPart,
-    /// Its file's body checksum, verified as it was read.
-    pub checksum: Option<u64>,
+    part: ShardPart,
+    checksum: Option<u64>,
 }
 
 impl From<ShardPart> for PartRead {
@@ -118,10 +117,37 @@ impl From<ShardPart> for PartRead {
     }
 }
 
+/// What must be the same in both passes (see [`PartRead`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stamp {
+    File(u64),
+    Digest(u64),
+}
+
 impl PartRead {
-    /// What must be the same in both passes: the file's checksum, or a hash of the part.
-    fn stamp(&self) -> u64 {
-        self.checksum.unwrap_or_else(|| digest(&self.part))
+    /// A part read from a file whose body checksum, `checksum`, was verified.
+    pub(crate) fn from_file(part: ShardPart, checksum: u64) -> PartRead {
+        PartRead {
+            part,
+            checksum: Some(checksum),
+        }
+    }
+
+    /// The part.
+    pub fn part(&self) -> &ShardPart {
+        &self.part
+    }
+
+    /// The part, taken.
+    pub fn into_part(self) -> ShardPart {
+        self.part
+    }
+
+    fn stamp(&self) -> Stamp {
+        match self.checksum {
+            Some(checksum) => Stamp::File(checksum),
+            None => Stamp::Digest(digest(&self.part)),
+        }
     }
 }
 
@@ -137,11 +163,11 @@ pub fn merge_to(
     spill_folder: &Path,
 ) -> Result<WriteReport, ShardError> {
     let mut top = Top::new(plan);
-    let mut digests = Vec::with_capacity(plan.shard_count() as usize);
+    let mut stamps = Vec::with_capacity(plan.shard_count() as usize);
     for k in 0..plan.shard_count() {
         let read = part(k)?;
         check_part(plan, &read.part, k)?;
-        digests.push(read.stamp());
+        stamps.push(read.stamp());
         top.gather(&read.part)?;
     }
     let top = top.finish()?;
@@ -149,7 +175,7 @@ pub fn merge_to(
     for k in 0..plan.shard_count() {
         let read = part(k)?;
         check_part(plan, &read.part, k)?;
-        if read.stamp() != digests[k as usize] {
+        if read.stamp() != stamps[k as usize] {
             return Err(set(format!(
                 "shard {k}: its part changed between the merge's two passes"
             )));

@@ -206,7 +206,7 @@ pub fn part_header(path: &Path) -> Result<(u32, u64), ShardError> {
 /// Reads part file `path`, which must be a shard of `plan`, and checks every index it holds.
 /// The body is decoded straight into the part's arrays, never held whole.
 pub fn read_part(path: &Path, plan: &Plan) -> Result<ShardPart, ShardError> {
-    read_part_checked(path, plan).map(|read| read.part)
+    read_part_checked(path, plan).map(PartRead::into_part)
 }
 
 /// [`read_part`], with the file's body checksum (verified): what [`super::merge_to`] compares
@@ -231,10 +231,7 @@ pub fn read_part_checked(path: &Path, plan: &Plan) -> Result<PartRead, ShardErro
     let mut body = BodyReader::new(body_stream(path)?, Codec::of(PART_MAGIC), &trailer);
     let part = parse_body(&mut body, plan, header.index).map_err(bad)?;
     body.finish().map_err(bad)?;
-    Ok(PartRead {
-        part,
-        checksum: Some(trailer.body_checksum),
-    })
+    Ok(PartRead::from_file(part, trailer.body_checksum))
 }
 
 /// The checks of a part's header and stated body length against the plan, before anything

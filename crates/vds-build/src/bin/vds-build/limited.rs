@@ -4,10 +4,11 @@
 //!
 //! The shard count comes from what the jobs were measured to hold (`docs/benchmarks.md`,
 //! "Sharded build"): a shard about 140–150 bytes per triangle it reads when another runs
-//! beside it, the merge about 175 bytes per triangle of the part it holds, and the next part. Shards run side by side, as many as the cores and the
-//! limit allow. Their inputs and parts, and the merge's spilled pages, go beside the output
-//! (not `TMPDIR`, which may be memory) and are removed at the end. The import spills the
-//! model to that folder as it reads it and welds it there ([`vds_import::spill_files`]); the
+//! beside it, the merge about 175 bytes per triangle of the part it holds, and the next part.
+//! Shards run side by side, as many as the cores and the limit allow. Their inputs and parts,
+//! and the merge's spilled pages, go beside the output (not `TMPDIR`, which may be memory)
+//! and are removed at the end. The import spills the model to that folder as it reads it and
+//! welds it there ([`vds_import::spill_files`]); the
 //! plan then holds 16 bytes per welded vertex (position, root) and 4 per input vertex (weld).
 //! The build reports the import's and plan's peak and the shards' and merge's apart, and warns
 //! when either is over the limit.

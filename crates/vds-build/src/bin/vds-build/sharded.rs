@@ -353,7 +353,8 @@ pub(crate) fn merge_parts(
     let report = std::thread::scope(|scope| {
         let (send, receive) = std::sync::mpsc::sync_channel(0);
         scope.spawn(move || {
-            // Within `--memory-limit` every thread allocates from the build's one arena.
+            // From the arena the other threads of a build within `--memory-limit` share (for a
+            // merge job alone, the main thread's arena: no matter).
             crate::allocator::share_one_arena();
             for k in order() {
                 let part = shard::read_part_checked(parts[k as usize], plan);
