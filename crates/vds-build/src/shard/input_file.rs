@@ -539,12 +539,7 @@ mod tests {
                 .iter()
                 .zip([VERTEX_BYTES, TRIANGLE_BYTES, VERTEX_BYTES])
             {
-                let record_bytes = record_bytes as usize;
-                for block in bytes[run.clone()].chunks(BLOCK_RECORDS * record_bytes) {
-                    let mut planes = Vec::new();
-                    shuffle(block, record_bytes, &mut planes);
-                    out.extend_from_slice(&planes);
-                }
+                out.extend(shuffled_run(&bytes[run.clone()], record_bytes as usize));
             }
             out
         };
@@ -651,21 +646,33 @@ mod tests {
                 let records: Vec<u8> = (0..count * record_bytes)
                     .map(|i| (i * 7 + i / 251) as u8)
                     .collect();
-                let mut stored = Vec::new();
-                for block in records.chunks(BLOCK_RECORDS * record_bytes) {
-                    let mut planes = Vec::new();
-                    shuffle(block, record_bytes, &mut planes);
-                    assert_eq!(planes.len(), block.len());
+                let stored = shuffled_run(&records, record_bytes);
+                assert_eq!(stored.len(), records.len());
+                for (block, planes) in records
+                    .chunks(BLOCK_RECORDS * record_bytes)
+                    .zip(stored.chunks(BLOCK_RECORDS * record_bytes))
+                {
                     if block.len() > record_bytes {
                         assert_eq!(planes[1], block[record_bytes], "the first plane");
                     }
-                    stored.extend_from_slice(&planes);
                 }
                 let mut back = stored.clone();
                 unshuffle_run(&mut back, record_bytes, &mut Vec::new());
                 assert_eq!(back, records, "{count} records of {record_bytes} bytes");
             }
         }
+    }
+
+    /// A run of whole records of `record_bytes` each, stored as the writer stores it: in
+    /// shuffled blocks from its start.
+    fn shuffled_run(records: &[u8], record_bytes: usize) -> Vec<u8> {
+        let mut out = Vec::with_capacity(records.len());
+        let mut planes = Vec::new();
+        for block in records.chunks(BLOCK_RECORDS * record_bytes) {
+            shuffle(block, record_bytes, &mut planes);
+            out.extend_from_slice(&planes);
+        }
+        out
     }
 
     fn vertices(ids: &[u32]) -> Vec<InputVertex> {

@@ -133,11 +133,6 @@ impl PartRead {
         }
     }
 
-    /// The part.
-    pub fn part(&self) -> &ShardPart {
-        &self.part
-    }
-
     /// The part, taken.
     pub fn into_part(self) -> ShardPart {
         self.part

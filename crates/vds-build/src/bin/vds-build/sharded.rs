@@ -364,18 +364,17 @@ pub(crate) fn merge_parts(
                 }
             }
         });
-        let mut asked = 0u64;
-        let mut expected = order();
+        let mut expected = order().enumerate();
         shard::merge_to(
             plan,
             |k| {
-                asked += 1;
-                progress.set(asked - 1, 2 * u64::from(shards));
+                let (asked, want) = expected.next().expect("each part asked for twice");
+                progress.set(asked as u64, 2 * u64::from(shards));
                 let (read, part) = receive
                     .recv()
                     .expect("the reader reads every part the merge asks for");
                 assert!(
-                    expected.next() == Some(k) && read == k,
+                    want == k && read == k,
                     "the merge asks for the parts in the order they are read"
                 );
                 part
