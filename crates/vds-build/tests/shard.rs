@@ -501,7 +501,7 @@ fn a_shard_refuses_an_input_that_is_not_the_plans() {
 fn shard_inputs_round_trip_through_files() {
     use vds_build::shard::{
         build_shard_from, read_shard_input, roots_of_vertices, shard_input_of,
-        shard_triangle_counts, write_shard_inputs,
+        shard_triangle_counts, stamp_shard_inputs, write_shard_inputs,
     };
     let (scene, grid) = loaded(shared("cow.obj"));
     let mut plan = planned(&scene, grid, 3);
@@ -511,14 +511,29 @@ fn shard_inputs_round_trip_through_files() {
         .collect();
     let root_of = roots_of_vertices(&scene, &plan).unwrap();
     // Without the shards' triangle counts in the plan, an input is not read.
-    write_shard_inputs(&scene, &plan, &root_of, &paths, 2, |_, _| {}).unwrap();
+    let counts = write_shard_inputs(&scene, &plan, &root_of, &paths, 2, |_, _| {}).unwrap();
     assert!(matches!(
         read_shard_input(&paths[0], &plan, 0),
         Err(ShardError::BadFile { .. })
     ));
-    plan.shard_triangles = shard_triangle_counts(&scene, &plan, &root_of).unwrap();
+    // The writing counts each shard's triangles as the pass of its own does.
+    assert_eq!(
+        counts,
+        shard_triangle_counts(&scene, &plan, &root_of).unwrap()
+    );
+    plan.shard_triangles = counts;
     plan.seal();
-    write_shard_inputs(&scene, &plan, &root_of, &paths, 2, |_, _| {}).unwrap();
+    // The inputs name the plan as it was when they were written, not the one sealed with
+    // their counts, until they are stamped; a stamp for another shard's file is refused.
+    assert!(matches!(
+        read_shard_input(&paths[0], &plan, 0),
+        Err(ShardError::BadFile { reason, .. }) if reason.contains("not of shard 0 of this plan")
+    ));
+    assert!(matches!(
+        stamp_shard_inputs(&paths[1..], &plan),
+        Err(ShardError::BadFile { reason, .. }) if reason.contains("not of shard 0")
+    ));
+    stamp_shard_inputs(&paths, &plan).unwrap();
     for (k, path) in paths.iter().enumerate() {
         let input = read_shard_input(path, &plan, k as u32).unwrap();
         assert_eq!(input, shard_input_of(&scene, &plan, &root_of, k as u32));

@@ -136,13 +136,8 @@ impl BodyWriter {
             source,
         };
         let mut file = vds_format::AtomicFile::create(path)?;
-        let mut header = Vec::with_capacity(HEADER_BYTES as usize);
-        header.extend_from_slice(&magic);
-        header.extend_from_slice(&VERSION.to_le_bytes());
-        header.extend_from_slice(&index.to_le_bytes());
-        header.extend_from_slice(&plan_id.to_le_bytes());
-        header.extend_from_slice(&xxh3_64(&header).to_le_bytes());
-        file.write_all(&header).map_err(io)?;
+        file.write_all(&header_bytes(magic, index, plan_id))
+            .map_err(io)?;
         let out = match Codec::of(magic) {
             Codec::Lz4 => BodyOut::Lz4(encoder(file)),
             Codec::Raw => BodyOut::Raw(file),
@@ -180,6 +175,56 @@ impl BodyWriter {
         file.write_all(&trailer).map_err(io)?;
         Ok(file.commit()?)
     }
+}
+
+/// The header of a file for shard `index` of plan `plan_id` (see the module documentation).
+fn header_bytes(magic: [u8; 8], index: u32, plan_id: u64) -> Vec<u8> {
+    let mut header = Vec::with_capacity(HEADER_BYTES as usize);
+    header.extend_from_slice(&magic);
+    header.extend_from_slice(&VERSION.to_le_bytes());
+    header.extend_from_slice(&index.to_le_bytes());
+    header.extend_from_slice(&plan_id.to_le_bytes());
+    header.extend_from_slice(&xxh3_64(&header).to_le_bytes());
+    header
+}
+
+/// Rewrites the header of the file at `path`, which must be one for shard `index` of
+/// another plan, to name plan `plan_id`: the plan's id covers what writing the files found
+/// (its shards' triangle counts), so the files are written first and named for it after.
+/// The header is rewritten in place, without a sync: a crash before the write reaches the
+/// disk leaves a file that names the other plan (or a header whose checksum fails), which
+/// the plan's shards refuse.
+pub(crate) fn restamp(
+    path: &Path,
+    magic: [u8; 8],
+    what: &str,
+    index: u32,
+    plan_id: u64,
+) -> Result<(), ShardError> {
+    let io = |source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = std::fs::File::options()
+        .read(true)
+        .write(true)
+        .open(path)
+        .map_err(io)?;
+    let mut head = [0u8; HEADER_BYTES as usize];
+    file.read_exact(&mut head).map_err(io)?;
+    let header = parse_header(&head, magic, what).map_err(|reason| ShardError::BadFile {
+        path: path.to_path_buf(),
+        reason,
+    })?;
+    if header.index != index {
+        return Err(ShardError::BadFile {
+            path: path.to_path_buf(),
+            reason: format!("the file of shard {}, not of shard {index}", header.index),
+        });
+    }
+    file.seek(std::io::SeekFrom::Start(0)).map_err(io)?;
+    file.write_all(&header_bytes(magic, index, plan_id))
+        .map_err(io)
 }
 
 fn u32_at(bytes: &[u8], at: usize) -> u32 {

@@ -58,7 +58,8 @@ const BLOCK_RECORDS: usize = 4096;
 const BLOCK_BYTES: usize = BLOCK_RECORDS * TRIANGLE_BYTES as usize;
 
 /// How many of `scene`'s triangles each shard of `plan` reads: those with a corner under
-/// one of its roots (`root_of`, from [`super::roots_of_vertices`]).
+/// one of its roots (`root_of`, from [`super::roots_of_vertices`]). A pass over the scene of
+/// its own; [`write_shard_inputs`] counts them as it writes them (this is its reference).
 pub fn shard_triangle_counts(
     scene: &impl PlanScene,
     plan: &Plan,
@@ -105,6 +106,10 @@ fn for_each_shard(shards: [usize; 3], mut f: impl FnMut(usize)) {
 /// [`MAX_FILES_PER_PASS`]; each holds about [`INPUT_WRITER_BYTES`]) in one pass over the
 /// scene's vertices and then its triangles. `on_progress(done, total)` is told how many
 /// triangles the passes over the scene have gone through.
+///
+/// Returns how many triangles each shard's input holds (what [`shard_triangle_counts`]
+/// counts), which a plan records before its id is taken: the files name `plan` as it is
+/// when they are written, and [`stamp_shard_inputs`] names the plan that records the counts.
 pub fn write_shard_inputs(
     scene: &impl PlanScene,
     plan: &Plan,
@@ -112,8 +117,9 @@ pub fn write_shard_inputs(
     paths: &[PathBuf],
     files_per_pass: usize,
     mut on_progress: impl FnMut(u64, u64),
-) -> Result<(), ShardError> {
+) -> Result<Vec<u64>, ShardError> {
     let files_per_pass = files_per_pass.clamp(1, MAX_FILES_PER_PASS);
+    let mut counts = vec![0u64; paths.len()];
     let shard_of_root = shard_of_root(plan);
     let passes = paths.len().div_ceil(files_per_pass) as u64;
     let total = passes * scene.triangle_count();
@@ -145,7 +151,7 @@ pub fn write_shard_inputs(
         }
         files
             .par_iter_mut()
-            .try_for_each(|file| file.next_run(TRIANGLE_BYTES as usize))?;
+            .try_for_each(|file| file.next_run(TRIANGLE_BYTES as usize).map(drop))?;
         // The triangles, noting their corners in other shards.
         let mut elsewhere: Vec<Vec<u32>> = vec![Vec::new(); batch.len()];
         scene.for_each_triangle_run(&mut |run_first, triangles, parts| {
@@ -183,8 +189,9 @@ pub fn write_shard_inputs(
         files
             .par_iter_mut()
             .zip(&mut elsewhere)
-            .try_for_each(|(file, ids)| {
-                file.next_run(VERTEX_BYTES as usize)?;
+            .zip(&mut counts[batch.clone()])
+            .try_for_each(|((file, ids), count)| {
+                *count = file.next_run(VERTEX_BYTES as usize)?;
                 ids.sort_unstable();
                 ids.dedup();
                 let mut records = Vec::with_capacity(RECORDS_PER_RUN * VERTEX_BYTES as usize);
@@ -202,6 +209,15 @@ pub fn write_shard_inputs(
             file.finish()?;
         }
     }
+    Ok(counts)
+}
+
+/// Names `plan` (sealed, with its shards' triangle counts) in the header of each shard's input
+/// that [`write_shard_inputs`] wrote to `paths` for it before its id was taken.
+pub fn stamp_shard_inputs(paths: &[PathBuf], plan: &Plan) -> Result<(), ShardError> {
+    for (k, path) in paths.iter().enumerate() {
+        super::container::restamp(path, INPUT_MAGIC, WHAT, k as u32, plan.id)?;
+    }
     Ok(())
 }
 
@@ -211,6 +227,8 @@ struct InputWriter {
     body: BodyWriter,
     /// Bytes of one record of the run being written.
     record_bytes: usize,
+    /// Records of the run being written so far.
+    records: u64,
     /// Records of the run's current block.
     block: Vec<u8>,
     /// The block shuffled.
@@ -223,6 +241,7 @@ impl InputWriter {
         Ok(InputWriter {
             body: BodyWriter::create(path, INPUT_MAGIC, index, plan_id)?,
             record_bytes: VERTEX_BYTES as usize,
+            records: 0,
             block: Vec::with_capacity(BLOCK_BYTES),
             planes: Vec::with_capacity(BLOCK_BYTES),
         })
@@ -231,6 +250,7 @@ impl InputWriter {
     /// Appends whole records to the run being written.
     fn put(&mut self, mut records: &[u8]) -> Result<(), ShardError> {
         debug_assert_eq!(records.len() % self.record_bytes, 0, "whole records");
+        self.records += (records.len() / self.record_bytes) as u64;
         let full = BLOCK_RECORDS * self.record_bytes;
         while !records.is_empty() {
             let take = (full - self.block.len()).min(records.len());
@@ -243,12 +263,12 @@ impl InputWriter {
         Ok(())
     }
 
-    /// Ends the run being written, with its last block; the next holds records of
-    /// `record_bytes`.
-    fn next_run(&mut self, record_bytes: usize) -> Result<(), ShardError> {
+    /// Ends the run being written, with its last block, and returns its record count; the
+    /// next holds records of `record_bytes`.
+    fn next_run(&mut self, record_bytes: usize) -> Result<u64, ShardError> {
         self.end_block()?;
         self.record_bytes = record_bytes;
-        Ok(())
+        Ok(std::mem::take(&mut self.records))
     }
 
     /// Writes the block gathered so far, if any, shuffled.

@@ -42,7 +42,7 @@ mod source;
 
 pub use input_file::{
     INPUT_MAGIC, INPUT_WRITER_BYTES, MAX_FILES_PER_PASS, read_shard_input, shard_triangle_counts,
-    write_shard_inputs,
+    stamp_shard_inputs, write_shard_inputs,
 };
 pub use merge::{PartRead, merge, merge_to};
 pub use part::{

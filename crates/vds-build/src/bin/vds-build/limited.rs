@@ -24,7 +24,8 @@ use vds_build::shard::{self, Plan};
 use vds_import::Weld;
 
 use crate::sharded::{
-    Progress, build_shard_file, folder_of, merge_parts, plan_basis, plan_scene, write_plan,
+    Progress, build_shard_file, folder_of, merge_parts, plan_basis, plan_scene, save_plan,
+    write_inputs,
 };
 use crate::{Args, check_output, memory_status, peak_rss_bytes};
 
@@ -185,8 +186,18 @@ pub(crate) fn build_within(
     // fit. Fewer shards run side by side where the limit does not hold one per core.
     let mut shards = first_shard_count(scene.triangle_count, threads, budget);
     let mut previous_largest = u64::MAX;
+    // What the plan holds while it writes the shards' inputs (positions, each input vertex's
+    // weld and each vertex's root, a run of triangles): the rest of the budget is for the
+    // files written at once.
+    let holding = scene.positions.len() as u64 * 16 + scene.stats.input_vertices * 4 + (16 << 20);
+    let files_per_pass = (budget.saturating_sub(holding) / shard::INPUT_WRITER_BYTES) as usize;
     let (planned, concurrent) = loop {
-        let planned = plan_scene(&scene, &basis, inputs, shards, &plan_path)?;
+        // The inputs are written before the shards' sizes are known (the writing counts
+        // their triangles, a pass over the model less than counting them first); a plan
+        // whose largest shard does not fit is made again finer, and its inputs overwritten
+        // (a finer plan has more shards, so every one).
+        let mut planned = plan_scene(&scene, &basis, inputs, shards, &plan_path)?;
+        write_inputs(&scene, &mut planned, files_per_pass, &progress)?;
         let largest = planned
             .plan
             .shard_triangles
@@ -226,12 +237,8 @@ pub(crate) fn build_within(
         shards = shards.saturating_mul(2).min(MAX_SHARDS);
     };
     let vertices = planned.plan.vertices;
-    // What the plan holds while it writes the shards' inputs (positions, each input vertex's
-    // weld and each vertex's root, a run of triangles): the rest of the budget is for the
-    // files written at once.
-    let holding = u64::from(vertices) * 16 + scene.stats.input_vertices * 4 + (16 << 20);
-    let files_per_pass = (budget.saturating_sub(holding) / shard::INPUT_WRITER_BYTES) as usize;
-    let plan = write_plan(scene, planned, &plan_path, files_per_pass, &progress)?;
+    drop(scene);
+    let plan = save_plan(planned, &plan_path)?;
     let import_peak = peak_rss_bytes();
     let peak_reset = reset_peak_rss();
     let planned_at = start.elapsed().as_secs_f64();

@@ -251,7 +251,7 @@ pub(crate) fn plan_basis(
 }
 
 /// Plans the build of `scene` (snapped by [`plan_basis`]) in `shards` shards, the plan to be
-/// written to `plan_path`.
+/// written to `plan_path`; the shards' triangle counts are left to [`write_inputs`].
 pub(crate) fn plan_scene(
     scene: &SpilledScene,
     basis: &PlanBasis,
@@ -273,7 +273,6 @@ pub(crate) fn plan_scene(
         .map(|k| format!("{stem}.shard-{k}.vdtin"))
         .collect();
     let root_of = shard::roots_of_vertices(scene, &plan)?;
-    plan.shard_triangles = shard::shard_triangle_counts(scene, &plan, &root_of)?;
     plan.seal();
     let folder = folder_of(plan_path);
     let input_paths: Vec<PathBuf> = plan
@@ -291,34 +290,53 @@ pub(crate) fn plan_scene(
     })
 }
 
-/// Writes the shards' inputs (`files_per_pass` at a time), frees the scene, and writes the
-/// plan, last, so that a plan on disk always has its shards' inputs.
-pub(crate) fn write_plan(
-    scene: SpilledScene,
-    planned: Planned,
-    plan_path: &Path,
+/// Writes the shards' inputs (`files_per_pass` at a time), counting each shard's triangles
+/// as it goes: the plan records the counts, is sealed with them, and its inputs are named
+/// for it.
+pub(crate) fn write_inputs(
+    scene: &SpilledScene,
+    planned: &mut Planned,
     files_per_pass: usize,
     progress: &Progress,
-) -> Result<Plan> {
+) -> Result<()> {
     let Planned {
         plan,
         input_paths,
         root_of,
     } = planned;
     progress.counted("writing the shards' inputs (triangles)");
-    let files = files_per_pass;
-    shard::write_shard_inputs(
-        &scene,
-        &plan,
-        &root_of,
-        &input_paths,
-        files,
+    plan.shard_triangles = shard::write_shard_inputs(
+        scene,
+        plan,
+        root_of,
+        input_paths,
+        files_per_pass,
         |done, total| progress.set(done, total),
     )?;
-    drop(scene);
-    drop(root_of);
+    plan.seal();
+    shard::stamp_shard_inputs(input_paths, plan)?;
+    Ok(())
+}
+
+/// Writes the plan whose inputs [`write_inputs`] wrote, last, so that a plan on disk always
+/// has its shards' inputs.
+pub(crate) fn save_plan(planned: Planned, plan_path: &Path) -> Result<Plan> {
+    let Planned { plan, .. } = planned;
     plan.save(plan_path)?;
     Ok(plan)
+}
+
+/// [`write_inputs`], then (with the scene freed) [`save_plan`].
+pub(crate) fn write_plan(
+    scene: SpilledScene,
+    mut planned: Planned,
+    plan_path: &Path,
+    files_per_pass: usize,
+    progress: &Progress,
+) -> Result<Plan> {
+    write_inputs(&scene, &mut planned, files_per_pass, progress)?;
+    drop(scene);
+    save_plan(planned, plan_path)
 }
 
 /// Builds shard `index` from its input file and writes its part to `output`; returns its
