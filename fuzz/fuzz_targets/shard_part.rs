@@ -1,4 +1,5 @@
-//! Fuzzes the sharded build's `.vdtpart` reader and the merge behind it: a part for a
+//! Fuzzes the sharded build's `.vdtpart` reader (whole, and skimmed for its head, as the
+//! merge's first pass reads it) and the merge behind it: a part for a
 //! one-shard plan of a small grid (with pages small enough that the part holds regions of
 //! pages) is read from the input; one that reads is merged into a file. Any input must give an
 //! error or a file, never a panic, hang or huge allocation.
@@ -11,7 +12,7 @@
 use std::sync::OnceLock;
 
 use libfuzzer_sys::fuzz_target;
-use vds_build::shard::{Plan, PlanMetadata, merge, part_from_bytes, plan};
+use vds_build::shard::{Plan, PlanMetadata, merge, part_from_bytes, part_head_from_bytes, plan};
 
 /// The plan every input is read against: one shard of a 16 × 16 grid of triangles, pages of
 /// 256 bytes (regions of 64 leaves).
@@ -52,6 +53,8 @@ fn the_plan() -> &'static Plan {
 
 fuzz_target!(|data: &[u8]| {
     let plan = the_plan();
+    // The merge's first pass skims a part (its pages and leaves passed over).
+    let _ = part_head_from_bytes(data, plan);
     let Ok(part) = part_from_bytes(data, plan) else {
         return;
     };

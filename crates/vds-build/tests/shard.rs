@@ -6,8 +6,8 @@
 use std::path::PathBuf;
 
 use vds_build::shard::{
-    Plan, PlanMetadata, RegionPage, ShardError, ShardPart, build_shard, merge, plan, read_part,
-    read_part_checked, write_part,
+    PartHead, Plan, PlanMetadata, RegionPage, ShardError, ShardPart, build_shard, merge, plan,
+    read_part, read_part_checked, read_part_head, write_part,
 };
 use vds_build::{build_tree, part_records, snap_to_grid, tree_content};
 use vds_format::{BuildInfo, Grid, Metadata, WriteOptions, encode};
@@ -286,6 +286,11 @@ fn parts_round_trip_through_files_and_the_plan_through_json() {
         let path = dir.path().join(format!("shard-{}.vdtpart", part.index));
         write_part(&path, &part).unwrap();
         assert_eq!(read_part(&path, &plan).unwrap(), part);
+        // The head the merge's first pass reads, seeking over pages and leaves, is the one
+        // a full read gives, stamped alike; a part's head made in memory is stamped apart.
+        let head = read_part_head(&path, &plan).unwrap();
+        assert_eq!(head, read_part_checked(&path, &plan).unwrap().head());
+        assert_ne!(head, PartHead::of(&part));
         // Written root by root as the shard builds them: the same bytes.
         let streamed = dir.path().join("streamed.vdtpart");
         let input = vds_build::shard::shard_input_of(&scene, &plan, &root_of, part.index);
@@ -312,24 +317,21 @@ fn an_edited_plan_is_refused() {
     assert!(matches!(Plan::load(&path), Err(ShardError::BadPlan { .. })));
 }
 
-/// The merge reads each part twice; one that changed in between (a file rewritten while the
-/// merge ran) is refused rather than mixed into the file.
+/// The merge reads each part's head, then the part; a part that changed in between (a file
+/// rewritten while the merge ran) is refused rather than mixed into the file.
 #[test]
 fn merge_refuses_a_part_that_changes_between_its_passes() {
     let (scene, grid) = loaded(testdata("as1_assembly.obj"));
     let plan = planned_with(&scene, grid, 2, 256);
     let all = parts(&scene, &plan);
-    let mut asked = 0;
     let result = vds_build::shard::merge_to(
         &plan,
+        |k| Ok(PartHead::of(&all[k as usize])),
         |k| {
-            asked += 1;
             let mut part = all[k as usize].clone();
-            if asked > plan.shard_count() {
-                // Same shape, one proxy moved.
-                let node = &mut part.roots[0].top_nodes[0];
-                node.proxy[0] = (node.proxy[0].get() + 1.0).into();
-            }
+            // Same shape, one proxy moved.
+            let node = &mut part.roots[0].top_nodes[0];
+            node.proxy[0] = (node.proxy[0].get() + 1.0).into();
             Ok(part.into())
         },
         &mut Vec::new(),
@@ -358,13 +360,13 @@ fn merge_refuses_a_part_file_rewritten_between_its_passes() {
         .collect();
     let expected = merge(&plan, all.clone()).unwrap();
     for rewrite in [false, true] {
-        let mut asked = 0;
         let mut out = Vec::new();
         let result = vds_build::shard::merge_to(
             &plan,
+            |k| read_part_head(&paths[k as usize], &plan),
             |k| {
-                asked += 1;
-                if rewrite && asked == plan.shard_count() + 1 {
+                // After the first pass read every head, part 0 is written again.
+                if rewrite && k == 0 {
                     let mut part = all[k as usize].clone();
                     let node = &mut part.roots[0].top_nodes[0];
                     node.proxy[0] = (node.proxy[0].get() + 1.0).into();
@@ -444,6 +446,14 @@ fn truncated_or_damaged_parts_are_refused() {
         match read_part(&broken, &plan) {
             Err(ShardError::BadFile { path, .. }) => assert_eq!(path, broken, "{what}"),
             other => panic!("{what}: {other:?}"),
+        }
+        // Skimmed, a damaged page or leaf can pass unseen (the full read of the second pass
+        // refuses it); anything else is refused, naming the file.
+        if let Err(error) = read_part_head(&broken, &plan) {
+            assert!(
+                matches!(&error, ShardError::BadFile { path, .. } if *path == broken),
+                "{what}: {error:?}"
+            );
         }
     }
 }

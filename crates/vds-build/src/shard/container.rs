@@ -315,8 +315,14 @@ pub(crate) fn read_ends(
 /// way, so that records are decoded straight into their own arrays (no copy of the whole
 /// body is made); [`BodyReader::finish`] checks that it was read to its end and that its
 /// checksum holds. Until then the bytes are unchecked: readers check every value they take.
+///
+/// A *skimming* reader ([`BodyReader::skimming`]) seeks over what its caller skips
+/// ([`BodyReader::skip`]), so it cannot check the checksum: what it reads is whatever the file
+/// holds there, checked value by value as always, and only a full read verifies the body.
 pub(crate) struct BodyReader<'r> {
     decoder: Box<dyn Read + 'r>,
+    /// A skimming reader's file, which skips seek in.
+    file: Option<std::io::BufReader<std::fs::File>>,
     hasher: Xxh3,
     left: u64,
     checksum: u64,
@@ -331,10 +337,50 @@ impl<'r> BodyReader<'r> {
                 Codec::Lz4 => Box::new(lz4_flex::frame::FrameDecoder::new(boxed)),
                 Codec::Raw => boxed,
             },
+            file: None,
             hasher: Xxh3::new(),
             left: trailer.body_bytes,
             checksum: trailer.body_checksum,
         }
+    }
+
+    /// A skimming reader of the raw body `trailer` describes, which `file` holds from where it
+    /// stands (see the type's documentation).
+    pub(crate) fn skimming(file: std::fs::File, trailer: &Trailer) -> BodyReader<'static> {
+        BodyReader {
+            decoder: Box::new(std::io::empty()),
+            file: Some(std::io::BufReader::new(file)),
+            hasher: Xxh3::new(),
+            left: trailer.body_bytes,
+            checksum: trailer.body_checksum,
+        }
+    }
+
+    /// Passes over the next `n` bytes: a skimming reader seeks, another reads and hashes
+    /// them.
+    pub(crate) fn skip(&mut self, n: u64) -> Result<(), String> {
+        if n > self.left {
+            return Err("truncated body".into());
+        }
+        match &mut self.file {
+            Some(file) => {
+                // At most the body's length, which the file's size bounds: within `i64`.
+                let step = i64::try_from(n).map_err(|_| "truncated body".to_string())?;
+                file.seek_relative(step)
+                    .map_err(|e| format!("truncated or damaged body ({e})"))?;
+                self.left -= n;
+            }
+            None => {
+                let mut scratch = [0u8; 4096];
+                let mut rest = n;
+                while rest > 0 {
+                    let take = rest.min(scratch.len() as u64) as usize;
+                    self.read_exact(&mut scratch[..take])?;
+                    rest -= take as u64;
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Bytes of the stated body not read yet.
@@ -347,7 +393,11 @@ impl<'r> BodyReader<'r> {
         if out.len() as u64 > self.left {
             return Err("truncated body".into());
         }
-        self.decoder
+        let source: &mut dyn Read = match &mut self.file {
+            Some(file) => file,
+            None => &mut self.decoder,
+        };
+        source
             .read_exact(out)
             .map_err(|e| format!("truncated or damaged body ({e})"))?;
         self.hasher.update(out);
@@ -376,10 +426,14 @@ impl<'r> BodyReader<'r> {
         Ok(records)
     }
 
-    /// Checks that the whole body was read, that no more follows, and its checksum.
+    /// Checks that the whole body was read, that no more follows, and its checksum (a
+    /// skimming reader: only that the caller's reads and skips came to the body's end).
     pub(crate) fn finish(mut self) -> Result<(), String> {
         if self.left != 0 {
             return Err("bytes after the body".into());
+        }
+        if self.file.is_some() {
+            return Ok(());
         }
         let mut rest = [0u8; 1];
         let more = self

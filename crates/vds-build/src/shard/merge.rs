@@ -4,7 +4,9 @@
 //! The file is laid out in regions (`vds_format::region_leaves`): its top, then each region
 //! root's subtree in leaf order, and no page mixes two regions. Every region lies under one
 //! shard root (the plan splits no node that a region could hold), so its pages depend on one
-//! part alone. The merge therefore reads the parts twice, in shard order:
+//! part alone. The merge therefore takes each part twice, in shard order: its head (a
+//! [`PartHead`]: what the top needs, which [`super::read_part_head`] reads from a file while
+//! it seeks over the pages and leaves), then the whole part:
 //!
 //! 1. *The top.* From each part, the root's record and sums, the nodes of the file's top that
 //!    lie under the root (those with more leaves than a region, and their children) with
@@ -74,18 +76,16 @@ pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<Vec<u8>, ShardError> 
         )));
     }
     let mut out = Vec::new();
-    // The first pass gets copies, the second the parts themselves.
-    let mut asked = 0u32;
+    // The first pass gets heads, the second the parts themselves.
+    let heads: Vec<PartHead> = by_index
+        .iter()
+        .map(|part| PartHead::of(part.as_ref().expect("every shard is present")))
+        .collect();
     merge_to(
         plan,
+        |k| Ok(heads[k as usize].clone()),
         |k| {
-            asked += 1;
-            let slot = &mut by_index[k as usize];
-            let part = if asked > plan.shard_count() {
-                slot.take()
-            } else {
-                slot.clone()
-            };
+            let part = by_index[k as usize].take();
             Ok(part.expect("every shard is present, once").into())
         },
         &mut out,
@@ -146,13 +146,111 @@ impl PartRead {
     }
 }
 
-/// [`merge`], writing the file to `out` and asking `part` for each shard's part: twice, in
-/// index order both times (the two passes of the module doc), so that one part is held at a
-/// time; a part that differs between the passes is refused. The regions' pages wait in an
-/// unnamed temporary file in `spill_folder` (about the size of the output) until the top's
-/// are encoded.
+/// What the merge's first pass takes of a part: its roots' heads and tops and its cross
+/// corners ([`super::read_part_head`] reads them from a file, seeking over its pages and
+/// leaves), with what the second pass's read of the whole part must match (as a
+/// [`PartRead`]'s: the checksum the file states, or a hash of a part made in memory).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PartHead {
+    pub(crate) head: ShardHead,
+    stamp: Stamp,
+}
+
+/// A part without its pages and leaves ([`PartHead`]).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct ShardHead {
+    pub(crate) plan_id: u64,
+    pub(crate) index: u32,
+    pub(crate) roots: Vec<RootHead>,
+    pub(crate) cross: Vec<CrossCorner>,
+}
+
+/// A root's part without its pages and leaves: what the top is gathered from.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct RootHead {
+    pub(crate) root: u32,
+    pub(crate) top_ids: Vec<u32>,
+    pub(crate) top_nodes: Vec<NodeRecord>,
+    pub(crate) top_triangles: Vec<TriangleRecord>,
+    pub(crate) sums: Accumulator,
+    pub(crate) sphere: Sphere,
+    /// Its regions' roots (ids in its subtree), in leaf order.
+    pub(crate) region_roots: Vec<u32>,
+    /// The triangles its regions' pages hold.
+    pub(crate) region_triangles: u64,
+    /// Its leaf count.
+    pub(crate) leaves: u64,
+}
+
+impl RootHead {
+    fn of(root: &RootPart) -> RootHead {
+        RootHead {
+            root: root.root,
+            top_ids: root.top_ids.clone(),
+            top_nodes: root.top_nodes.clone(),
+            top_triangles: root.top_triangles.clone(),
+            sums: root.sums,
+            sphere: root.sphere,
+            region_roots: root.regions.iter().map(|g| g.root).collect(),
+            region_triangles: root
+                .regions
+                .iter()
+                .flat_map(|g| &g.pages)
+                .map(RegionPage::triangle_count)
+                .sum(),
+            leaves: root.leaves.len() as u64,
+        }
+    }
+}
+
+impl ShardHead {
+    fn of(part: &ShardPart) -> ShardHead {
+        ShardHead {
+            plan_id: part.plan_id,
+            index: part.index,
+            roots: part.roots.iter().map(RootHead::of).collect(),
+            cross: part.cross.clone(),
+        }
+    }
+}
+
+impl PartHead {
+    /// The head read from a file whose trailer states body checksum `checksum`.
+    pub(crate) fn from_file(head: ShardHead, checksum: u64) -> PartHead {
+        PartHead {
+            head,
+            stamp: Stamp::File(checksum),
+        }
+    }
+
+    /// The head of a part made in memory (stamped with a hash of the whole part).
+    pub fn of(part: &ShardPart) -> PartHead {
+        PartHead {
+            head: ShardHead::of(part),
+            stamp: Stamp::Digest(digest(part)),
+        }
+    }
+}
+
+impl PartRead {
+    /// The part's head, stamped as the part is.
+    pub fn head(&self) -> PartHead {
+        PartHead {
+            head: ShardHead::of(&self.part),
+            stamp: self.stamp(),
+        }
+    }
+}
+
+/// [`merge`], writing the file to `out`: the first pass asks `head` for each shard's head,
+/// the second `part` for its whole part, each in index order (the two passes of the module
+/// doc), so that one part is held at a time; a part that differs from its head (another
+/// stamp: it changed between the passes) is refused. The regions' pages wait in an unnamed
+/// temporary file in `spill_folder` (about the size of the output) until the top's are
+/// encoded.
 pub fn merge_to(
     plan: &Plan,
+    mut head: impl FnMut(u32) -> Result<PartHead, ShardError>,
     mut part: impl FnMut(u32) -> Result<PartRead, ShardError>,
     out: &mut impl Write,
     spill_folder: &Path,
@@ -160,16 +258,29 @@ pub fn merge_to(
     let mut top = Top::new(plan);
     let mut stamps = Vec::with_capacity(plan.shard_count() as usize);
     for k in 0..plan.shard_count() {
-        let read = part(k)?;
-        check_part(plan, &read.part, k)?;
-        stamps.push(read.stamp());
-        top.gather(&read.part)?;
+        let PartHead { head, stamp } = head(k)?;
+        check_part(
+            plan,
+            head.plan_id,
+            head.index,
+            head.roots.iter().map(|r| r.root),
+            k,
+        )?;
+        stamps.push(stamp);
+        top.gather(&head)?;
     }
     let top = top.finish()?;
     let mut regions = RegionWriter::new(plan, &top, spill_folder)?;
     for k in 0..plan.shard_count() {
         let read = part(k)?;
-        check_part(plan, &read.part, k)?;
+        let shard = &read.part;
+        check_part(
+            plan,
+            shard.plan_id,
+            shard.index,
+            shard.roots.iter().map(|r| r.root),
+            k,
+        )?;
         if read.stamp() != stamps[k as usize] {
             return Err(set(format!(
                 "shard {k}: its part changed between the merge's two passes"
@@ -255,13 +366,20 @@ fn digest(shard: &ShardPart) -> u64 {
     hasher.digest()
 }
 
-/// The checks that a part is the plan's shard `k`, holding the plan's roots.
-fn check_part(plan: &Plan, shard: &ShardPart, k: u32) -> Result<(), ShardError> {
+/// The checks that a part (or its head) of plan `plan_id`, shard `index`, holding `roots`,
+/// is the plan's shard `k`, holding the plan's roots.
+fn check_part(
+    plan: &Plan,
+    plan_id: u64,
+    index: u32,
+    roots: impl ExactSizeIterator<Item = u32>,
+    k: u32,
+) -> Result<(), ShardError> {
     let expected = plan.shard_roots(k);
-    if shard.plan_id != plan.id
-        || shard.index != k
-        || shard.roots.len() != expected.len()
-        || shard.roots.iter().zip(expected).any(|(p, r)| p.root != r)
+    if plan_id != plan.id
+        || index != k
+        || roots.len() != expected.len()
+        || roots.zip(expected).any(|(p, r)| p != r)
     {
         return Err(set(format!("shard {k} does not hold the plan's roots")));
     }
@@ -347,7 +465,7 @@ impl<'p> Top<'p> {
     }
 
     /// Takes what the top needs from one part.
-    fn gather(&mut self, shard: &ShardPart) -> Result<(), ShardError> {
+    fn gather(&mut self, shard: &ShardHead) -> Result<(), ShardError> {
         self.cross.extend_from_slice(&shard.cross);
         for root in &shard.roots {
             self.gather_root(root)?;
@@ -355,7 +473,7 @@ impl<'p> Top<'p> {
         Ok(())
     }
 
-    fn gather_root(&mut self, root: &RootPart) -> Result<(), ShardError> {
+    fn gather_root(&mut self, root: &RootHead) -> Result<(), ShardError> {
         let r = root.root;
         let id = self.plan.roots[r as usize];
         let plan_node = &self.plan.top[id as usize];
@@ -411,11 +529,11 @@ impl<'p> Top<'p> {
             }
         }
         regions.sort_unstable_by_key(|g| g.leaf_begin);
-        if regions.len() != root.regions.len()
+        if regions.len() != root.region_roots.len()
             || regions
                 .iter()
-                .zip(&root.regions)
-                .any(|(g, p)| g.local != p.root)
+                .zip(&root.region_roots)
+                .any(|(g, &p)| g.local != p)
         {
             return Err(set(format!(
                 "shard root {r}: its regions are not the ones below its top"
@@ -424,12 +542,7 @@ impl<'p> Top<'p> {
         self.regions.extend(regions);
         mine.sort_unstable();
         self.under_root[r as usize] = mine;
-        self.region_triangles += root
-            .regions
-            .iter()
-            .flat_map(|g| &g.pages)
-            .map(RegionPage::triangle_count)
-            .sum::<u64>();
+        self.region_triangles += root.region_triangles;
         Ok(())
     }
 

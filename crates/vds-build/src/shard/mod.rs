@@ -44,14 +44,15 @@ pub use input_file::{
     INPUT_MAGIC, INPUT_WRITER_BYTES, MAX_FILES_PER_PASS, read_shard_input, shard_triangle_counts,
     stamp_shard_inputs, write_shard_inputs,
 };
-pub use merge::{PartRead, merge, merge_to};
+pub use merge::{PartHead, PartRead, merge, merge_to};
 pub use part::{
     CrossCorner, InputTriangle, InputVertex, OpenPage, RegionPage, RegionPart, RootPart,
     ShardInput, ShardPart, build_shard, build_shard_from, build_shard_into, input_triangle,
     input_vertex, roots_of_vertices, shard_input_of,
 };
 pub use part_file::{
-    PART_MAGIC, part_from_bytes, part_header, read_part, read_part_checked, write_part, write_shard,
+    PART_MAGIC, part_from_bytes, part_head_from_bytes, part_header, read_part, read_part_checked,
+    read_part_head, write_part, write_shard,
 };
 pub use plan::{Plan, PlanMetadata, plan};
 pub use source::{PlanScene, TriangleRun};

@@ -29,7 +29,9 @@
 //!
 //! The reader checks every count against the body, every range a record holds against the
 //! plan and the root, and that every value is finite, before the merge uses it; the merge
-//! checks the links as it walks them.
+//! checks the links as it walks them. The merge's first pass reads only each root's head and
+//! top, its regions' and pages' heads and the cross corners ([`read_part_head`]), checked
+//! alike, and seeks over the rest: the body's checksum is verified by the second, whole read.
 
 use std::path::Path;
 
@@ -40,7 +42,7 @@ use super::container::{
     BodyReader, BodyWriter, Codec, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, file_size,
     parse_header, parse_trailer, read_ends,
 };
-use super::merge::PartRead;
+use super::merge::{PartHead, PartRead, RootHead, ShardHead};
 use super::part::{CrossCorner, OpenPage, RegionPage, RegionPart, RootPart, ShardInput, ShardPart};
 use super::{Plan, ShardError};
 use crate::bounds::{Aabb, NormalCone};
@@ -234,6 +236,68 @@ pub fn read_part_checked(path: &Path, plan: &Plan) -> Result<PartRead, ShardErro
     Ok(PartRead::from_file(part, trailer.body_checksum))
 }
 
+/// What the merge's first pass takes of part file `path`, which must be a shard of `plan`
+/// ([`PartHead`]): its roots' heads and tops and its cross corners, checked as
+/// [`read_part`] checks them, read while the leaves and pages are skipped (the file is
+/// seeked over them, so its body checksum is not verified: the head carries the checksum its
+/// trailer states, which the merge's full read of the part, which verifies it, must match).
+pub fn read_part_head(path: &Path, plan: &Plan) -> Result<PartHead, ShardError> {
+    let bad = |reason: String| ShardError::BadFile {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let io = |source| ShardError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let (header, trailer) = read_ends(path, PART_MAGIC, WHAT)?;
+    check_stated(plan, header.plan_id, header.index, &trailer).map_err(bad)?;
+    let size = file_size(path)?;
+    if size != HEADER_BYTES + TRAILER_BYTES + trailer.body_bytes {
+        return Err(bad(format!(
+            "{size} bytes, not the {} its trailer states",
+            HEADER_BYTES + TRAILER_BYTES + trailer.body_bytes
+        )));
+    }
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    std::io::Seek::seek(&mut file, std::io::SeekFrom::Start(HEADER_BYTES)).map_err(io)?;
+    let mut body = BodyReader::skimming(file, &trailer);
+    let head = skim_part(&mut body, plan, header.index).map_err(bad)?;
+    Ok(PartHead::from_file(head, trailer.body_checksum))
+}
+
+/// [`read_part_head`] of the bytes of a `.vdtpart` file (for tests and fuzzing): the body is
+/// read, not seeked over, but its checksum is not verified either.
+pub fn part_head_from_bytes(data: &[u8], plan: &Plan) -> Result<PartHead, String> {
+    let header = parse_header(data, PART_MAGIC, WHAT)?;
+    let trailer = parse_trailer(data)?;
+    check_stated(plan, header.plan_id, header.index, &trailer)?;
+    let stored = &data[HEADER_BYTES as usize..data.len() - TRAILER_BYTES as usize];
+    if stored.len() as u64 != trailer.body_bytes {
+        return Err("a body of another length than its trailer states".into());
+    }
+    let mut body = BodyReader::new(stored, Codec::of(PART_MAGIC), &trailer);
+    let head = skim_part(&mut body, plan, header.index)?;
+    Ok(PartHead::from_file(head, trailer.body_checksum))
+}
+
+/// The skimmed part of shard `index` (its roots' heads and its cross corners), its body read
+/// to the end.
+fn skim_part(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardHead, String> {
+    let roots = skim_body(body, plan, index)?;
+    let leaves: Vec<u64> = roots.iter().map(|r| r.leaves).collect();
+    let cross = parse_cross(body, plan, index, &leaves)?;
+    if body.left() != 0 {
+        return Err("bytes after the body".into());
+    }
+    Ok(ShardHead {
+        plan_id: plan.id,
+        index,
+        roots,
+        cross,
+    })
+}
+
 /// The checks of a part's header and stated body length against the plan, before anything
 /// is allocated for it.
 fn check_stated(plan: &Plan, plan_id: u64, index: u32, trailer: &Trailer) -> Result<(), String> {
@@ -412,8 +476,42 @@ fn get_sums(c: &mut Cursor) -> Result<(Accumulator, Sphere), String> {
 }
 
 fn parse_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardPart, String> {
+    let expected = expect_roots(body, plan, index)?;
+    let mut roots = Vec::with_capacity(expected.len());
+    for root in expected {
+        let part = parse_root(body, plan, index, root).map_err(|e| format!("root {root}: {e}"))?;
+        roots.push(part);
+    }
+    let leaves: Vec<u64> = roots.iter().map(|r| r.leaves.len() as u64).collect();
+    let cross = parse_cross(body, plan, index, &leaves)?;
+    Ok(ShardPart {
+        plan_id: plan.id,
+        index,
+        roots,
+        cross,
+    })
+}
+
+/// [`parse_body`] skimming: what the merge's first pass takes of each root (its head, top and
+/// regions' roots and triangle counts) and the cross corners, checked as a full read checks
+/// them; leaves and pages are skipped.
+fn skim_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<Vec<RootHead>, String> {
+    let expected = expect_roots(body, plan, index)?;
+    let mut roots = Vec::with_capacity(expected.len());
+    for root in expected {
+        let head = skim_root(body, plan, index, root).map_err(|e| format!("root {root}: {e}"))?;
+        roots.push(head);
+    }
+    Ok(roots)
+}
+
+/// The body's root count, checked against the plan's roots of shard `index`, which it returns.
+fn expect_roots(
+    body: &mut BodyReader,
+    plan: &Plan,
+    index: u32,
+) -> Result<std::ops::Range<u32>, String> {
     let expected = plan.shard_roots(index);
-    let first_root = expected.start;
     let root_count = u32::from_le_bytes(body.array()?);
     if root_count != expected.len() as u32 {
         return Err(format!(
@@ -421,11 +519,18 @@ fn parse_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardPar
             expected.len()
         ));
     }
-    let mut roots = Vec::with_capacity(expected.len());
-    for root in expected {
-        let part = parse_root(body, plan, index, root).map_err(|e| format!("root {root}: {e}"))?;
-        roots.push(part);
-    }
+    Ok(expected)
+}
+
+/// The cross corners at the end of the body of shard `index`, whose roots hold `leaves`
+/// leaves each (in plan order).
+fn parse_cross(
+    body: &mut BodyReader,
+    plan: &Plan,
+    index: u32,
+    leaves: &[u64],
+) -> Result<Vec<CrossCorner>, String> {
+    let first_root = plan.shard_roots(index).start;
     let cross_count = u64::from_le_bytes(body.array()?);
     if cross_count > body.left() / CROSS_BYTES as u64 {
         return Err("truncated body".into());
@@ -450,17 +555,16 @@ fn parse_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardPar
                 part: c.u32()?,
                 owner: c.u32()?,
             };
-            let local = corner
+            let &leaves = corner
                 .root
                 .checked_sub(first_root)
-                .and_then(|k| roots.get(k as usize))
+                .and_then(|k| leaves.get(k as usize))
                 .ok_or_else(|| {
                     format!(
                         "a cross corner under root {}, not this shard's",
                         corner.root
                     )
                 })?;
-            let leaves = local.leaves.len() as u64;
             if corner.triangle >= plan.triangles
                 || corner.corner > 2
                 || u64::from(corner.rank) >= leaves
@@ -474,22 +578,31 @@ fn parse_body(body: &mut BodyReader, plan: &Plan, index: u32) -> Result<ShardPar
             cross.push(corner);
         }
     }
-    Ok(ShardPart {
-        plan_id: plan.id,
-        index,
-        roots,
-        cross,
-    })
+    Ok(cross)
 }
 
 /// One root's entry, checked: counts against the body and the root's vertices, ranges
 /// against the root, values finite.
-fn parse_root(
+/// A root's entry up to its leaves: its head and top, and what the rest is checked against.
+struct RootTop {
+    /// The head, its regions' roots and triangles not filled in.
+    head: RootHead,
+    region_count: u32,
+    leaf_count: u32,
+    /// The root's leaf ranks, and the shard's (where a subtri's corners lie).
+    ranks: std::ops::Range<u32>,
+    corners: std::ops::Range<u32>,
+    /// The most nodes the root's subtree can have.
+    most_nodes: u64,
+}
+
+/// The entry of root `root` of shard `index` up to its leaves, checked.
+fn parse_root_top(
     body: &mut BodyReader,
     plan: &Plan,
     index: u32,
     root: u32,
-) -> Result<RootPart, String> {
+) -> Result<RootTop, String> {
     let head: [u8; 20] = body.array()?;
     let mut c = Cursor { bytes: &head };
     let (stated, top_count, top_triangle_count, region_count, leaf_count) =
@@ -523,6 +636,115 @@ fn parse_root(
     let top_triangles: Vec<TriangleRecord> = body.records(top_triangle_count as usize)?;
     check_records(&top_nodes, &top_triangles, &ranks, &corners, most_nodes)
         .map_err(|e| format!("its top: {e}"))?;
+    Ok(RootTop {
+        head: RootHead {
+            root,
+            top_ids,
+            top_nodes,
+            top_triangles,
+            sums,
+            sphere,
+            region_roots: Vec::new(),
+            region_triangles: 0,
+            leaves: u64::from(leaf_count),
+        },
+        region_count,
+        leaf_count,
+        ranks,
+        corners,
+        most_nodes,
+    })
+}
+
+/// Root `root`'s entry skimmed (see [`skim_body`]): its head and top checked as
+/// [`parse_root`] checks them, its regions' roots and page heads read, leaves and pages
+/// skipped.
+fn skim_root(
+    body: &mut BodyReader,
+    plan: &Plan,
+    index: u32,
+    root: u32,
+) -> Result<RootHead, String> {
+    let RootTop {
+        mut head,
+        region_count,
+        leaf_count,
+        most_nodes,
+        ..
+    } = parse_root_top(body, plan, index, root)?;
+    body.skip(12 * u64::from(leaf_count))?;
+    let mut region_nodes = 0u64;
+    for _ in 0..region_count {
+        let region: [u8; 8] = body.array()?;
+        let mut c = Cursor { bytes: &region };
+        let (region_root, page_count) = (c.u32()?, c.u32()?);
+        if page_count == 0 || u64::from(page_count) > body.left() / PAGE_HEAD_BYTES {
+            return Err(format!("a region of {page_count} pages"));
+        }
+        for _ in 0..page_count {
+            let page: [u8; 17] = body.array()?;
+            let mut c = Cursor { bytes: &page };
+            let kind = c.u8()?;
+            let (a, b, d, e) = (c.u32()?, c.u32()?, c.u32()?, c.u32()?);
+            let (skipped, node_count, triangle_count) = match kind {
+                SEALED => {
+                    let (frame_length, raw_length, node_count, triangle_count) = (a, b, d, e);
+                    if raw_length > vds_format::MAX_PAGE_RAW_BYTES {
+                        return Err("a sealed page larger than its vertices can fill".into());
+                    }
+                    (u64::from(frame_length), node_count, triangle_count)
+                }
+                OPEN => {
+                    let (node_count, triangle_count) = (b, d);
+                    if node_count == 0 {
+                        return Err(format!("an open page of {node_count} nodes"));
+                    }
+                    let records = (u64::from(node_count) - 1) * 4
+                        + u64::from(node_count) * NODE_BYTES as u64
+                        + u64::from(triangle_count) * TRIANGLE_BYTES as u64;
+                    (records, node_count, triangle_count)
+                }
+                _ => return Err(format!("a page of kind {kind}")),
+            };
+            region_nodes += u64::from(node_count);
+            if region_nodes > most_nodes {
+                return Err("a region with more nodes than its vertices can have".into());
+            }
+            body.skip(skipped)?;
+            head.region_triangles += u64::from(triangle_count);
+        }
+        // The region's tail: its histogram and depth, then its triangles per part.
+        body.skip(9 * 8 + 4)?;
+        let part_count = u32::from_le_bytes(body.array()?);
+        body.skip(12 * u64::from(part_count))?;
+        head.region_roots.push(region_root);
+    }
+    Ok(head)
+}
+
+fn parse_root(
+    body: &mut BodyReader,
+    plan: &Plan,
+    index: u32,
+    root: u32,
+) -> Result<RootPart, String> {
+    let RootTop {
+        head,
+        region_count,
+        leaf_count,
+        ranks,
+        corners,
+        most_nodes,
+    } = parse_root_top(body, plan, index, root)?;
+    let RootHead {
+        root,
+        top_ids,
+        top_nodes,
+        top_triangles,
+        sums,
+        sphere,
+        ..
+    } = head;
     let leaves: Vec<[f32; 3]> = body.records(leaf_count as usize)?;
     if !leaves.iter().flatten().all(|x| x.is_finite()) {
         return Err("a leaf position that is not finite".into());
@@ -759,10 +981,18 @@ mod tests {
                     _ => damaged.truncate(random() as usize % damaged.len()),
                 }
                 let bytes = encoded(PART_MAGIC, 0, plan.id, &damaged);
+                // Skimmed as the merge's first pass reads a file: never a panic either.
+                let head = part_head_from_bytes(&bytes, &plan);
                 let Ok(part) = part_from_bytes(&bytes, &plan) else {
                     continue;
                 };
                 read += 1;
+                // A body that reads whole skims to the same head.
+                assert_eq!(
+                    head.map(|h| h.head),
+                    Ok(PartRead::from(part.clone()).head().head),
+                    "round {round}"
+                );
                 let mut all = vec![part];
                 all.extend(others.iter().cloned());
                 if super::super::merge(&plan, all).is_ok() {
