@@ -656,6 +656,79 @@ fn parse_root_top(
     })
 }
 
+/// A region's head: its root's subtree id and its page count, checked against the body.
+fn region_head(body: &mut BodyReader) -> Result<(u32, u32), String> {
+    let head: [u8; 8] = body.array()?;
+    let mut c = Cursor { bytes: &head };
+    let (region_root, page_count) = (c.u32()?, c.u32()?);
+    if page_count == 0 || u64::from(page_count) > body.left() / PAGE_HEAD_BYTES {
+        return Err(format!("a region of {page_count} pages"));
+    }
+    Ok((region_root, page_count))
+}
+
+/// A page's head as a part states it.
+enum PageHead {
+    /// A page the shard encoded: its frame follows.
+    Sealed {
+        frame_length: u32,
+        raw_length: u32,
+        node_count: u32,
+        triangle_count: u32,
+    },
+    /// A page's records: its nodes' subtree ids (the first in the head), nodes and triangles
+    /// follow.
+    Open {
+        first: u32,
+        first_id: u32,
+        node_count: u32,
+        triangle_count: u32,
+    },
+}
+
+/// The next page's head, its nodes counted into `region_nodes`, which may not pass
+/// `most_nodes`.
+fn page_head(
+    body: &mut BodyReader,
+    region_nodes: &mut u64,
+    most_nodes: u64,
+) -> Result<PageHead, String> {
+    let head: [u8; PAGE_HEAD_BYTES as usize] = body.array()?;
+    let mut c = Cursor { bytes: &head };
+    let kind = c.u8()?;
+    let (a, b, d, e) = (c.u32()?, c.u32()?, c.u32()?, c.u32()?);
+    match kind {
+        SEALED => {
+            let (frame_length, raw_length, node_count, triangle_count) = (a, b, d, e);
+            *region_nodes += u64::from(node_count);
+            if *region_nodes > most_nodes || raw_length > vds_format::MAX_PAGE_RAW_BYTES {
+                return Err("a sealed page larger than its vertices can fill".into());
+            }
+            Ok(PageHead::Sealed {
+                frame_length,
+                raw_length,
+                node_count,
+                triangle_count,
+            })
+        }
+        OPEN => {
+            // The head's last `u32` is the first of the subtree ids.
+            let (first, node_count, triangle_count, first_id) = (a, b, d, e);
+            *region_nodes += u64::from(node_count);
+            if node_count == 0 || *region_nodes > most_nodes {
+                return Err(format!("an open page of {node_count} nodes"));
+            }
+            Ok(PageHead::Open {
+                first,
+                first_id,
+                node_count,
+                triangle_count,
+            })
+        }
+        _ => Err(format!("a page of kind {kind}")),
+    }
+}
+
 /// Root `root`'s entry skimmed (see [`skim_body`]): its head and top checked as
 /// [`parse_root`] checks them, its regions' roots and page heads read, leaves and pages
 /// skipped.
@@ -675,41 +748,25 @@ fn skim_root(
     body.skip(12 * u64::from(leaf_count))?;
     let mut region_nodes = 0u64;
     for _ in 0..region_count {
-        let region: [u8; 8] = body.array()?;
-        let mut c = Cursor { bytes: &region };
-        let (region_root, page_count) = (c.u32()?, c.u32()?);
-        if page_count == 0 || u64::from(page_count) > body.left() / PAGE_HEAD_BYTES {
-            return Err(format!("a region of {page_count} pages"));
-        }
+        let (region_root, page_count) = region_head(body)?;
         for _ in 0..page_count {
-            let page: [u8; 17] = body.array()?;
-            let mut c = Cursor { bytes: &page };
-            let kind = c.u8()?;
-            let (a, b, d, e) = (c.u32()?, c.u32()?, c.u32()?, c.u32()?);
-            let (skipped, node_count, triangle_count) = match kind {
-                SEALED => {
-                    let (frame_length, raw_length, node_count, triangle_count) = (a, b, d, e);
-                    if raw_length > vds_format::MAX_PAGE_RAW_BYTES {
-                        return Err("a sealed page larger than its vertices can fill".into());
-                    }
-                    (u64::from(frame_length), node_count, triangle_count)
-                }
-                OPEN => {
-                    let (node_count, triangle_count) = (b, d);
-                    if node_count == 0 {
-                        return Err(format!("an open page of {node_count} nodes"));
-                    }
+            let (skipped, triangle_count) = match page_head(body, &mut region_nodes, most_nodes)? {
+                PageHead::Sealed {
+                    frame_length,
+                    triangle_count,
+                    ..
+                } => (u64::from(frame_length), triangle_count),
+                PageHead::Open {
+                    node_count,
+                    triangle_count,
+                    ..
+                } => {
                     let records = (u64::from(node_count) - 1) * 4
                         + u64::from(node_count) * NODE_BYTES as u64
                         + u64::from(triangle_count) * TRIANGLE_BYTES as u64;
-                    (records, node_count, triangle_count)
+                    (records, triangle_count)
                 }
-                _ => return Err(format!("a page of kind {kind}")),
             };
-            region_nodes += u64::from(node_count);
-            if region_nodes > most_nodes {
-                return Err("a region with more nodes than its vertices can have".into());
-            }
             body.skip(skipped)?;
             head.region_triangles += u64::from(triangle_count);
         }
@@ -752,41 +809,29 @@ fn parse_root(
     let mut regions = Vec::with_capacity(region_count as usize);
     let mut region_nodes = 0u64;
     for _ in 0..region_count {
-        let head: [u8; 8] = body.array()?;
-        let mut c = Cursor { bytes: &head };
-        let (region_root, page_count) = (c.u32()?, c.u32()?);
-        if page_count == 0 || u64::from(page_count) > body.left() / PAGE_HEAD_BYTES {
-            return Err(format!("a region of {page_count} pages"));
-        }
+        let (region_root, page_count) = region_head(body)?;
         let mut pages = Vec::with_capacity(page_count as usize);
         let (mut nodes_here, mut triangles_here) = (0u64, 0u64);
         for _ in 0..page_count {
-            let head: [u8; 17] = body.array()?;
-            let mut c = Cursor { bytes: &head };
-            let kind = c.u8()?;
-            let (a, b, d, e) = (c.u32()?, c.u32()?, c.u32()?, c.u32()?);
-            pages.push(match kind {
-                SEALED => {
-                    let (frame_length, raw_length, node_count, triangle_count) = (a, b, d, e);
-                    region_nodes += u64::from(node_count);
-                    if region_nodes > most_nodes || raw_length > vds_format::MAX_PAGE_RAW_BYTES {
-                        return Err("a sealed page larger than its vertices can fill".into());
-                    }
-                    RegionPage::Sealed(vds_format::EncodedPage {
-                        frame: body.records(frame_length as usize)?,
-                        raw_length,
-                        node_count,
-                        triangle_count,
-                    })
-                }
-                OPEN => {
-                    // The head's last `u32` is the first of the subtree ids.
-                    let (first, node_count, triangle_count) = (a, b, d);
-                    region_nodes += u64::from(node_count);
-                    if node_count == 0 || region_nodes > most_nodes {
-                        return Err(format!("an open page of {node_count} nodes"));
-                    }
-                    let mut ids = vec![e];
+            pages.push(match page_head(body, &mut region_nodes, most_nodes)? {
+                PageHead::Sealed {
+                    frame_length,
+                    raw_length,
+                    node_count,
+                    triangle_count,
+                } => RegionPage::Sealed(vds_format::EncodedPage {
+                    frame: body.records(frame_length as usize)?,
+                    raw_length,
+                    node_count,
+                    triangle_count,
+                }),
+                PageHead::Open {
+                    first,
+                    first_id,
+                    node_count,
+                    triangle_count,
+                } => {
+                    let mut ids = vec![first_id];
                     ids.extend(body.records::<u32>(node_count as usize - 1)?);
                     let nodes: Vec<NodeRecord> = body.records(node_count as usize)?;
                     let triangles: Vec<TriangleRecord> = body.records(triangle_count as usize)?;
@@ -799,7 +844,6 @@ fn parse_root(
                         triangles,
                     })
                 }
-                _ => return Err(format!("a page of kind {kind}")),
             });
         }
         for page in &pages {
