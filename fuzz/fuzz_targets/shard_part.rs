@@ -12,7 +12,9 @@
 use std::sync::OnceLock;
 
 use libfuzzer_sys::fuzz_target;
-use vds_build::shard::{Plan, PlanMetadata, merge, part_from_bytes, part_head_from_bytes, plan};
+use vds_build::shard::{
+    PartRead, Plan, PlanMetadata, merge, part_from_bytes, part_head_from_bytes, plan,
+};
 
 /// The plan every input is read against: one shard of a 16 × 16 grid of triangles, pages of
 /// 256 bytes (regions of 64 leaves).
@@ -53,10 +55,12 @@ fn the_plan() -> &'static Plan {
 
 fuzz_target!(|data: &[u8]| {
     let plan = the_plan();
-    // The merge's first pass skims a part (its pages and leaves passed over).
-    let _ = part_head_from_bytes(data, plan);
+    // The merge's first pass skims a part (its pages and leaves passed over); a part that
+    // reads whole skims to its own head.
+    let head = part_head_from_bytes(data, plan);
     let Ok(part) = part_from_bytes(data, plan) else {
         return;
     };
+    assert!(head.is_ok_and(|head| head.same_head(&PartRead::from(part.clone()).head())));
     let _ = merge(plan, vec![part]);
 });

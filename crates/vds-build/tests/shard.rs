@@ -6,8 +6,8 @@
 use std::path::PathBuf;
 
 use vds_build::shard::{
-    PartHead, Plan, PlanMetadata, RegionPage, ShardError, ShardPart, build_shard, merge, plan,
-    read_part, read_part_checked, read_part_head, write_part,
+    Durability, PartHead, Plan, PlanMetadata, RegionPage, ShardError, ShardPart, build_shard,
+    merge, plan, read_part, read_part_checked, read_part_head, write_part,
 };
 use vds_build::{build_tree, part_records, snap_to_grid, tree_content};
 use vds_format::{BuildInfo, Grid, Metadata, WriteOptions, encode};
@@ -294,7 +294,8 @@ fn parts_round_trip_through_files_and_the_plan_through_json() {
         // Written root by root as the shard builds them: the same bytes.
         let streamed = dir.path().join("streamed.vdtpart");
         let input = vds_build::shard::shard_input_of(&scene, &plan, &root_of, part.index);
-        vds_build::shard::write_shard(&streamed, &plan, part.index, input).unwrap();
+        vds_build::shard::write_shard(&streamed, &plan, part.index, input, Durability::Synced)
+            .unwrap();
         assert_eq!(
             std::fs::read(&streamed).unwrap(),
             std::fs::read(&path).unwrap()
@@ -458,6 +459,45 @@ fn truncated_or_damaged_parts_are_refused() {
     }
 }
 
+/// The merge's first pass reads a part file's heads unverified (it seeks over the rest): a
+/// part damaged anywhere, in a head, a page or a leaf, is still never merged, as the second
+/// pass reads it whole and checks it.
+#[test]
+fn a_part_file_damaged_anywhere_is_not_merged() {
+    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
+    let plan = planned_with(&scene, grid, 2, 256);
+    let all = parts(&scene, &plan);
+    let dir = temp_dir();
+    let paths: Vec<PathBuf> = all
+        .iter()
+        .map(|part| {
+            let path = dir.path().join(format!("shard-{}.vdtpart", part.index));
+            write_part(&path, part).unwrap();
+            path
+        })
+        .collect();
+    let good = std::fs::read(&paths[1]).unwrap();
+    let merge_files = || {
+        vds_build::shard::merge_to(
+            &plan,
+            |k| read_part_head(&paths[k as usize], &plan),
+            |k| read_part_checked(&paths[k as usize], &plan),
+            &mut Vec::new(),
+            &std::env::temp_dir(),
+        )
+    };
+    merge_files().unwrap();
+    // The body lies between the 32-byte header and the 24-byte trailer.
+    let body = 32..good.len() - 24;
+    for step in 1..=23 {
+        let at = body.start + (body.end - body.start) * step / 24;
+        let mut damaged = good.clone();
+        damaged[at] ^= 0x04;
+        std::fs::write(&paths[1], &damaged).unwrap();
+        assert!(merge_files().is_err(), "a bit flipped at byte {at} merged");
+    }
+}
+
 /// A part whose nodes all claim every triangle (a valid tree otherwise, and tiny once
 /// compressed) is refused before the merge would copy the triangles once per node.
 #[test]
@@ -521,7 +561,10 @@ fn shard_inputs_round_trip_through_files() {
         .collect();
     let root_of = roots_of_vertices(&scene, &plan).unwrap();
     // Without the shards' triangle counts in the plan, an input is not read.
-    let counts = write_shard_inputs(&scene, &plan, &root_of, &paths, 2, |_, _| {}).unwrap();
+    let written_for = plan.id;
+    let transient = Durability::Transient;
+    let counts =
+        write_shard_inputs(&scene, &plan, &root_of, &paths, 2, transient, |_, _| {}).unwrap();
     assert!(matches!(
         read_shard_input(&paths[0], &plan, 0),
         Err(ShardError::BadFile { .. })
@@ -534,16 +577,21 @@ fn shard_inputs_round_trip_through_files() {
     plan.shard_triangles = counts;
     plan.seal();
     // The inputs name the plan as it was when they were written, not the one sealed with
-    // their counts, until they are stamped; a stamp for another shard's file is refused.
+    // their counts, until they are stamped; a stamp for another shard's file, or for files
+    // written for another plan, is refused.
     assert!(matches!(
         read_shard_input(&paths[0], &plan, 0),
         Err(ShardError::BadFile { reason, .. }) if reason.contains("not of shard 0 of this plan")
     ));
     assert!(matches!(
-        stamp_shard_inputs(&paths[1..], &plan),
+        stamp_shard_inputs(&paths[1..], written_for, &plan, transient),
         Err(ShardError::BadFile { reason, .. }) if reason.contains("not of shard 0")
     ));
-    stamp_shard_inputs(&paths, &plan).unwrap();
+    assert!(matches!(
+        stamp_shard_inputs(&paths, written_for ^ 1, &plan, transient),
+        Err(ShardError::BadFile { reason, .. }) if reason.contains("not of shard 0")
+    ));
+    stamp_shard_inputs(&paths, written_for, &plan, Durability::Synced).unwrap();
     for (k, path) in paths.iter().enumerate() {
         let input = read_shard_input(path, &plan, k as u32).unwrap();
         assert_eq!(input, shard_input_of(&scene, &plan, &root_of, k as u32));

@@ -416,7 +416,23 @@ impl AtomicFile {
     ///
     /// # Errors
     /// [`OutputError::Io`] when a step fails; the target is then as it was.
-    pub fn commit(mut self) -> Result<(), OutputError> {
+    pub fn commit(self) -> Result<(), OutputError> {
+        self.finish(true)
+    }
+
+    /// Renames the file over the target without syncing it or its directory: for a file a
+    /// crash of the machine makes worthless anyway (a build's own intermediate files in its
+    /// own temporary folder), where the sync would only wait for the disk. A crash can leave
+    /// the target empty or partly written, never a process's half-written file under the
+    /// target's name while the machine runs.
+    ///
+    /// # Errors
+    /// [`OutputError::Io`] when a step fails; the target is then as it was.
+    pub fn commit_unsynced(self) -> Result<(), OutputError> {
+        self.finish(false)
+    }
+
+    fn finish(mut self, sync: bool) -> Result<(), OutputError> {
         let out = self.out.take().expect("a file is committed once");
         // On failure the temporary file is removed while still open, so its lock keeps any
         // other writer of the same target from taking the name in between.
@@ -435,7 +451,7 @@ impl AtomicFile {
                 return fail(cause, out.into_parts().0);
             }
         };
-        if let Err(cause) = file.sync_all() {
+        if sync && let Err(cause) = file.sync_all() {
             return fail(cause, file);
         }
         // Renamed while the lock is held, so no cleaner takes it for stale before.
@@ -445,7 +461,7 @@ impl AtomicFile {
         drop(file);
         // The rename is durable once the directory is synced; failing to sync it (some
         // filesystems refuse) loses nothing written so far.
-        if let Ok(directory) = File::open(directory_of(&self.target)) {
+        if sync && let Ok(directory) = File::open(directory_of(&self.target)) {
             let _ = directory.sync_all();
         }
         Ok(())

@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use zerocopy::{FromZeros, IntoBytes};
 
-use super::container::{BodyReader, BodyWriter, Codec, body_stream, read_ends};
+use super::container::{BodyReader, BodyWriter, Codec, Durability, body_stream, read_ends};
 use super::part::{InputTriangle, InputVertex, ShardInput, input_triangle, input_vertex};
 use super::{Plan, PlanScene, ShardError};
 
@@ -110,12 +110,15 @@ fn for_each_shard(shards: [usize; 3], mut f: impl FnMut(usize)) {
 /// Returns how many triangles each shard's input holds (what [`shard_triangle_counts`]
 /// counts), which a plan records before its id is taken: the files name `plan` as it is
 /// when they are written, and [`stamp_shard_inputs`] names the plan that records the counts.
+/// `durability`: whether each file is synced before it is renamed into place.
+#[allow(clippy::too_many_arguments)]
 pub fn write_shard_inputs(
     scene: &impl PlanScene,
     plan: &Plan,
     root_of: &[u32],
     paths: &[PathBuf],
     files_per_pass: usize,
+    durability: Durability,
     mut on_progress: impl FnMut(u64, u64),
 ) -> Result<Vec<u64>, ShardError> {
     let files_per_pass = files_per_pass.clamp(1, MAX_FILES_PER_PASS);
@@ -133,7 +136,7 @@ pub fn write_shard_inputs(
         let batch = first..(first + files_per_pass).min(paths.len());
         let mut files = batch
             .clone()
-            .map(|k| InputWriter::create(&paths[k], k as u32, plan.id))
+            .map(|k| InputWriter::create(&paths[k], k as u32, plan.id, durability))
             .collect::<Result<Vec<_>, _>>()?;
         let mut gathered = Gathered::new(pieces, batch.len());
         // The shards' own vertices, in id order.
@@ -213,10 +216,17 @@ pub fn write_shard_inputs(
 }
 
 /// Names `plan` (sealed, with its shards' triangle counts) in the header of each shard's input
-/// that [`write_shard_inputs`] wrote to `paths` for it before its id was taken.
-pub fn stamp_shard_inputs(paths: &[PathBuf], plan: &Plan) -> Result<(), ShardError> {
+/// that [`write_shard_inputs`] wrote to `paths` for it when its id was `written_for`, before
+/// the counts; each header is synced where `durability` says.
+pub fn stamp_shard_inputs(
+    paths: &[PathBuf],
+    written_for: u64,
+    plan: &Plan,
+    durability: Durability,
+) -> Result<(), ShardError> {
     for (k, path) in paths.iter().enumerate() {
-        super::container::restamp(path, INPUT_MAGIC, WHAT, k as u32, plan.id)?;
+        let file = (k as u32, written_for);
+        super::container::restamp(path, INPUT_MAGIC, WHAT, file, plan.id, durability)?;
     }
     Ok(())
 }
@@ -237,9 +247,14 @@ struct InputWriter {
 
 impl InputWriter {
     /// Starts the input of shard `index` of plan `plan_id` at `path`, with its own vertices.
-    fn create(path: &Path, index: u32, plan_id: u64) -> Result<InputWriter, ShardError> {
+    fn create(
+        path: &Path,
+        index: u32,
+        plan_id: u64,
+        durability: Durability,
+    ) -> Result<InputWriter, ShardError> {
         Ok(InputWriter {
-            body: BodyWriter::create(path, INPUT_MAGIC, index, plan_id)?,
+            body: BodyWriter::create(path, INPUT_MAGIC, index, plan_id, durability)?,
             record_bytes: VERTEX_BYTES as usize,
             records: 0,
             block: Vec::with_capacity(BLOCK_BYTES),
@@ -622,7 +637,7 @@ mod tests {
             (Vec::new(), triangle),
             (record(2 * BLOCK_RECORDS + 70, vertex, 2), vertex),
         ];
-        let mut writer = InputWriter::create(&path, 0, 7).unwrap();
+        let mut writer = InputWriter::create(&path, 0, 7, Durability::Transient).unwrap();
         for (k, (bytes, record_bytes)) in runs.iter().enumerate() {
             if k > 0 {
                 writer.next_run(*record_bytes).unwrap();

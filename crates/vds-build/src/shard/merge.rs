@@ -36,6 +36,7 @@ use vds_format::{
     NodeRecord, PageLayout, TriangleRecord, WriteReport, attach_region, attached_id, detached_id,
     encode_page_frame, encode_pages, file_head, in_top_with_children,
 };
+use xxhash_rust::xxh3::Xxh3;
 use zerocopy::IntoBytes;
 use zerocopy::little_endian::U32;
 
@@ -76,16 +77,17 @@ pub fn merge(plan: &Plan, parts: Vec<ShardPart>) -> Result<Vec<u8>, ShardError> 
         )));
     }
     let mut out = Vec::new();
-    // The first pass gets heads, the second the parts themselves.
-    let heads: Vec<PartHead> = by_index
-        .iter()
-        .map(|part| PartHead::of(part.as_ref().expect("every shard is present")))
-        .collect();
+    // The first pass gets each part's head, the second the part itself.
+    let by_index = std::cell::RefCell::new(by_index);
     merge_to(
         plan,
-        |k| Ok(heads[k as usize].clone()),
         |k| {
-            let part = by_index[k as usize].take();
+            let parts = by_index.borrow();
+            let part = parts[k as usize].as_ref();
+            Ok(PartHead::of(part.expect("every shard is present")))
+        },
+        |k| {
+            let part = by_index.borrow_mut()[k as usize].take();
             Ok(part.expect("every shard is present, once").into())
         },
         &mut out,
@@ -215,6 +217,11 @@ impl ShardHead {
 }
 
 impl PartHead {
+    /// Whether `other` holds the same head, however either was read (their stamps aside).
+    pub fn same_head(&self, other: &PartHead) -> bool {
+        self.head == other.head
+    }
+
     /// The head read from a file whose trailer states body checksum `checksum`.
     pub(crate) fn from_file(head: ShardHead, checksum: u64) -> PartHead {
         PartHead {
@@ -266,7 +273,7 @@ pub fn merge_to(
             head.roots.iter().map(|r| r.root),
             k,
         )?;
-        stamps.push(stamp);
+        stamps.push((stamp, head_digest(&head)));
         top.gather(&head)?;
     }
     let top = top.finish()?;
@@ -281,7 +288,10 @@ pub fn merge_to(
             shard.roots.iter().map(|r| r.root),
             k,
         )?;
-        if read.stamp() != stamps[k as usize] {
+        // The part is the one whose head the first pass read: the same stamp (a file not
+        // rewritten since), and the same head (what a file's skim read, unverified, is the
+        // verified part's).
+        if (read.stamp(), head_digest(&ShardHead::of(shard))) != stamps[k as usize] {
             return Err(set(format!(
                 "shard {k}: its part changed between the merge's two passes"
             )));
@@ -293,7 +303,7 @@ pub fn merge_to(
 
 /// A digest of everything in a part, to tell that both passes read the same one.
 fn digest(shard: &ShardPart) -> u64 {
-    let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+    let mut hasher = Xxh3::new();
     for root in &shard.roots {
         hasher.update(&root.root.to_le_bytes());
         hasher.update(root.top_ids.as_bytes());
@@ -325,45 +335,73 @@ fn digest(shard: &ShardPart) -> u64 {
                 hasher.update(&count.to_le_bytes());
             }
         }
-        let (sums, sphere) = (&root.sums, &root.sphere);
-        let floats = sums
-            .quadric
-            .a
-            .iter()
-            .chain(&sums.quadric.b)
-            .chain([&sums.quadric.c])
-            .chain(&sums.position_sum)
-            .chain(&sums.cone.axis)
-            .chain([&sums.cone.half_angle]);
-        for x in floats {
+        hash_sums(&mut hasher, &root.sums, &root.sphere);
+    }
+    hash_cross(&mut hasher, &shard.cross);
+    hasher.digest()
+}
+
+/// A digest of everything in a part's head: the merge's second pass checks that the whole
+/// part it reads has the head its first pass gathered the top from (a head skimmed from a
+/// file is not checked against the file's checksum, [`super::read_part_head`]).
+fn head_digest(head: &ShardHead) -> u64 {
+    let mut hasher = Xxh3::new();
+    for root in &head.roots {
+        hasher.update(&root.root.to_le_bytes());
+        hasher.update(root.top_ids.as_bytes());
+        hasher.update(root.top_nodes.as_bytes());
+        hasher.update(root.top_triangles.as_bytes());
+        hasher.update(root.region_roots.as_bytes());
+        hasher.update(&root.region_triangles.to_le_bytes());
+        hasher.update(&root.leaves.to_le_bytes());
+        hash_sums(&mut hasher, &root.sums, &root.sphere);
+    }
+    hash_cross(&mut hasher, &head.cross);
+    hasher.digest()
+}
+
+/// Adds a root's sums and sphere to a digest.
+fn hash_sums(hasher: &mut Xxh3, sums: &Accumulator, sphere: &Sphere) {
+    let floats = sums
+        .quadric
+        .a
+        .iter()
+        .chain(&sums.quadric.b)
+        .chain([&sums.quadric.c])
+        .chain(&sums.position_sum)
+        .chain(&sums.cone.axis)
+        .chain([&sums.cone.half_angle]);
+    for x in floats {
+        hasher.update(&x.to_le_bytes());
+    }
+    for x in sums
+        .vertex_box
+        .min
+        .iter()
+        .chain(&sums.vertex_box.max)
+        .chain(&sums.triangle_box.min)
+        .chain(&sums.triangle_box.max)
+        .chain(&sphere.center)
+        .chain([&sphere.radius])
+    {
+        hasher.update(&x.to_le_bytes());
+    }
+    if let Some(cone) = &sums.two_sided {
+        for x in cone.axis.iter().chain([&cone.half_angle]) {
             hasher.update(&x.to_le_bytes());
-        }
-        for x in sums
-            .vertex_box
-            .min
-            .iter()
-            .chain(&sums.vertex_box.max)
-            .chain(&sums.triangle_box.min)
-            .chain(&sums.triangle_box.max)
-            .chain(&sphere.center)
-            .chain([&sphere.radius])
-        {
-            hasher.update(&x.to_le_bytes());
-        }
-        if let Some(cone) = &sums.two_sided {
-            for x in cone.axis.iter().chain([&cone.half_angle]) {
-                hasher.update(&x.to_le_bytes());
-            }
         }
     }
-    for c in &shard.cross {
+}
+
+/// Adds cross corners to a digest.
+fn hash_cross(hasher: &mut Xxh3, cross: &[CrossCorner]) {
+    for c in cross {
         hasher.update(&c.triangle.to_le_bytes());
         hasher.update(&[c.corner]);
         for n in [c.root, c.rank, c.part, c.owner] {
             hasher.update(&n.to_le_bytes());
         }
     }
-    hasher.digest()
 }
 
 /// The checks that a part (or its head) of plan `plan_id`, shard `index`, holding `roots`,

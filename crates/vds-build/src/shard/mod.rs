@@ -40,6 +40,7 @@ pub mod plan;
 mod seal;
 mod source;
 
+pub use container::Durability;
 pub use input_file::{
     INPUT_MAGIC, INPUT_WRITER_BYTES, MAX_FILES_PER_PASS, read_shard_input, shard_triangle_counts,
     stamp_shard_inputs, write_shard_inputs,

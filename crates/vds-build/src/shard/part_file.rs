@@ -39,8 +39,8 @@ use vds_format::{NO_NODE, NodeRecord, TriangleRecord};
 use zerocopy::IntoBytes;
 
 use super::container::{
-    BodyReader, BodyWriter, Codec, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream, file_size,
-    parse_header, parse_trailer, read_ends,
+    BodyReader, BodyWriter, Codec, Durability, HEADER_BYTES, TRAILER_BYTES, Trailer, body_stream,
+    file_size, parse_header, parse_trailer, read_ends,
 };
 use super::merge::{PartHead, PartRead, RootHead, ShardHead};
 use super::part::{CrossCorner, OpenPage, RegionPage, RegionPart, RootPart, ShardInput, ShardPart};
@@ -65,9 +65,15 @@ const REGION_TAIL_BYTES: u64 = 9 * 8 + 4 + 4;
 const NODE_BYTES: usize = vds_format::layout::NODE_BYTES;
 const TRIANGLE_BYTES: usize = vds_format::layout::TRIANGLE_BYTES;
 
-/// Writes `part` to `path` (a temporary file, then renamed).
+/// Writes `part` to `path` (a temporary file, synced, then renamed).
 pub fn write_part(path: &Path, part: &ShardPart) -> Result<(), ShardError> {
-    let mut out = BodyWriter::create(path, PART_MAGIC, part.index, part.plan_id)?;
+    let mut out = BodyWriter::create(
+        path,
+        PART_MAGIC,
+        part.index,
+        part.plan_id,
+        Durability::Synced,
+    )?;
     out.put(&(part.roots.len() as u32).to_le_bytes())?;
     for root in &part.roots {
         put_root(&mut out, root)?;
@@ -78,15 +84,17 @@ pub fn write_part(path: &Path, part: &ShardPart) -> Result<(), ShardError> {
 
 /// Builds shard `index` of `plan` from its input and writes its part to `path`, each root as
 /// soon as it is built: what [`super::build_shard_from`] and [`write_part`] do, without
-/// holding every root's records at once. Returns the number of cross-root corners.
+/// holding every root's records at once; `durability`: whether the file is synced before it
+/// is renamed into place. Returns the number of cross-root corners.
 pub fn write_shard(
     path: &Path,
     plan: &Plan,
     index: u32,
     input: ShardInput,
+    durability: Durability,
 ) -> Result<usize, ShardError> {
     plan.check_index(index)?;
-    let mut out = BodyWriter::create(path, PART_MAGIC, index, plan.id)?;
+    let mut out = BodyWriter::create(path, PART_MAGIC, index, plan.id, durability)?;
     out.put(&(plan.shard_roots(index).len() as u32).to_le_bytes())?;
     let cross = super::build_shard_into(plan, index, input, |root| put_root(&mut out, &root))?;
     put_cross(&mut out, &cross)?;
@@ -581,8 +589,6 @@ fn parse_cross(
     Ok(cross)
 }
 
-/// One root's entry, checked: counts against the body and the root's vertices, ranges
-/// against the root, values finite.
 /// A root's entry up to its leaves: its head and top, and what the rest is checked against.
 struct RootTop {
     /// The head, its regions' roots and triangles not filled in.
@@ -779,6 +785,8 @@ fn skim_root(
     Ok(head)
 }
 
+/// One root's entry, checked: counts against the body and the root's vertices, ranges
+/// against the root, values finite.
 fn parse_root(
     body: &mut BodyReader,
     plan: &Plan,
@@ -1025,8 +1033,15 @@ mod tests {
                     _ => damaged.truncate(random() as usize % damaged.len()),
                 }
                 let bytes = encoded(PART_MAGIC, 0, plan.id, &damaged);
-                // Skimmed as the merge's first pass reads a file: never a panic either.
+                // Skimmed as the merge's first pass reads a file: never a panic either, and
+                // seeking over a file's bytes finds what reading them does.
                 let head = part_head_from_bytes(&bytes, &plan);
+                std::fs::write(&path, &bytes).unwrap();
+                match (&head, read_part_head(&path, &plan)) {
+                    (Ok(read), Ok(sought)) => assert_eq!(*read, sought, "round {round}"),
+                    (Err(_), Err(_)) => {}
+                    (read, sought) => panic!("round {round}: {read:?} against {sought:?}"),
+                }
                 let Ok(part) = part_from_bytes(&bytes, &plan) else {
                     continue;
                 };

@@ -20,7 +20,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
-use vds_build::shard::{self, Plan};
+use vds_build::shard::{self, Durability, Plan};
 use vds_import::Weld;
 
 use crate::sharded::{
@@ -197,7 +197,15 @@ pub(crate) fn build_within(
         // whose largest shard does not fit is made again finer, and its inputs overwritten
         // (a finer plan has more shards, so every one).
         let mut planned = plan_scene(&scene, &basis, inputs, shards, &plan_path)?;
-        write_inputs(&scene, &mut planned, files_per_pass, &progress)?;
+        // The inputs and parts are the build's own, in its temporary folder: a crash makes
+        // them worthless anyway, so they are not synced.
+        write_inputs(
+            &scene,
+            &mut planned,
+            files_per_pass,
+            Durability::Transient,
+            &progress,
+        )?;
         let largest = planned
             .plan
             .shard_triangles
@@ -359,7 +367,10 @@ fn build_shards(
                         break;
                     }
                     let input = folder.join(&plan.input_files[k as usize]);
-                    if let Err(error) = build_shard_file(plan, &input, k, &parts[k as usize]) {
+                    let part = &parts[k as usize];
+                    if let Err(error) =
+                        build_shard_file(plan, &input, k, part, Durability::Transient)
+                    {
                         failure.lock().expect("not poisoned").get_or_insert(error);
                         break;
                     }

@@ -15,7 +15,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use vds_build::shard::{self, Plan, PlanMetadata};
+use vds_build::shard::{self, Durability, Plan, PlanMetadata};
 use vds_import::{SpilledScene, Weld};
 
 use crate::{ImportLimits, MAX_THREADS, PageOptions, check_output, hash_files_aside};
@@ -164,7 +164,7 @@ pub fn main() -> Result<()> {
             let input_file = folder_of(&plan_path).join(name);
             check_output(&output, &[input_file.clone(), plan_path.clone()])?;
             progress.phase("building the shard's subtrees");
-            let cross = build_shard_file(&plan, &input_file, index, &output)?;
+            let cross = build_shard_file(&plan, &input_file, index, &output, Durability::Synced)?;
             say(format!(
                 "built shard {index} of {} ({} roots, {cross} corners of triangles across roots)",
                 plan.shard_count(),
@@ -290,13 +290,14 @@ pub(crate) fn plan_scene(
     })
 }
 
-/// Writes the shards' inputs (`files_per_pass` at a time), counting each shard's triangles
-/// as it goes: the plan records the counts, is sealed with them, and its inputs are named
-/// for it.
+/// Writes the shards' inputs (`files_per_pass` at a time, each synced where `durability`
+/// says), counting each shard's triangles as it goes: the plan records the counts, is
+/// sealed with them, and its inputs are named for it.
 pub(crate) fn write_inputs(
     scene: &SpilledScene,
     planned: &mut Planned,
     files_per_pass: usize,
+    durability: Durability,
     progress: &Progress,
 ) -> Result<()> {
     let Planned {
@@ -305,16 +306,18 @@ pub(crate) fn write_inputs(
         root_of,
     } = planned;
     progress.counted("writing the shards' inputs (triangles)");
+    let written_for = plan.id;
     plan.shard_triangles = shard::write_shard_inputs(
         scene,
         plan,
         root_of,
         input_paths,
         files_per_pass,
+        durability,
         |done, total| progress.set(done, total),
     )?;
     plan.seal();
-    shard::stamp_shard_inputs(input_paths, plan)?;
+    shard::stamp_shard_inputs(input_paths, written_for, plan, durability)?;
     Ok(())
 }
 
@@ -326,7 +329,8 @@ pub(crate) fn save_plan(planned: Planned, plan_path: &Path) -> Result<Plan> {
     Ok(plan)
 }
 
-/// [`write_inputs`], then (with the scene freed) [`save_plan`].
+/// [`write_inputs`] (synced: later jobs read them), then (with the scene freed)
+/// [`save_plan`].
 pub(crate) fn write_plan(
     scene: SpilledScene,
     mut planned: Planned,
@@ -334,21 +338,28 @@ pub(crate) fn write_plan(
     files_per_pass: usize,
     progress: &Progress,
 ) -> Result<Plan> {
-    write_inputs(&scene, &mut planned, files_per_pass, progress)?;
+    write_inputs(
+        &scene,
+        &mut planned,
+        files_per_pass,
+        Durability::Synced,
+        progress,
+    )?;
     drop(scene);
     save_plan(planned, plan_path)
 }
 
-/// Builds shard `index` from its input file and writes its part to `output`; returns its
-/// count of corners of triangles across roots.
+/// Builds shard `index` from its input file and writes its part to `output` (synced where
+/// `durability` says); returns its count of corners of triangles across roots.
 pub(crate) fn build_shard_file(
     plan: &Plan,
     input_file: &Path,
     index: u32,
     output: &Path,
+    durability: Durability,
 ) -> Result<usize> {
     let input = shard::read_shard_input(input_file, plan, index)?;
-    Ok(shard::write_shard(output, plan, index, input)?)
+    Ok(shard::write_shard(output, plan, index, input, durability)?)
 }
 
 /// Merges the parts (in shard order) into `output`: each part's head read in the merge's first
@@ -408,6 +419,17 @@ pub(crate) fn merge_parts(
         )
         // `receive` is dropped as this returns: a reader still holding a part that nobody
         // will ask for (after an error) stops, and the scope's wait for it ends.
+    })
+    // The first pass reads heads unverified: a damaged part can make the parts disagree
+    // before the second pass would have found its checksum wrong. The file is named then.
+    .or_else(|error| match error {
+        shard::ShardError::PartSet(_) => {
+            for part in parts {
+                shard::read_part_checked(part, plan)?;
+            }
+            Err(error)
+        }
+        other => Err(other),
     })
     .with_context(|| format!("cannot merge into {}", output.display()))?;
     file.commit()?;
