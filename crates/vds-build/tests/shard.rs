@@ -342,11 +342,9 @@ fn merge_refuses_a_part_that_changes_between_its_passes() {
     assert!(error.contains("changed between"), "{error}");
 }
 
-/// Parts read from files are told apart by their checksums, not hashed again: a part file
-/// rewritten between the merge's passes (same plan, same shape) is refused, and one left as
-/// it was merges into the in-memory merge's bytes.
-#[test]
-fn merge_refuses_a_part_file_rewritten_between_its_passes() {
+/// The assembly planned in two shards with small pages (regions of pages in each part), its
+/// parts, and the parts written to files in a temporary folder.
+fn assembly_part_files() -> (Plan, Vec<ShardPart>, tempfile::TempDir, Vec<PathBuf>) {
     let (scene, grid) = loaded(testdata("as1_assembly.obj"));
     let plan = planned_with(&scene, grid, 2, 256);
     let all = parts(&scene, &plan);
@@ -359,6 +357,15 @@ fn merge_refuses_a_part_file_rewritten_between_its_passes() {
             path
         })
         .collect();
+    (plan, all, dir, paths)
+}
+
+/// Parts read from files are told apart by their checksums, not hashed again: a part file
+/// rewritten between the merge's passes (same plan, same shape) is refused, and one left as
+/// it was merges into the in-memory merge's bytes.
+#[test]
+fn merge_refuses_a_part_file_rewritten_between_its_passes() {
+    let (plan, all, _dir, paths) = assembly_part_files();
     let expected = merge(&plan, all.clone()).unwrap();
     for rewrite in [false, true] {
         let mut out = Vec::new();
@@ -464,18 +471,7 @@ fn truncated_or_damaged_parts_are_refused() {
 /// pass reads it whole and checks it.
 #[test]
 fn a_part_file_damaged_anywhere_is_not_merged() {
-    let (scene, grid) = loaded(testdata("as1_assembly.obj"));
-    let plan = planned_with(&scene, grid, 2, 256);
-    let all = parts(&scene, &plan);
-    let dir = temp_dir();
-    let paths: Vec<PathBuf> = all
-        .iter()
-        .map(|part| {
-            let path = dir.path().join(format!("shard-{}.vdtpart", part.index));
-            write_part(&path, part).unwrap();
-            path
-        })
-        .collect();
+    let (plan, _, _dir, paths) = assembly_part_files();
     let good = std::fs::read(&paths[1]).unwrap();
     let merge_files = || {
         vds_build::shard::merge_to(
