@@ -13,7 +13,7 @@ use std::sync::OnceLock;
 
 use libfuzzer_sys::fuzz_target;
 use vds_build::shard::{
-    PartRead, Plan, PlanMetadata, merge, part_from_bytes, part_head_from_bytes, plan,
+    PartHead, Plan, PlanMetadata, merge, part_from_bytes, part_head_from_bytes, plan,
 };
 
 /// The plan every input is read against: one shard of a 16 × 16 grid of triangles, pages of
@@ -61,6 +61,6 @@ fuzz_target!(|data: &[u8]| {
     let Ok(part) = part_from_bytes(data, plan) else {
         return;
     };
-    assert!(head.is_ok_and(|head| head.same_head(&PartRead::from(part.clone()).head())));
+    assert!(head.is_ok_and(|head| head.same_head(&PartHead::of(&part))));
     let _ = merge(plan, vec![part]);
 });

@@ -777,7 +777,7 @@ fn skim_root(
             head.region_triangles += u64::from(triangle_count);
         }
         // The region's tail: its histogram and depth, then its triangles per part.
-        body.skip(9 * 8 + 4)?;
+        body.skip(REGION_TAIL_BYTES - 4)?;
         let part_count = u32::from_le_bytes(body.array()?);
         body.skip(12 * u64::from(part_count))?;
         head.region_roots.push(region_root);
@@ -1049,7 +1049,7 @@ mod tests {
                 // A body that reads whole skims to the same head.
                 assert_eq!(
                     head.map(|h| h.head),
-                    Ok(PartRead::from(part.clone()).head().head),
+                    Ok(PartHead::of(&part).head),
                     "round {round}"
                 );
                 let mut all = vec![part];
