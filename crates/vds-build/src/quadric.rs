@@ -96,10 +96,11 @@ impl Quadric {
     /// The point minimising the error, solved around `mean` along well-conditioned
     /// directions only (rank-truncated pseudo-inverse).
     ///
-    /// Where every eigenvalue of `A` provably exceeds the cutoff ([`all_directions_kept`]),
-    /// the truncated pseudo-inverse is the inverse, and the step is solved directly by
-    /// cofactors; only the other clusters (flat or linear ones, about 45 % of the bunny's
-    /// inner nodes) pay for the eigen-decomposition, which cost about 600 ns a node.
+    /// Where the characteristic polynomial shows every eigenvalue of `A` above the cutoff,
+    /// the truncated pseudo-inverse is the inverse, solved by cofactors; where it shows
+    /// exactly one under it (a flat cluster), that eigenvalue and its eigenvector are found
+    /// directly and the rest solved by cofactors. Only the other clusters (linear or nearly
+    /// so) pay for the Jacobi eigen-decomposition, which costs a few hundred nanoseconds.
     // Inlined into the build's wide kernels (`crate::isa`), as is `symmetric_eigen`.
     #[inline(always)]
     pub fn minimizer_near(&self, mean: [f64; 3]) -> [f64; 3] {
