@@ -98,18 +98,17 @@ impl Quadric {
     ///
     /// Where the characteristic polynomial shows every eigenvalue of `A` above the cutoff,
     /// the truncated pseudo-inverse is the inverse, solved by cofactors; where it shows
-    /// exactly one under it (a flat cluster), that eigenvalue and its eigenvector are found
-    /// directly and the rest solved by cofactors. Only the other clusters (linear or nearly
-    /// so) pay for the Jacobi eigen-decomposition, which costs a few hundred nanoseconds.
+    /// exactly one under it (a crease or a cylinder-like patch, free along its axis), that
+    /// eigenvalue and its eigenvector are found directly and the rest solved by cofactors
+    /// ([`solve_directly`]). Only the other clusters (flat ones, whose planes constrain one
+    /// direction, and degenerate ones) pay for the Jacobi eigen-decomposition, which costs a
+    /// few hundred nanoseconds.
     // Inlined into the build's wide kernels (`crate::isa`), as is `symmetric_eigen`.
     #[inline(always)]
     pub fn minimizer_near(&self, mean: [f64; 3]) -> [f64; 3] {
         // Gradient of E at the mean is 2(A·mean + b); step = -A⁺(A·mean + b).
         let residual = add(self.apply(mean), self.b);
-        let c = characteristic(&self.a);
-        match solve_well_conditioned(&c, residual)
-            .or_else(|| solve_one_dropped(&self.a, &c, residual))
-        {
+        match solve_directly(&self.a, residual) {
             Some(pseudo_inverse_times_residual) => sub(mean, pseudo_inverse_times_residual),
             None => self.minimizer_by_eigen(mean, residual),
         }
@@ -136,6 +135,36 @@ impl Quadric {
         }
         point
     }
+}
+
+/// `A⁺·r` by [`solve_well_conditioned`] or [`solve_one_dropped`], where either applies, or
+/// `None` (the eigen-decomposition decides then). Both run on `A` and `r` scaled by the power
+/// of two that brings the trace into `[1, 2)`: the scaling is exact and `(sA)⁺·(s·r) = A⁺·r`,
+/// so the result is the same bits as unscaled wherever that stays in range, and determinants
+/// and cross products of quadrics of any size (areas of 10⁻⁸⁰ or 10¹⁰⁰) stay normal
+/// numbers instead of overflowing or losing their precision in subnormals. A result that is
+/// still not finite (a residual too large for its scale) is left to the eigen-decomposition.
+#[inline(always)]
+fn solve_directly(a: &[f64; 6], r: [f64; 3]) -> Option<[f64; 3]> {
+    let scale = inverse_power_of_two(a[0] + a[3] + a[5])?;
+    let a = a.map(|x| x * scale);
+    let r = r.map(|x| x * scale);
+    let c = characteristic(&a);
+    let solved = solve_well_conditioned(&c, r).or_else(|| solve_one_dropped(&a, &c, r))?;
+    solved.iter().all(|x| x.is_finite()).then_some(solved)
+}
+
+/// `2⁻ᵉ` for a positive normal `x` in `[2ᵉ, 2ᵉ⁺¹)`, where that is a normal number too;
+/// `None` otherwise.
+#[inline(always)]
+fn inverse_power_of_two(x: f64) -> Option<f64> {
+    if !(x.is_normal() && x > 0.0) {
+        return None;
+    }
+    // Biased exponents: `e + 1023` for `x`, `−e + 1023 = 2046 − (e + 1023)` for its inverse.
+    let biased = (x.to_bits() >> 52) & 0x7ff;
+    let inverse = 2046 - biased;
+    (inverse >= 1).then(|| f64::from_bits(inverse << 52))
 }
 
 /// The coefficients of the characteristic polynomial `λ³ − trace·λ² + minors·λ − det` of a
@@ -212,15 +241,16 @@ fn cofactor_solve(c: &Characteristic, r: [f64; 3]) -> [f64; 3] {
 }
 
 /// `A⁺·r` where exactly one eigenvalue of `A` (positive semi-definite, with characteristic
-/// `c`) provably falls under the cutoff and the other two clear it, each by 1 %: a flat
-/// cluster, whose proxy keeps the mean's height along the normal. `None` where that is not
-/// shown (the eigen-decomposition decides then).
+/// `c`) provably falls under the cutoff and the other two clear it, each by 1 %: a crease or
+/// a cylinder-like patch, whose proxy keeps the mean's place along the axis the planes leave
+/// free. `None` where that is not shown (the eigen-decomposition decides then).
 ///
 /// The middle eigenvalue is shown to clear the cutoff as in [`all_directions_kept`]. The
 /// smallest, `λ₁`, is the smallest root of the characteristic polynomial, found by Newton's
 /// method from 0: the polynomial is concave and increasing left of `λ₁` (which is at most a
 /// third of the trace), so every step lands left of the root and the iterates rise to it;
-/// one that has not settled within eight steps leaves the solve to the eigen-decomposition. The other two follow from the trace and the minors (`λ₂ + λ₃ = trace − λ₁`,
+/// one that has not settled within eight steps leaves the solve to the eigen-decomposition.
+/// The other two follow from the trace and the minors (`λ₂ + λ₃ = trace − λ₁`,
 /// `λ₂·λ₃ = minors − λ₁·(λ₂ + λ₃)`). Its eigenvector `u₁` is the longest cross product of
 /// two rows of `A − λ₁·I`, whose rows span the plane of the other two. With `B` the part
 /// of `A` kept, `B⁺·r = M⁻¹·r − u₁(u₁·r)/λ₃` for `M = A + (λ₃ − λ₁)·u₁u₁ᵀ` (eigenvalues
@@ -519,6 +549,82 @@ mod tests {
         let point = q.minimizer_near(mean);
         assert!(point.iter().all(|x| x.is_finite()));
         assert_eq!(point, q.minimizer_by_eigen(mean, residual));
+    }
+
+    #[test]
+    fn direct_solves_hold_at_extreme_scales() {
+        // Quadrics of areas far outside any mesh's (from an independent review): unscaled,
+        // the determinant overflowed or went subnormal (NaN or infinite proxies), and a
+        // subnormal cross product gave an eigenvector that was not of unit length.
+        let mut cases = Vec::new();
+        for scale in [1e103, 1e-104, 1e300, 1e-300, 6.6e102, 2e-108] {
+            cases.push((
+                Quadric {
+                    a: [1.0, 0.3, -0.2, 0.8, 0.1, 0.5].map(|x| x * scale),
+                    b: [0.0; 3],
+                    c: 0.0,
+                },
+                [1.0, -2.0, 0.5],
+            ));
+        }
+        for scale in [1.2882495516931323e-80, 1e-200, 1e200] {
+            cases.push((
+                Quadric {
+                    a: [1.0, 0.0, 0.0, 0.01, 0.0, 0.0005].map(|x| x * scale),
+                    b: [0.0, 0.0, -0.05 * scale],
+                    c: 0.0,
+                },
+                [1.0, 1.0, 1.0],
+            ));
+        }
+        for (q, mean) in cases {
+            let residual = add(q.apply(mean), q.b);
+            let reference = q.minimizer_by_eigen(mean, residual);
+            let point = q.minimizer_near(mean);
+            assert!(point.iter().all(|x| x.is_finite()), "{q:?}: {point:?}");
+            let apart = dot(sub(point, reference), sub(point, reference)).sqrt();
+            assert!(apart <= 1e-9, "{q:?}: {point:?} against {reference:?}");
+        }
+    }
+
+    #[test]
+    fn creases_along_each_axis_agree_with_the_eigen_decomposition() {
+        // Normals in a plane through one axis (a crease or cylinder along it): one eigenvalue
+        // is zero, its eigenvector the axis, and the rows of `A − λ₁I` that give it differ
+        // with the axis.
+        for axis in 0..3 {
+            let mut q = Quadric::default();
+            for k in 0..6 {
+                let angle = 0.3 * k as f64;
+                let mut n = [0.0; 3];
+                n[(axis + 1) % 3] = angle.cos();
+                n[(axis + 2) % 3] = angle.sin();
+                q.add(&Quadric::from_plane(
+                    n,
+                    [0.1 * k as f64, 0.2, -0.3],
+                    1.0 + k as f64,
+                ));
+            }
+            let mean = [0.5, -0.25, 2.0];
+            let residual = add(q.apply(mean), q.b);
+            let c = characteristic(&q.a);
+            assert!(
+                solve_one_dropped(&q.a, &c, residual).is_some(),
+                "axis {axis}"
+            );
+            let reference = q.minimizer_by_eigen(mean, residual);
+            let point = q.minimizer_near(mean);
+            let apart = dot(sub(point, reference), sub(point, reference)).sqrt();
+            assert!(
+                apart <= 1e-9,
+                "axis {axis}: {point:?} against {reference:?}"
+            );
+            // Free along the axis: the mean's coordinate is kept.
+            assert!(
+                (point[axis] - mean[axis]).abs() <= 1e-9,
+                "axis {axis}: {point:?}"
+            );
+        }
     }
 
     #[test]
