@@ -100,7 +100,7 @@ impl Quadric {
     /// the truncated pseudo-inverse is the inverse, solved by cofactors; where it shows
     /// exactly one under it (a crease or a cylinder-like patch, free along its axis), that
     /// eigenvalue and its eigenvector are found directly and the rest solved by cofactors
-    /// ([`solve_directly`]). Only the other clusters (flat ones, whose planes constrain one
+    /// (`solve_directly`). Only the other clusters (flat ones, whose planes constrain one
     /// direction, and degenerate ones) pay for the Jacobi eigen-decomposition, which costs a
     /// few hundred nanoseconds.
     // Inlined into the build's wide kernels (`crate::isa`), as is `symmetric_eigen`.
