@@ -212,9 +212,25 @@ fn characteristic(a: &[f64; 6]) -> Characteristic {
 /// rounding could decide otherwise. Non-finite input fails every comparison.
 #[inline(always)]
 fn all_directions_kept(c: &Characteristic) -> bool {
-    let x = 1.01 * RELATIVE_EIGEN_CUTOFF * c.trace;
+    let x = kept_bound(c);
     let p = ((x - c.trace) * x + c.minors) * x - c.det;
-    x > 0.0 && x.is_finite() && c.minors > 3.0 * c.trace * x && p < 0.0
+    middle_kept(c) && p < 0.0
+}
+
+/// A little over the cutoff times the trace, so at least the cutoff times the largest
+/// eigenvalue of a positive semi-definite matrix: the bound [`all_directions_kept`] and
+/// [`solve_one_dropped`] show eigenvalues to clear.
+#[inline(always)]
+fn kept_bound(c: &Characteristic) -> f64 {
+    1.01 * RELATIVE_EIGEN_CUTOFF * c.trace
+}
+
+/// Whether the middle eigenvalue provably exceeds [`kept_bound`]: `minors ≤ 3·λ₂·trace`
+/// (see [`all_directions_kept`]). Non-finite input fails.
+#[inline(always)]
+fn middle_kept(c: &Characteristic) -> bool {
+    let x = kept_bound(c);
+    x > 0.0 && x.is_finite() && c.minors > 3.0 * c.trace * x
 }
 
 /// `A⁻¹·r` by cofactors where [`all_directions_kept`] shows that the rank-truncated
@@ -257,13 +273,12 @@ fn cofactor_solve(c: &Characteristic, r: [f64; 3]) -> [f64; 3] {
 /// `λ₃, λ₂, λ₃`, well conditioned), solved by cofactors.
 #[inline(always)]
 fn solve_one_dropped(a: &[f64; 6], c: &Characteristic, r: [f64; 3]) -> Option<[f64; 3]> {
-    let (trace, minors, det) = (c.trace, c.minors, c.det);
-    // `λ₂` clears the cutoff by the bound of [`all_directions_kept`]; this also keeps `λ₁` a
-    // simple root well apart from `λ₂`, where Newton's method converges in a few steps.
-    let kept = 1.01 * RELATIVE_EIGEN_CUTOFF * trace;
-    if !(kept > 0.0 && kept.is_finite() && minors > 3.0 * trace * kept) {
+    // `λ₂` clearing the cutoff also keeps `λ₁` a simple root well apart from `λ₂`, where
+    // Newton's method converges in a few steps.
+    if !middle_kept(c) {
         return None;
     }
+    let (trace, minors, det) = (c.trace, c.minors, c.det);
     let mut smallest = 0.0f64;
     let mut converged = false;
     for _ in 0..8 {

@@ -506,8 +506,8 @@ fn build_one(args: &Args, inputs: &[PathBuf], output: Option<&std::path::Path>) 
             let grid = grid.expect("snapped when an output is given");
             // Purging returns the build's garbage (octree buffers, accumulators, adjacency)
             // so that it does not add to the writer's peak; below a million triangles that
-            // garbage is a few tens of MB, and the writer faulting the purged pages in again
-            // cost more than it saved (the bunny: 0.5 ms of a 30 ms build).
+            // garbage is under about a hundred MB, and the writer faulting the purged pages in
+            // again cost more than it saved (the bunny: 0.5 ms of a 30 ms build).
             if stats.input_triangles >= PURGE_FROM_TRIANGLES {
                 allocator::release_freed_memory();
             }
