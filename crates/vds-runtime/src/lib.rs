@@ -18,6 +18,7 @@
 //! - [`criteria`]: the screen-space, silhouette, backface, frustum and gaze tests.
 //! - [`adjust`]: the per-frame threshold traversal and the triangle-budget exchange.
 //! - [`reuse`]: margins that let a threshold test stand while the camera moves little.
+//! - [`sweep`]: the threshold cut evaluated from scratch, page by page, as bits per node.
 //! - [`camera_path`]: camera paths (orbit, fly-through) and their JSON form.
 //! - [`measure`]: exact screen-space deviation of the original vertices, for checks.
 //! - [`nearest`]: the original vertex nearest a point (measurements snap to it).
@@ -40,6 +41,7 @@ mod repeats;
 pub mod reuse;
 pub mod size;
 pub mod store;
+pub mod sweep;
 pub mod view;
 
 use std::path::Path;

@@ -223,6 +223,42 @@ pub struct Tested<'a> {
     pub shape: &'a Shape,
 }
 
+/// The records the criteria read of one resident page's nodes ([`NodeStore::tested_page`]).
+#[derive(Clone, Copy)]
+pub(crate) struct TestedPage<'a> {
+    /// The page's first node id: node `first + i` is entry `i`.
+    pub first: u32,
+    /// Proxies, error radii and group bounds.
+    pub hot: &'a [Hot],
+    /// Spheres and cones.
+    pub shape: &'a [Shape],
+    /// One bit per node: its children were loaded and checked against it.
+    pub checked: &'a [u64],
+}
+
+impl<'a> TestedPage<'a> {
+    /// What the criteria read of entry `i`.
+    #[inline]
+    pub fn tested(&self, i: usize) -> Tested<'a> {
+        Tested {
+            hot: &self.hot[i],
+            shape: &self.shape[i],
+        }
+    }
+
+    /// Whether entry `i`'s children were loaded and checked.
+    #[inline]
+    pub fn is_checked(&self, i: usize) -> bool {
+        self.checked[i / 64] & (1 << (i % 64)) != 0
+    }
+
+    /// Whether node `id` lies in this page.
+    #[inline]
+    pub fn holds(&self, id: u32) -> bool {
+        id.wrapping_sub(self.first) < self.hot.len() as u32
+    }
+}
+
 /// The rest of a node: where it sits in the tree and which triangles it owns.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 struct Topology {
@@ -1301,6 +1337,40 @@ impl NodeStore {
     pub(crate) fn mark_unrepeated(&mut self, id: u32) {
         let p = self.expect_place(id);
         self.resident_mut(p.slot).unrepeated[(p.local / 64) as usize] |= 1 << (p.local % 64);
+    }
+
+    /// Number of pages in the file.
+    pub(crate) fn page_count(&self) -> u32 {
+        self.page_first_node.len() as u32
+    }
+
+    /// The page holding node `id` (resident or not), or `None` past the last node.
+    #[inline]
+    pub(crate) fn page_index(&self, id: u32) -> Option<u32> {
+        self.page_of(id)
+    }
+
+    /// The first node id of page `index`.
+    #[inline]
+    pub(crate) fn page_first(&self, index: u32) -> u32 {
+        self.page_first_node[index as usize]
+    }
+
+    /// What the criteria read of resident page `index`'s nodes, side by side, or `None` when
+    /// the page is not resident.
+    #[inline]
+    pub(crate) fn tested_page(&self, index: u32) -> Option<TestedPage<'_>> {
+        let slot = *self.page_slot.get(index as usize)?;
+        if slot == NIL {
+            return None;
+        }
+        let page = self.resident(slot);
+        Some(TestedPage {
+            first: self.page_first_node[index as usize],
+            hot: &page.hot,
+            shape: &page.shape,
+            checked: &page.checked,
+        })
     }
 
     fn is_checked(&self, id: u32) -> bool {

@@ -13,7 +13,8 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use vds_build::Builder;
 use vds_format::{VdtFile, WriteOptions, encode};
-use vds_runtime::{CameraPath, CornerTracking, Criteria, Goal, Runtime, Viewpoint};
+use vds_runtime::sweep::Sweep;
+use vds_runtime::{CameraPath, CornerTracking, Criteria, Goal, Judge, Runtime, Viewpoint};
 
 /// The `.vdt` bytes of a mesh file, built in memory, and the scene as imported and snapped.
 pub fn vdt_bytes(file: &Path, builder: Builder) -> Result<(Vec<u8>, vds_import::Scene)> {
@@ -102,6 +103,9 @@ fn play(
     let mut first_ms = 0.0;
     // Folds and unfolds of the timed adjusts: none when each first adjust settled its cut.
     let mut settled_changes = 0u64;
+    // The sweep from scratch beside the adjust, on the same resident store (rank tracking).
+    let mut sweep = (resident && tracking == CornerTracking::Ranks && timed == Timed::Adjusts)
+        .then(SweepFigures::default);
     for (i, camera) in path.cameras.iter().enumerate() {
         for _ in 0..timed.before() {
             runtime.adjust(&Viewpoint::Camera(*camera), &criteria, goal)?;
@@ -115,6 +119,9 @@ fn play(
             continue;
         }
         ms.push(elapsed);
+        if let (Some(figures), Goal::Threshold(t)) = (&mut sweep, goal) {
+            figures.frame(&runtime, &Viewpoint::Camera(*camera), &criteria, t);
+        }
         let nodes = frame.changes.unfolded.iter().chain(&frame.changes.folded);
         pages.clear();
         pages.extend(nodes.map(|&id| page_firsts.partition_point(|&f| f <= id)));
@@ -204,7 +211,68 @@ fn play(
         median(&changed_nodes),
         median(&changed_pages),
     );
+    if let Some(figures) = sweep {
+        figures.print();
+    }
     Ok(())
+}
+
+/// The sweep from scratch (`vds_runtime::sweep`) along the same path as an adjust, after
+/// each adjust, on its store: time, work, and how far its cut is from the adjust's.
+#[derive(Default)]
+struct SweepFigures {
+    sweep: Sweep,
+    ms: Vec<f64>,
+    tests: Vec<f64>,
+    groups_passed: Vec<f64>,
+    pages: Vec<f64>,
+    changed: Vec<f64>,
+    /// Nodes active in one cut and not the other.
+    differing: Vec<f64>,
+    ids: Vec<u32>,
+}
+
+impl SweepFigures {
+    fn frame(&mut self, runtime: &Runtime, viewpoint: &Viewpoint, criteria: &Criteria, t: f32) {
+        let store = runtime.cut().store();
+        let start = Instant::now();
+        let judge = Judge::new(viewpoint, criteria);
+        let stats = self.sweep.run(store, &judge, t);
+        self.ms.push(start.elapsed().as_secs_f64() * 1e3);
+        self.tests.push(f64::from(stats.tests));
+        self.groups_passed.push(f64::from(stats.groups_passed));
+        self.pages.push(f64::from(stats.pages));
+        self.changed.push(f64::from(stats.unfolded + stats.folded));
+        self.ids.clear();
+        self.ids
+            .extend(runtime.cut().active_entries().iter().map(|e| e.id));
+        let only_adjust = self
+            .ids
+            .iter()
+            .filter(|&&id| !self.sweep.is_active(store, id))
+            .count();
+        let both = self.ids.len() - only_adjust;
+        self.differing
+            .push((only_adjust + stats.active as usize - both) as f64);
+    }
+
+    fn print(&self) {
+        let median = |v: &[f64]| percentile(v, 0.5);
+        println!(
+            "  {:<28} sweep from scratch: median {:6.3} ms  p99 {:6.3} ms | tests {:.0}, groups \
+             passed {:.0} | {:.0} pages with active nodes | {:.0} nodes changed | cut differs \
+             from the adjust's in {:.0} nodes (median; max {:.0})",
+            "",
+            median(&self.ms),
+            percentile(&self.ms, 0.99),
+            median(&self.tests),
+            median(&self.groups_passed),
+            median(&self.pages),
+            median(&self.changed),
+            median(&self.differing),
+            percentile(&self.differing, 1.0),
+        );
+    }
 }
 
 /// Which runs [`paths`] makes.

@@ -1,0 +1,320 @@
+//! The threshold cut evaluated from scratch in one sweep over the resident pages: the first
+//! step of a runtime whose unit of work is a page, not a node (`docs/architecture.md`,
+//! "Sweeps").
+//!
+//! The cut a sweep finds is the paper's top-down one: a node is active exactly when the
+//! criteria ask each of its ancestors and itself to unfold (a node outside the frustum in
+//! [`crate::FrustumMode::Ignore`] keeps its state of the sweep before). Every boundary node
+//! therefore passes the test for this view, which is the threshold guarantee.
+//!
+//! It needs no state but one bit per node of the pages holding active nodes, and it reads
+//! memory in order: nodes are numbered in page order with parents before children, so taking
+//! the pages in index order and each page's active nodes in id order visits every parent
+//! before its children. An active node whose group bound passes ([`Judge::group_within`])
+//! has no child to unfold and its children are not read; the others' children, which are
+//! contiguous, are tested one by one. What changed since the sweep before comes out of the
+//! two bit sets: nodes that unfolded (ascending, so parents first) and nodes that folded.
+//!
+//! A node unfolds only if its children are resident and checked; one whose criteria ask for
+//! it but whose children are not is left folded and counted ([`SweepStats::deferred`]).
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use crate::criteria::{Decision, FrustumMode, Judge};
+use crate::store::{Hot, NodeStore, TestedPage};
+
+/// Work done and found by one [`Sweep::run`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SweepStats {
+    /// Nodes whose criteria were evaluated (the root and the children of active nodes
+    /// whose group bound failed).
+    pub tests: u32,
+    /// Active nodes whose group bound passed: their children were not read.
+    pub groups_passed: u32,
+    /// Pages holding an active node.
+    pub pages: u32,
+    /// Active nodes.
+    pub active: u32,
+    /// Nodes active now that were not at the sweep before.
+    pub unfolded: u32,
+    /// Nodes active at the sweep before that are not now.
+    pub folded: u32,
+    /// Nodes the criteria ask to unfold whose children are not resident and checked.
+    pub deferred: u32,
+}
+
+/// The threshold cut as bits per page, evaluated from scratch by [`Sweep::run`].
+#[derive(Default)]
+pub struct Sweep {
+    /// Per page index: one bit per node of the page, set for the active ones; empty for a
+    /// page that has never held one. All zero for pages not in `pages`.
+    active: Vec<Vec<u64>>,
+    /// `active` as the sweep before left it.
+    before: Vec<Vec<u64>>,
+    /// Pages holding an active node now, ascending.
+    pages: Vec<u32>,
+    /// `pages` as the sweep before left it.
+    pages_before: Vec<u32>,
+    /// One bit per page: queued in this sweep.
+    queued: Vec<u64>,
+    queue: BinaryHeap<Reverse<u32>>,
+    unfolded: Vec<u32>,
+    folded: Vec<u32>,
+}
+
+impl Sweep {
+    /// A sweep whose cut before its first run is the root alone, folded.
+    pub fn new() -> Sweep {
+        Sweep::default()
+    }
+
+    /// Evaluates the cut for `judge`'s view at threshold `t` over `store`'s resident pages,
+    /// and what changed since the run before.
+    pub fn run(&mut self, store: &NodeStore, judge: &Judge, t: f32) -> SweepStats {
+        let page_count = store.page_count() as usize;
+        if self.active.len() < page_count {
+            self.active.resize_with(page_count, Vec::new);
+            self.before.resize_with(page_count, Vec::new);
+            self.queued.resize(page_count.div_ceil(64), 0);
+        }
+        std::mem::swap(&mut self.active, &mut self.before);
+        std::mem::swap(&mut self.pages, &mut self.pages_before);
+        for &p in &self.pages {
+            self.active[p as usize].fill(0);
+        }
+        self.pages.clear();
+        let mut stats = SweepStats::default();
+        if let Some(root_page) = store.tested_page(0) {
+            stats.tests = 1;
+            let keep = bit(&self.before, 0, 0);
+            if unfolds(judge, root_page.tested(0), t, keep) {
+                if root_page.hot[0].child_count > 0
+                    && root_page.is_checked(0)
+                    && store.children_resident(0)
+                {
+                    self.set(0, 0, root_page.hot.len());
+                } else {
+                    stats.deferred += 1;
+                }
+            }
+        }
+        let tight = judge.tightest(t);
+        while let Some(Reverse(p)) = self.queue.pop() {
+            self.pages.push(p);
+            let page = store
+                .tested_page(p)
+                .expect("a page holding an active node is resident");
+            self.sweep_page(store, judge, t, tight, p, page, &mut stats);
+        }
+        for &p in &self.pages {
+            self.queued[p as usize / 64] &= !(1 << (p % 64));
+        }
+        stats.pages = self.pages.len() as u32;
+        self.diff(store, &mut stats);
+        stats
+    }
+
+    /// Tests the children of page `p`'s active nodes, in id order: children in this page
+    /// come later in it, so re-reading each word picks them up.
+    #[allow(clippy::too_many_arguments)]
+    fn sweep_page(
+        &mut self,
+        store: &NodeStore,
+        judge: &Judge,
+        t: f32,
+        tight: f32,
+        p: u32,
+        page: TestedPage<'_>,
+        stats: &mut SweepStats,
+    ) {
+        let keeping = judge.criteria().frustum == FrustumMode::Ignore;
+        let words = self.active[p as usize].len();
+        let (mut child_index, mut child_page) = (p, page);
+        // The page of the last children found resident: consecutive nodes' children are
+        // usually in one page, so most residency checks need no look-up.
+        let mut grandchildren: Option<TestedPage<'_>> = None;
+        for w in 0..words {
+            let mut done = 0u64;
+            loop {
+                let pending = self.active[p as usize][w] & !done;
+                if pending == 0 {
+                    break;
+                }
+                let b = pending.trailing_zeros();
+                done |= 1 << b;
+                stats.active += 1;
+                let hot = &page.hot[w * 64 + b as usize];
+                // A passing group bound folds every child, except that in `Ignore` mode a
+                // child outside the frustum keeps its state: those active before are tested.
+                let group_passed = judge.group_within(hot, tight);
+                if group_passed {
+                    stats.groups_passed += 1;
+                    if !keeping {
+                        continue;
+                    }
+                }
+                for c in hot.first_child..hot.first_child + hot.child_count {
+                    if !child_page.holds(c) {
+                        // Siblings share a page, so this is once a family at most.
+                        let index = store.page_index(c).expect("children exist");
+                        child_index = index;
+                        child_page = store
+                            .tested_page(index)
+                            .expect("an active node's children are resident");
+                    }
+                    let local = (c - child_page.first) as usize;
+                    let keep = bit(&self.before, child_index, local);
+                    if group_passed && !keep {
+                        continue;
+                    }
+                    stats.tests += 1;
+                    if child_page.hot[local].child_count == 0 {
+                        continue;
+                    }
+                    if !unfolds(judge, child_page.tested(local), t, keep) {
+                        continue;
+                    }
+                    if child_page.is_checked(local)
+                        && children_resident(store, c, &child_page.hot[local], &mut grandchildren)
+                    {
+                        self.set(child_index, local, child_page.hot.len());
+                    } else {
+                        stats.deferred += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Marks entry `local` of page `p` (of `len` nodes) active and queues the page.
+    #[inline]
+    fn set(&mut self, p: u32, local: usize, len: usize) {
+        let bits = &mut self.active[p as usize];
+        if bits.is_empty() {
+            bits.resize(len.div_ceil(64), 0);
+        }
+        bits[local / 64] |= 1 << (local % 64);
+        let queued = &mut self.queued[p as usize / 64];
+        if *queued & (1 << (p % 64)) == 0 {
+            *queued |= 1 << (p % 64);
+            self.queue.push(Reverse(p));
+        }
+    }
+
+    /// Lists the nodes whose bit differs from the sweep before.
+    fn diff(&mut self, store: &NodeStore, stats: &mut SweepStats) {
+        self.unfolded.clear();
+        self.folded.clear();
+        let (mut a, mut b) = (0, 0);
+        // Both lists are ascending: walk their union in order.
+        while a < self.pages.len() || b < self.pages_before.len() {
+            let p = match (self.pages.get(a), self.pages_before.get(b)) {
+                (Some(&x), Some(&y)) => x.min(y),
+                (Some(&x), None) => x,
+                (None, Some(&y)) => y,
+                (None, None) => unreachable!(),
+            };
+            a += usize::from(self.pages.get(a) == Some(&p));
+            b += usize::from(self.pages_before.get(b) == Some(&p));
+            let first = store.page_first(p);
+            let (now, then) = (&self.active[p as usize], &self.before[p as usize]);
+            for w in 0..now.len().max(then.len()) {
+                let (x, y) = (
+                    now.get(w).copied().unwrap_or(0),
+                    then.get(w).copied().unwrap_or(0),
+                );
+                let mut changed = x ^ y;
+                while changed != 0 {
+                    let k = changed.trailing_zeros();
+                    changed &= changed - 1;
+                    let id = first + (w * 64) as u32 + k;
+                    if x & (1 << k) != 0 {
+                        self.unfolded.push(id);
+                    } else {
+                        self.folded.push(id);
+                    }
+                }
+            }
+        }
+        stats.unfolded = self.unfolded.len() as u32;
+        stats.folded = self.folded.len() as u32;
+    }
+
+    /// Nodes active now that were not at the run before, ascending (parents first).
+    pub fn unfolded(&self) -> &[u32] {
+        &self.unfolded
+    }
+
+    /// Nodes active at the run before that are not now, ascending.
+    pub fn folded(&self) -> &[u32] {
+        &self.folded
+    }
+
+    /// Whether node `id` is active in the last run's cut.
+    pub fn is_active(&self, store: &NodeStore, id: u32) -> bool {
+        store
+            .page_index(id)
+            .is_some_and(|p| bit(&self.active, p, (id - store.page_first(p)) as usize))
+    }
+
+    /// The active nodes of the last run's cut, ascending.
+    pub fn active_nodes(&self, store: &NodeStore) -> Vec<u32> {
+        let mut nodes = Vec::new();
+        for &p in &self.pages {
+            let first = store.page_first(p);
+            for (w, &word) in self.active[p as usize].iter().enumerate() {
+                let mut bits = word;
+                while bits != 0 {
+                    nodes.push(first + (w * 64) as u32 + bits.trailing_zeros());
+                    bits &= bits - 1;
+                }
+            }
+        }
+        nodes
+    }
+}
+
+/// Whether the criteria leave a node active: unfold, or keep a node that was (`keep`).
+#[inline]
+fn unfolds(judge: &Judge, tested: crate::store::Tested<'_>, t: f32, keep: bool) -> bool {
+    match judge.decide(tested, t) {
+        Decision::Unfold => true,
+        Decision::Fold => false,
+        Decision::Keep => keep,
+    }
+}
+
+/// Whether the children of node `id`, of record `hot`, are resident: in the page `last`
+/// (then kept), or found so by the store (and that page kept if it holds them all).
+#[inline]
+fn children_resident<'a>(
+    store: &'a NodeStore,
+    id: u32,
+    hot: &Hot,
+    last: &mut Option<TestedPage<'a>>,
+) -> bool {
+    let (first, end) = (hot.first_child, hot.first_child + hot.child_count - 1);
+    if last.is_some_and(|page| page.holds(first) && page.holds(end)) {
+        return true;
+    }
+    let page = store
+        .page_index(first)
+        .and_then(|index| store.tested_page(index))
+        .filter(|page| page.holds(end));
+    if page.is_some() {
+        *last = page;
+        return true;
+    }
+    // Children over two pages, or not resident.
+    store.children_resident(id)
+}
+
+/// Bit `local` of page `p` in `pages` (false for a page without bits).
+#[inline]
+fn bit(pages: &[Vec<u64>], p: u32, local: usize) -> bool {
+    pages
+        .get(p as usize)
+        .and_then(|bits| bits.get(local / 64))
+        .is_some_and(|word| word & (1 << (local % 64)) != 0)
+}

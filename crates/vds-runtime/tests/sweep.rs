@@ -1,0 +1,143 @@
+//! The sweep (`vds_runtime::sweep`) against the obvious evaluation of the same cut: a
+//! recursion from the root that unfolds a node when the criteria ask for it. Along camera
+//! paths with jumps, thresholds and every frustum mode, the sweep's active nodes are the
+//! recursion's, its lists of changes are the differences of consecutive cuts, and those
+//! lists, applied to a runtime's cut by its own fold and unfold, give a cut that passes the
+//! cut's consistency check and the screen-space guarantee.
+
+mod common;
+
+use std::collections::BTreeSet;
+
+use common::*;
+use vds_runtime::sweep::Sweep;
+use vds_runtime::{
+    CornerTracking, Criteria, Decision, FrustumMode, Judge, NodeStore, Viewpoint, measure,
+};
+
+/// As in `cut.rs`: room for the rounding of a bound computed in `f32` against a projection
+/// in `f64`.
+fn slack(t: f32) -> f64 {
+    f64::from(t) * 1e-4 + 1e-4
+}
+
+/// The cut the criteria give, by recursion from the root: a node with children is active
+/// when the criteria unfold it (or keep it, and it was active in `before`) and its parent is.
+fn recursive_cut(
+    store: &NodeStore,
+    judge: &Judge,
+    t: f32,
+    before: &BTreeSet<u32>,
+) -> BTreeSet<u32> {
+    let mut active = BTreeSet::new();
+    let mut stack = vec![0u32];
+    while let Some(id) = stack.pop() {
+        let node = store.node(id);
+        if node.is_leaf() {
+            continue;
+        }
+        let unfold = match judge.decide(store.tested(id), t) {
+            Decision::Unfold => true,
+            Decision::Fold => false,
+            Decision::Keep => before.contains(&id),
+        };
+        if unfold {
+            active.insert(id);
+            stack.extend(node.children());
+        }
+    }
+    active
+}
+
+#[test]
+fn a_sweep_finds_the_recursive_cut_and_its_changes_keep_the_threshold() {
+    for name in ["bunny.obj", "cow.obj", "as1_assembly.obj"] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        let mut runtime = runtime(&bytes, CornerTracking::Ranks);
+        runtime.load_every_page().unwrap();
+        let positions = runtime.leaf_positions().unwrap();
+        let mut sweep = Sweep::new();
+        let mut before = BTreeSet::new();
+        let mut rng = Rng(name.len() as u64 + 11);
+        let mut camera = random_camera(&mut rng, center, radius);
+        let mut seen = 0;
+        for step in 0..36 {
+            // Small moves, with a jump every 9 frames.
+            if step % 9 == 8 {
+                camera = random_camera(&mut rng, center, radius);
+            } else {
+                let d = rng.unit_vector();
+                for k in 0..3 {
+                    camera.eye[k] += d[k] * radius * 0.04;
+                }
+            }
+            let t = [1.0f32, 0.5, 4.0][step % 3];
+            let criteria = Criteria {
+                frustum: [FrustumMode::Fold, FrustumMode::Ignore, FrustumMode::Off][step / 3 % 3],
+                silhouette_factor: [Some(0.25), None][step / 9 % 2],
+                backface: step % 2 == 0,
+                ..Criteria::default()
+            };
+            let judge = Judge::new(&Viewpoint::Camera(camera), &criteria);
+            let stats = sweep.run(runtime.cut().store(), &judge, t);
+            let store = runtime.cut().store();
+            let expected = recursive_cut(store, &judge, t, &before);
+            let found: BTreeSet<u32> = sweep.active_nodes(store).into_iter().collect();
+            assert!(
+                found == expected,
+                "{name} step {step}: the sweep's cut differs from the recursion's \
+                 ({} against {} active nodes)",
+                found.len(),
+                expected.len()
+            );
+            assert_eq!(stats.active as usize, found.len(), "{name} step {step}");
+            assert_eq!(
+                stats.deferred, 0,
+                "{name} step {step}: every page is resident"
+            );
+            let unfolded: Vec<u32> = found.difference(&before).copied().collect();
+            let folded: Vec<u32> = before.difference(&found).copied().collect();
+            assert_eq!(sweep.unfolded(), unfolded, "{name} step {step}: unfolded");
+            assert_eq!(sweep.folded(), folded, "{name} step {step}: folded");
+            assert!(found.iter().all(|&id| sweep.is_active(store, id)));
+
+            // The changes, applied by the cut's own operations: folds deepest first, then
+            // unfolds parents first.
+            let cut = runtime.cut_mut();
+            for &id in sweep.folded().iter().rev() {
+                assert!(cut.fold_node(id, false), "{name} step {step}: fold {id}");
+            }
+            for &id in sweep.unfolded() {
+                cut.unfold_node(id).unwrap();
+            }
+            cut.check().unwrap();
+            let active: BTreeSet<u32> = cut.active_entries().iter().map(|e| e.id).collect();
+            assert!(
+                active == found,
+                "{name} step {step}: the applied cut differs"
+            );
+            if criteria.frustum != FrustumMode::Ignore {
+                let facing = criteria.backface.then(|| {
+                    measure::facing_vertices(runtime.cut().store(), &positions, camera.view().eye)
+                        .unwrap()
+                });
+                let deviation = measure::screen_deviation(
+                    runtime.cut(),
+                    &camera.view(),
+                    &positions,
+                    facing.as_deref(),
+                );
+                assert!(
+                    deviation.max_px <= f64::from(t) + slack(t),
+                    "{name} step {step}: a vertex moved {} px > {t} px",
+                    deviation.max_px
+                );
+                seen += usize::from(deviation.visible_vertices > 0);
+            }
+            before = found;
+        }
+        assert!(seen >= 8, "{name}: too few cameras saw the model");
+    }
+}
