@@ -258,6 +258,8 @@ pub struct Cut {
     /// The threshold pass ([`crate::adjust`]): indices to which a fold moved an entry with
     /// something still pending.
     moved_pending: Vec<u32>,
+    /// Folds and unfolds made so far ([`Cut::operations`]).
+    operations: u64,
 }
 
 impl Cut {
@@ -295,7 +297,14 @@ impl Cut {
             hidden_was: Default::default(),
             revisit: None,
             moved_pending: Vec::new(),
+            operations: 0,
         }
+    }
+
+    /// How many folds and unfolds this cut has made: whoever keeps a copy of the cut (the
+    /// sweep's bits) can tell whether anything else changed it since.
+    pub fn operations(&self) -> u64 {
+        self.operations
     }
 
     /// The node store, for taking the log of loaded pages ([`NodeStore::take_loaded`]).
@@ -567,6 +576,7 @@ impl Cut {
         if self.tracking == CornerTracking::Ranks && node.subtri_count > 1 {
             self.store.prefetch_subtri_corners(id);
         }
+        self.operations += 1;
         self.set_state(id, NodeState::Active, node.subtri_count);
         self.set_children_state(&node, NodeState::Boundary);
         self.boundary_count += u32::from(node.child_count) - 1;
@@ -662,6 +672,7 @@ impl Cut {
         if prevent_flips && self.fold_would_flip(id) {
             return false;
         }
+        self.operations += 1;
         let node = self.store.node(id);
         // The children's and the parent's labels are written below: their misses overlap.
         self.store

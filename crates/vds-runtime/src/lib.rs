@@ -108,6 +108,9 @@ pub struct Runtime {
     refusals_seen: u64,
     /// Frames in a row in which the threshold rose.
     rising_frames: u32,
+    /// Threshold adjusts by sweeps from scratch instead of the incremental pass
+    /// ([`Runtime::set_sweep`]).
+    sweep: Option<sweep::Sweep>,
 }
 
 impl Runtime {
@@ -134,6 +137,7 @@ impl Runtime {
             refusing_frames: 0,
             refusals_seen: 0,
             rising_frames: 0,
+            sweep: None,
         })
     }
 
@@ -153,6 +157,23 @@ impl Runtime {
     /// reference its two-step form is checked against.
     pub fn set_one_step_pass(&mut self, on: bool) {
         self.adjuster.set_one_step_pass(on);
+    }
+
+    /// Threshold adjusts by a sweep from scratch ([`sweep`]) with its changes applied through
+    /// the cut's fold and unfold, instead of the incremental pass; budget adjusts are the
+    /// same either way. The sweep's cut is the top-down one: it folds an active node that
+    /// passes even while a child still fails, which the incremental pass leaves active until
+    /// the child folds. Mesh-fold prevention does not apply to it, and it fetches no page
+    /// ahead of need. Either way the next adjust starts from the cut as it is.
+    pub fn set_sweep(&mut self, on: bool) {
+        if on == self.sweep.is_some() {
+            return;
+        }
+        // The incremental pass's records of reused tests and nodes to revisit did not see
+        // what the sweeps changed.
+        self.cut.clear_reuse();
+        self.cut.forget_revisits();
+        self.sweep = on.then(sweep::Sweep::new);
     }
 
     /// Sets the memory budget in bytes for the decoded tree and the cut
@@ -220,9 +241,15 @@ impl Runtime {
             Goal::Threshold(t) => {
                 let effective = self.effective_threshold(t);
                 self.cut.store.foresee(Some((&judge, effective)));
-                let stats =
-                    self.adjuster
-                        .adjust_threshold(&mut self.cut, &judge, effective, prevent)?;
+                let stats = match &mut self.sweep {
+                    Some(sweep) => {
+                        sweep::adjust_threshold(sweep, &mut self.cut, &judge, effective)?
+                    }
+                    None => {
+                        self.adjuster
+                            .adjust_threshold(&mut self.cut, &judge, effective, prevent)?
+                    }
+                };
                 (stats, Some(effective))
             }
             Goal::Budget(n) => {

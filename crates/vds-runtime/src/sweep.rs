@@ -21,7 +21,11 @@
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
+use vds_format::VdtError;
+
+use crate::adjust::AdjustStats;
 use crate::criteria::{Decision, FrustumMode, Judge};
+use crate::cut::Cut;
 use crate::store::{Hot, NodeStore, TestedPage};
 
 /// Work done and found by one [`Sweep::run`].
@@ -61,6 +65,12 @@ pub struct Sweep {
     queue: BinaryHeap<Reverse<u32>>,
     unfolded: Vec<u32>,
     folded: Vec<u32>,
+    /// Nodes the criteria asked to unfold whose children were not resident and checked.
+    deferred: Vec<u32>,
+    /// In [`Sweep::resume`]: nodes newly marked active are listed as unfolded.
+    resuming: bool,
+    /// [`Cut::operations`] of the cut [`adjust_threshold`] last left in step with these bits.
+    operations: u64,
 }
 
 impl Sweep {
@@ -84,6 +94,7 @@ impl Sweep {
             self.active[p as usize].fill(0);
         }
         self.pages.clear();
+        self.deferred.clear();
         let mut stats = SweepStats::default();
         if let Some(root_page) = store.tested_page(0) {
             stats.tests = 1;
@@ -93,26 +104,106 @@ impl Sweep {
                     && root_page.is_checked(0)
                     && store.children_resident(0)
                 {
-                    self.set(0, 0, root_page.hot.len());
-                } else {
-                    stats.deferred += 1;
+                    self.set(0, 0, root_page.hot.len(), 0);
+                } else if root_page.hot[0].child_count > 0 {
+                    self.deferred.push(0);
                 }
             }
         }
+        self.sweep_queued(store, judge, t, &mut stats);
+        stats.pages = self.pages.len() as u32;
+        stats.deferred = self.deferred.len() as u32;
+        self.diff(store, &mut stats);
+        stats
+    }
+
+    /// Takes `active` (ascending node ids, every one resident with its children) as the
+    /// last run's cut: what the next run's changes are counted from.
+    pub fn adopt(&mut self, store: &NodeStore, active: &[u32]) {
+        let page_count = store.page_count() as usize;
+        if self.active.len() < page_count {
+            self.active.resize_with(page_count, Vec::new);
+            self.before.resize_with(page_count, Vec::new);
+            self.queued.resize(page_count.div_ceil(64), 0);
+        }
+        for &p in &self.pages {
+            self.active[p as usize].fill(0);
+        }
+        self.pages.clear();
+        for &id in active {
+            let p = store.page_index(id).expect("an active node exists");
+            let page = store.tested_page(p).expect("an active node is resident");
+            let local = (id - page.first) as usize;
+            let bits = &mut self.active[p as usize];
+            if bits.is_empty() {
+                bits.resize(page.hot.len().div_ceil(64), 0);
+            }
+            bits[local / 64] |= 1 << (local % 64);
+            if self.pages.last() != Some(&p) {
+                self.pages.push(p);
+            }
+        }
+        self.pages.sort_unstable();
+        self.pages.dedup();
+    }
+
+    /// Continues the last run below `seeds`, nodes it left waiting ([`Sweep::deferred`]) whose
+    /// children have arrived since, for the same view and threshold: each seed unfolds (the
+    /// run found that the criteria ask for it) and the pages below are swept as in a run.
+    /// Only nodes unfold: afterwards [`Sweep::unfolded`] lists those that did in this call,
+    /// ascending, and [`Sweep::deferred`] those left waiting.
+    pub fn resume(
+        &mut self,
+        store: &NodeStore,
+        judge: &Judge,
+        t: f32,
+        seeds: &[u32],
+    ) -> SweepStats {
+        self.unfolded.clear();
+        self.folded.clear();
+        self.deferred.clear();
+        self.resuming = true;
+        let mut stats = SweepStats::default();
+        for &id in seeds {
+            let Some((p, page)) = store
+                .page_index(id)
+                .and_then(|p| Some((p, store.tested_page(p)?)))
+            else {
+                continue;
+            };
+            let local = (id - page.first) as usize;
+            if page.is_checked(local) && store.children_resident(id) {
+                self.set(p, local, page.hot.len(), id);
+            } else {
+                self.deferred.push(id);
+            }
+        }
+        self.sweep_queued(store, judge, t, &mut stats);
+        // Pages swept again are listed twice.
+        self.pages.sort_unstable();
+        self.pages.dedup();
+        self.resuming = false;
+        self.unfolded.sort_unstable();
+        stats.pages = self.pages.len() as u32;
+        stats.deferred = self.deferred.len() as u32;
+        stats.unfolded = self.unfolded.len() as u32;
+        stats
+    }
+
+    /// Sweeps the queued pages in index order, and those their nodes queue.
+    fn sweep_queued(&mut self, store: &NodeStore, judge: &Judge, t: f32, stats: &mut SweepStats) {
         let tight = judge.tightest(t);
+        let first_new = self.pages.len();
         while let Some(Reverse(p)) = self.queue.pop() {
             self.pages.push(p);
             let page = store
                 .tested_page(p)
                 .expect("a page holding an active node is resident");
-            self.sweep_page(store, judge, t, tight, p, page, &mut stats);
+            self.sweep_page(store, judge, t, tight, p, page, stats);
         }
-        for &p in &self.pages {
+        for &p in &self.pages[first_new..] {
             self.queued[p as usize / 64] &= !(1 << (p % 64));
         }
-        stats.pages = self.pages.len() as u32;
-        self.diff(store, &mut stats);
-        stats
     }
 
     /// Tests the children of page `p`'s active nodes, in id order: children in this page
@@ -178,23 +269,28 @@ impl Sweep {
                     if child_page.is_checked(local)
                         && children_resident(store, c, &child_page.hot[local], &mut grandchildren)
                     {
-                        self.set(child_index, local, child_page.hot.len());
+                        self.set(child_index, local, child_page.hot.len(), c);
                     } else {
-                        stats.deferred += 1;
+                        self.deferred.push(c);
                     }
                 }
             }
         }
     }
 
-    /// Marks entry `local` of page `p` (of `len` nodes) active and queues the page.
+    /// Marks entry `local` of page `p` (of `len` nodes), node `id`, active and queues the
+    /// page; when resuming, lists the node if it was not active.
     #[inline]
-    fn set(&mut self, p: u32, local: usize, len: usize) {
+    fn set(&mut self, p: u32, local: usize, len: usize, id: u32) {
         let bits = &mut self.active[p as usize];
         if bits.is_empty() {
             bits.resize(len.div_ceil(64), 0);
         }
-        bits[local / 64] |= 1 << (local % 64);
+        let word = &mut bits[local / 64];
+        if self.resuming && *word & (1 << (local % 64)) == 0 {
+            self.unfolded.push(id);
+        }
+        *word |= 1 << (local % 64);
         let queued = &mut self.queued[p as usize / 64];
         if *queued & (1 << (p % 64)) == 0 {
             *queued |= 1 << (p % 64);
@@ -251,6 +347,12 @@ impl Sweep {
         &self.folded
     }
 
+    /// Nodes the last run's criteria asked to unfold whose children were not resident and
+    /// checked, so they stayed folded.
+    pub fn deferred(&self) -> &[u32] {
+        &self.deferred
+    }
+
     /// Whether node `id` is active in the last run's cut.
     pub fn is_active(&self, store: &NodeStore, id: u32) -> bool {
         store
@@ -272,6 +374,80 @@ impl Sweep {
             }
         }
         nodes
+    }
+}
+
+/// A threshold adjust of `cut` by sweeps ([`crate::Runtime::set_sweep`]): the sweep's
+/// changes applied through the cut's own fold (deepest first) and unfold (parents first), so
+/// that every other part of the runtime (labels, repeats, the change report, pinned pages)
+/// sees an ordinary cut. The nodes a sweep leaves folded because their children are not
+/// resident get them: with synchronous loading they are loaded and the sweep resumes below
+/// them ([`Sweep::resume`]), once per level of pages reached, until no node waits or no page
+/// could be loaded (the memory budget refused it); with background loading they are asked for, by their screen-space
+/// error, and unfold in a later adjust.
+///
+/// `cut` must be what `sweep`'s last run left (or the root alone, before its first).
+pub(crate) fn adjust_threshold(
+    sweep: &mut Sweep,
+    cut: &mut Cut,
+    judge: &Judge,
+    t: f32,
+) -> Result<AdjustStats, VdtError> {
+    if sweep.operations != cut.operations() {
+        // Something else changed the cut since the last sweep (a budget adjust, or a caller's
+        // own folds and unfolds): its active nodes become the sweep's starting point.
+        let mut active: Vec<u32> = cut.active_entries().iter().map(|e| e.id).collect();
+        active.sort_unstable();
+        sweep.adopt(cut.store(), &active);
+    }
+    let stats = sweep_and_apply(sweep, cut, judge, t);
+    sweep.operations = cut.operations();
+    stats
+}
+
+/// [`adjust_threshold`] once `sweep` holds `cut`'s active nodes.
+fn sweep_and_apply(
+    sweep: &mut Sweep,
+    cut: &mut Cut,
+    judge: &Judge,
+    t: f32,
+) -> Result<AdjustStats, VdtError> {
+    let mut stats = AdjustStats::default();
+    // The still passes' list of nodes to revisit is the incremental pass's; it must not
+    // grow with these changes.
+    cut.forget_revisits();
+    let mut found = sweep.run(cut.store(), judge, t);
+    let mut seeds = Vec::new();
+    loop {
+        stats.visited += found.tests + found.active;
+        stats.groups += found.active;
+        stats.groups_failed += found.active - found.groups_passed;
+        for &id in sweep.folded().iter().rev() {
+            cut.fold_node(id, false);
+        }
+        for &id in sweep.unfolded() {
+            cut.unfold_available(id);
+        }
+        stats.folds += found.folded;
+        stats.unfolds += found.unfolded;
+        seeds.clear();
+        for &id in sweep.deferred() {
+            if cut.children_available(id)? {
+                seeds.push(id);
+            } else if cut.request_children(id, judge.screen_error(cut.store().tested(id))) {
+                stats.deferred_unfolds += 1;
+            }
+        }
+        if seeds.is_empty() {
+            return Ok(stats);
+        }
+        found = sweep.resume(cut.store(), judge, t, &seeds);
+        // Resumed rounds only unfold, so they end; one that unfolds nothing (a page loaded
+        // for one seed was evicted for another's) ends them too.
+        if found.unfolded == 0 {
+            stats.visited += found.tests + found.active;
+            return Ok(stats);
+        }
     }
 }
 

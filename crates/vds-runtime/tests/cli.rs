@@ -364,6 +364,25 @@ fn replays_orbits_flights_and_path_files_without_a_gpu() {
         .map(|r| r[loaded].parse::<u32>().unwrap())
         .sum();
     assert!(delivered > 0, "no page arrived from the loader");
+
+    // Adjusting by sweeps: the same orbit, every frame with triangles and nothing waiting;
+    // it takes neither fold prevention nor test threads.
+    let swept = replay(&file, &stats, &["--orbit", "--frames", "12", "--sweep"]);
+    assert_eq!(swept.len(), 13);
+    assert!(swept[1..].iter().all(|row| triangles(row) > 0));
+    assert!(
+        swept[1..]
+            .iter()
+            .all(|row| row[pending] == "0" && row[deferred] == "0")
+    );
+    for other in ["--prevent-folds", "--adjust-threads=2"] {
+        let refused = vds_cut()
+            .arg(&file)
+            .args(["--orbit", "--threshold", "1", "--sweep", other])
+            .output()
+            .unwrap();
+        assert_eq!(refused.status.code(), Some(2), "--sweep with {other}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -12,7 +12,8 @@ use std::collections::BTreeSet;
 use common::*;
 use vds_runtime::sweep::Sweep;
 use vds_runtime::{
-    CornerTracking, Criteria, Decision, FrustumMode, Judge, NodeStore, Viewpoint, measure,
+    CameraPath, CornerTracking, Criteria, Decision, FrustumMode, Goal, Judge, Loading, NodeStore,
+    Runtime, Viewpoint, measure,
 };
 
 /// As in `cut.rs`: room for the rounding of a bound computed in `f32` against a projection
@@ -140,4 +141,168 @@ fn a_sweep_finds_the_recursive_cut_and_its_changes_keep_the_threshold() {
         }
         assert!(seen >= 8, "{name}: too few cameras saw the model");
     }
+}
+
+/// The active nodes of `runtime`'s cut, ascending.
+fn active_nodes(runtime: &Runtime) -> BTreeSet<u32> {
+    runtime
+        .cut()
+        .active_entries()
+        .iter()
+        .map(|e| e.id)
+        .collect()
+}
+
+#[test]
+fn adjusts_by_sweeps_load_their_pages_and_give_the_recursive_cut() {
+    for (name, tracking) in [
+        ("bunny.obj", CornerTracking::Ranks),
+        ("as1_assembly.obj", CornerTracking::Ranks),
+        ("cow.obj", CornerTracking::Incidence),
+    ] {
+        let mut scene = load(name);
+        let bytes = vdt_bytes(&mut scene);
+        let (center, radius) = bounds(&scene.positions);
+        // Every page resident: what the recursion reads.
+        let mut reference = runtime(&bytes, CornerTracking::Ranks);
+        reference.load_every_page().unwrap();
+        let positions = reference.leaf_positions().unwrap();
+        // Pages loaded as the sweeps reach them.
+        let mut swept = runtime(&bytes, tracking);
+        swept.set_sweep(true);
+        let mut rng = Rng(name.len() as u64 + 5);
+        let mut camera = random_camera(&mut rng, center, radius);
+        for step in 0..40 {
+            if step % 8 == 7 {
+                camera = random_camera(&mut rng, center, radius);
+            } else {
+                let d = rng.unit_vector();
+                for k in 0..3 {
+                    camera.eye[k] += d[k] * radius * 0.05;
+                }
+            }
+            let criteria = Criteria {
+                frustum: [FrustumMode::Fold, FrustumMode::Ignore][step / 4 % 2],
+                ..Criteria::default()
+            };
+            let viewpoint = Viewpoint::Camera(camera);
+            // A budget adjust now and then changes the cut behind the sweep's back.
+            if step % 10 == 9 {
+                swept
+                    .adjust(&viewpoint, &criteria, Goal::Budget(500 + 40 * step as u32))
+                    .unwrap();
+                swept.cut_mut().check().unwrap();
+                continue;
+            }
+            let t = [1.0f32, 3.0][step % 2];
+            let before = active_nodes(&swept);
+            let frame = swept
+                .adjust(&viewpoint, &criteria, Goal::Threshold(t))
+                .unwrap();
+            swept.cut_mut().check().unwrap();
+            assert_eq!(frame.stats.deferred_unfolds, 0, "{name} step {step}");
+            let judge = Judge::new(&viewpoint, &criteria);
+            let expected = recursive_cut(reference.cut().store(), &judge, t, &before);
+            assert!(
+                active_nodes(&swept) == expected,
+                "{name} step {step}: the adjust by sweeps differs from the recursion"
+            );
+            if criteria.frustum == FrustumMode::Fold {
+                let facing = measure::facing_vertices(
+                    reference.cut().store(),
+                    &positions,
+                    camera.view().eye,
+                )
+                .unwrap();
+                let deviation = measure::screen_deviation(
+                    swept.cut(),
+                    &camera.view(),
+                    &positions,
+                    Some(&facing),
+                );
+                assert!(
+                    deviation.max_px <= f64::from(t) + slack(t),
+                    "{name} step {step}: a vertex moved {} px > {t} px",
+                    deviation.max_px
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn adjusts_by_sweeps_with_background_loading_settle_on_the_recursive_cut() {
+    let mut scene = load("as1_assembly.obj");
+    let bytes = vdt_bytes(&mut scene);
+    let (center, radius) = bounds(&scene.positions);
+    let mut reference = runtime(&bytes, CornerTracking::Ranks);
+    reference.load_every_page().unwrap();
+    let mut swept = Runtime::with_loading(
+        Box::new(vds_format::VdtFile::from_bytes(bytes.clone()).unwrap()),
+        CornerTracking::Ranks,
+        Loading::Background { threads: 2 },
+    )
+    .unwrap();
+    swept.set_sweep(true);
+    let mut rng = Rng(3);
+    for view in 0..4 {
+        let viewpoint = Viewpoint::Camera(random_camera(&mut rng, center, radius));
+        let criteria = Criteria::default();
+        let mut settled = false;
+        for _ in 0..200 {
+            let frame = swept
+                .adjust(&viewpoint, &criteria, Goal::Threshold(1.0))
+                .unwrap();
+            swept.cut_mut().check().unwrap();
+            if frame.stats.deferred_unfolds == 0 && swept.pending_pages() == 0 {
+                settled = true;
+                break;
+            }
+            swept.wait_for_pages();
+        }
+        assert!(settled, "view {view}: loading never settled");
+        let judge = Judge::new(&viewpoint, &criteria);
+        let expected = recursive_cut(reference.cut().store(), &judge, 1.0, &BTreeSet::new());
+        assert!(
+            active_nodes(&swept) == expected,
+            "view {view}: the settled cut differs from the recursion"
+        );
+    }
+}
+
+#[test]
+fn adjusts_by_sweeps_within_a_tiny_budget_keep_a_consistent_cut() {
+    let (bytes, center, radius) = generated(60_000);
+    let mut full = runtime(&bytes, CornerTracking::Ranks);
+    full.set_memory_budget(u64::MAX);
+    full.load_every_page().unwrap();
+    let decoded = full.memory().resident_bytes;
+    let mut swept = runtime(&bytes, CornerTracking::Ranks);
+    swept.set_memory_budget(decoded / 8);
+    swept.set_sweep(true);
+    let path = CameraPath::fly_through(center, radius, 40, 640, 360);
+    let budget = decoded / 8;
+    for (i, camera) in path.cameras.iter().enumerate() {
+        let frame = swept
+            .adjust(
+                &Viewpoint::Camera(*camera),
+                &Criteria::default(),
+                Goal::Threshold(1.0),
+            )
+            .unwrap();
+        swept
+            .cut_mut()
+            .check()
+            .unwrap_or_else(|e| panic!("frame {i}: {e}"));
+        // As in `memory.rs`: over the budget only while the cut's own pages are.
+        assert!(
+            frame.memory.resident_bytes <= budget || swept.cut().store().over_budget_pinned(),
+            "frame {i}: {} bytes held over a budget of {budget}",
+            frame.memory.resident_bytes
+        );
+    }
+    assert!(
+        swept.memory().pages_evicted > 0,
+        "a budget of an eighth of the model never evicted: the test tests nothing"
+    );
 }

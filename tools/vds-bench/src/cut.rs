@@ -275,6 +275,43 @@ impl SweepFigures {
     }
 }
 
+/// Plays `path` at threshold `t` through a fresh rank-tracked runtime with every page resident
+/// that adjusts by sweeps ([`Runtime::set_sweep`]): each frame's sweep from scratch, its
+/// changes applied through the cut's fold and unfold, and the report a renderer reads.
+fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
+    let mut runtime = Runtime::new(
+        Box::new(VdtFile::from_bytes(bytes.to_vec())?),
+        CornerTracking::Ranks,
+    )?;
+    runtime.set_memory_budget(u64::MAX);
+    runtime.load_every_page()?;
+    runtime.set_sweep(true);
+    let criteria = Criteria::default();
+    let (mut ms, mut changed) = (vec![], vec![]);
+    let mut first_ms = 0.0;
+    for (i, camera) in path.cameras.iter().enumerate() {
+        let start = Instant::now();
+        let frame = runtime.adjust(&Viewpoint::Camera(*camera), &criteria, Goal::Threshold(t))?;
+        let elapsed = start.elapsed().as_secs_f64() * 1e3;
+        if i == 0 {
+            first_ms = elapsed;
+            continue;
+        }
+        ms.push(elapsed);
+        changed.push(f64::from(frame.stats.unfolds + frame.stats.folds));
+    }
+    println!(
+        "  {:<28} adjust by sweeps: median {:6.3} ms  p99 {:6.3} ms  (first {:7.1} ms) | \
+         {:.0} nodes changed (median)",
+        "",
+        percentile(&ms, 0.5),
+        percentile(&ms, 0.99),
+        first_ms,
+        percentile(&changed, 0.5),
+    );
+    Ok(())
+}
+
 /// Which runs [`paths`] makes.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Runs {
@@ -287,6 +324,8 @@ pub struct Runs {
     pub settled: bool,
     /// Threads the threshold pass tests entries on ([`Runtime::set_adjust_threads`]).
     pub threads: usize,
+    /// Also run the sweep in place of the adjust ([`play_sweep`]).
+    pub sweep: bool,
 }
 
 /// Runtime figures for one mesh along `path`, at t = 1 and 5 px: every corner strategy with
@@ -354,6 +393,9 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
                 Timed::Adjusts,
                 runs.threads,
             )?;
+            if runs.sweep && tracking == CornerTracking::Ranks {
+                play_sweep(bytes, &path, t)?;
+            }
             if runs.settled {
                 for timed in [Timed::SettledChecks, Timed::Readjusts] {
                     let goal = Goal::Threshold(t);

@@ -148,6 +148,10 @@ enum Commands {
         /// Threads the threshold pass tests active entries on (folds and unfolds stay on one).
         #[arg(long, default_value_t = 1)]
         threads: usize,
+        /// Also run each resident rank-tracked path adjusting by sweeps from scratch
+        /// (`Runtime::set_sweep`).
+        #[arg(long)]
+        sweep: bool,
     },
 }
 
@@ -297,12 +301,14 @@ fn main() -> Result<()> {
             settled,
             vdt,
             threads,
+            sweep,
         }) => {
             let runs = cut::Runs {
                 resident_only,
                 ranks_only,
                 settled,
                 threads,
+                sweep,
             };
             let bunny = args.shared.join("bunny.obj");
             if let Some(vdt) = vdt {

@@ -80,6 +80,10 @@ struct Args {
     /// on one; the cut is the same whatever the number).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=256))]
     adjust_threads: u32,
+    /// Threshold adjusts by a sweep from scratch each frame (the top-down cut, page by page)
+    /// instead of the incremental pass; fetches no page ahead of need.
+    #[arg(long, conflicts_with_all = ["prevent_folds", "adjust_threads"])]
+    sweep: bool,
     /// Screen-space error threshold in pixels (scene units with --view-independent); a finite
     /// number, at least 0.
     #[arg(long, value_parser = non_negative)]
@@ -358,6 +362,7 @@ fn run(args: &Args) -> Result<()> {
     let mut runtime = Runtime::with_loading(Box::new(file), tracking, loading)
         .with_context(|| format!("{}", args.file.display()))?;
     runtime.set_adjust_threads(args.adjust_threads as usize);
+    runtime.set_sweep(args.sweep);
     runtime.set_memory_budget(
         args.memory_budget
             .unwrap_or_else(vds_runtime::default_memory_budget),
