@@ -202,14 +202,7 @@ fn incremental_adjusts_match_a_recomputation_and_the_journal_replays_them() {
         let mut camera = random_camera(&mut rng, center, radius);
         for step in 0..60 {
             // Mostly small moves, with a jump every 15 frames and goal switches.
-            if step % 15 == 14 {
-                camera = random_camera(&mut rng, center, radius);
-            } else {
-                let d = rng.unit_vector();
-                for k in 0..3 {
-                    camera.eye[k] += d[k] * radius * 0.05;
-                }
-            }
+            next_camera(&mut rng, &mut camera, (step, 15), (center, radius), 0.05);
             let goal = match step / 20 {
                 0 => Goal::Threshold(1.0),
                 1 => Goal::Budget(2000 + 300 * step),

@@ -171,14 +171,7 @@ fn node_changes_alone_let_a_renderer_draw_the_cut_and_it_is_lazy_trackings_cut()
         let mut camera = random_camera(&mut rng, center, radius);
         let mut changed_frames = 0;
         for step in 0..60u32 {
-            if step % 12 == 11 {
-                camera = random_camera(&mut rng, center, radius);
-            } else {
-                let d = rng.unit_vector();
-                for k in 0..3 {
-                    camera.eye[k] += d[k] * radius * 0.06;
-                }
-            }
+            next_camera(&mut rng, &mut camera, (step, 12), (center, radius), 0.06);
             let (viewpoint, goal) = match step % 5 {
                 0 | 1 => (Viewpoint::Camera(camera), Goal::Threshold(1.0)),
                 2 => (Viewpoint::Camera(camera), Goal::Threshold(6.0)),

@@ -47,14 +47,7 @@ fn no_cut_draws_a_repeat_and_budgets_count_each_class_once() {
                 let mut rng = Rng(11);
                 let mut camera = random_camera(&mut rng, center, radius);
                 for step in 0..48u32 {
-                    if step % 8 == 7 {
-                        camera = random_camera(&mut rng, center, radius);
-                    } else {
-                        let d = rng.unit_vector();
-                        for k in 0..3 {
-                            camera.eye[k] += d[k] * radius * 0.08;
-                        }
-                    }
+                    next_camera(&mut rng, &mut camera, (step, 8), (center, radius), 0.08);
                     let (viewpoint, goal) = match step % 6 {
                         0 | 1 => (Viewpoint::Camera(camera), Goal::Threshold(1.5)),
                         2 => (Viewpoint::Camera(camera), Goal::Threshold(8.0)),

@@ -66,14 +66,13 @@ fn a_sweep_finds_the_recursive_cut_and_its_changes_keep_the_threshold() {
         let mut seen = 0;
         for step in 0..36 {
             // Small moves, with a jump every 9 frames.
-            if step % 9 == 8 {
-                camera = random_camera(&mut rng, center, radius);
-            } else {
-                let d = rng.unit_vector();
-                for k in 0..3 {
-                    camera.eye[k] += d[k] * radius * 0.04;
-                }
-            }
+            next_camera(
+                &mut rng,
+                &mut camera,
+                (step as u32, 9),
+                (center, radius),
+                0.04,
+            );
             let t = [1.0f32, 0.5, 4.0][step % 3];
             let criteria = Criteria {
                 frustum: [FrustumMode::Fold, FrustumMode::Ignore, FrustumMode::Off][step / 3 % 3],
@@ -173,14 +172,13 @@ fn adjusts_by_sweeps_load_their_pages_and_give_the_recursive_cut() {
         let mut rng = Rng(name.len() as u64 + 5);
         let mut camera = random_camera(&mut rng, center, radius);
         for step in 0..40 {
-            if step % 8 == 7 {
-                camera = random_camera(&mut rng, center, radius);
-            } else {
-                let d = rng.unit_vector();
-                for k in 0..3 {
-                    camera.eye[k] += d[k] * radius * 0.05;
-                }
-            }
+            next_camera(
+                &mut rng,
+                &mut camera,
+                (step as u32, 8),
+                (center, radius),
+                0.05,
+            );
             let criteria = Criteria {
                 frustum: [FrustumMode::Fold, FrustumMode::Ignore][step / 4 % 2],
                 ..Criteria::default()

@@ -136,6 +136,26 @@ pub fn random_camera(rng: &mut Rng, center: [f32; 3], radius: f32) -> Camera {
     }
 }
 
+/// Moves a test path's camera to its next frame: at every `jump_every`-th step (`step %
+/// jump_every == jump_every - 1`) a new random camera, otherwise the eye moved by `share` of
+/// `radius` in a random direction.
+pub fn next_camera(
+    rng: &mut Rng,
+    camera: &mut Camera,
+    (step, jump_every): (u32, u32),
+    (center, radius): ([f32; 3], f32),
+    share: f32,
+) {
+    if step % jump_every == jump_every - 1 {
+        *camera = random_camera(rng, center, radius);
+    } else {
+        let d = rng.unit_vector();
+        for k in 0..3 {
+            camera.eye[k] += d[k] * radius * share;
+        }
+    }
+}
+
 /// A generated CAD-like scene of about `triangles` triangles, built into `.vdt` bytes.
 pub fn generated(triangles: u64) -> (Vec<u8>, [f32; 3], f32) {
     let g = vds_gen::generate(triangles);
