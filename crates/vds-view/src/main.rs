@@ -166,6 +166,10 @@ struct Args {
     /// Folds and unfolds stay on one; the cut is the same whatever the number.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
     adjust_threads: Option<u32>,
+    /// Threshold adjusts by a sweep from scratch each frame (the top-down cut, page by page)
+    /// instead of the incremental pass: faster on large scenes; fetches no page ahead of need.
+    #[arg(long, conflicts_with = "adjust_threads")]
+    sweep: bool,
 }
 
 /// `--corners`.
@@ -335,6 +339,7 @@ impl Args {
         let every_core = || std::thread::available_parallelism().map_or(1, NonZero::get);
         let threads = self.adjust_threads.map_or_else(every_core, |n| n as usize);
         model.runtime.set_adjust_threads(threads);
+        model.runtime.set_sweep(self.sweep);
         Ok(model)
     }
 
