@@ -16,7 +16,11 @@
 //! two bit sets: nodes that unfolded (ascending, so parents first) and nodes that folded.
 //!
 //! A node unfolds only if its children are resident and checked; one whose criteria ask for
-//! it but whose children are not is left folded and counted ([`SweepStats::deferred`]).
+//! it but whose children are not is left folded and listed ([`Sweep::deferred`]); once they
+//! arrive, [`Sweep::resume`] continues below it without sweeping the rest again.
+//!
+//! [`crate::Runtime::set_sweep`] makes a runtime's threshold adjusts run a sweep and apply
+//! its changes through the cut's own fold and unfold.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -82,12 +86,7 @@ impl Sweep {
     /// Evaluates the cut for `judge`'s view at threshold `t` over `store`'s resident pages,
     /// and what changed since the run before.
     pub fn run(&mut self, store: &NodeStore, judge: &Judge, t: f32) -> SweepStats {
-        let page_count = store.page_count() as usize;
-        if self.active.len() < page_count {
-            self.active.resize_with(page_count, Vec::new);
-            self.before.resize_with(page_count, Vec::new);
-            self.queued.resize(page_count.div_ceil(64), 0);
-        }
+        self.fit(store);
         std::mem::swap(&mut self.active, &mut self.before);
         std::mem::swap(&mut self.pages, &mut self.pages_before);
         for &p in &self.pages {
@@ -117,15 +116,20 @@ impl Sweep {
         stats
     }
 
-    /// Takes `active` (ascending node ids, every one resident with its children) as the
-    /// last run's cut: what the next run's changes are counted from.
-    pub fn adopt(&mut self, store: &NodeStore, active: &[u32]) {
+    /// Gives the per-page tables a row for every page of `store`'s file.
+    fn fit(&mut self, store: &NodeStore) {
         let page_count = store.page_count() as usize;
         if self.active.len() < page_count {
             self.active.resize_with(page_count, Vec::new);
             self.before.resize_with(page_count, Vec::new);
             self.queued.resize(page_count.div_ceil(64), 0);
         }
+    }
+
+    /// Takes `active` (ascending node ids, every one resident with its children) as the
+    /// last run's cut: what the next run's changes are counted from.
+    pub fn adopt(&mut self, store: &NodeStore, active: &[u32]) {
+        self.fit(store);
         for &p in &self.pages {
             self.active[p as usize].fill(0);
         }
