@@ -67,6 +67,8 @@ pub struct Sweep {
     /// One bit per page: queued in this sweep.
     queued: Vec<u64>,
     queue: BinaryHeap<Reverse<u32>>,
+    /// In [`Sweep::resume`]: the nodes it unfolded whose children are still to test.
+    nodes_queued: BinaryHeap<Reverse<u32>>,
     unfolded: Vec<u32>,
     folded: Vec<u32>,
     /// Nodes the criteria asked to unfold whose children were not resident and checked.
@@ -153,7 +155,7 @@ impl Sweep {
 
     /// Continues the last run below `seeds`, nodes it left waiting ([`Sweep::deferred`]) whose
     /// children have arrived since, for the same view and threshold: each seed unfolds (the
-    /// run found that the criteria ask for it) and the pages below are swept as in a run.
+    /// run found that the criteria ask for it) and what lies below it is swept as in a run.
     /// Only nodes unfold: afterwards [`Sweep::unfolded`] lists those that did in this call,
     /// ascending, and [`Sweep::deferred`] those left waiting.
     pub fn resume(
@@ -176,14 +178,29 @@ impl Sweep {
                 continue;
             };
             let local = (id - page.first) as usize;
+            if bit(&self.active, p, local) {
+                continue;
+            }
             if page.is_checked(local) && store.children_resident(id) {
                 self.set(p, local, page.hot.len(), id);
             } else {
                 self.deferred.push(id);
             }
         }
-        self.sweep_queued(store, judge, t, &mut stats);
-        // Pages swept again are listed twice.
+        // Only the nodes this call unfolds are visited, parents first: the rest of the cut
+        // was swept by the run.
+        let tight = judge.tightest(t);
+        while let Some(Reverse(id)) = self.nodes_queued.pop() {
+            let p = store.page_index(id).expect("an unfolded node exists");
+            let page = store.tested_page(p).expect("an unfolded node is resident");
+            let mut cursor = Cursor {
+                index: p,
+                page,
+                grandchildren: None,
+            };
+            let hot = &page.hot[(id - page.first) as usize];
+            self.visit(store, judge, t, tight, hot, &mut cursor, &mut stats);
+        }
         self.pages.sort_unstable();
         self.pages.dedup();
         self.resuming = false;
@@ -213,22 +230,22 @@ impl Sweep {
     /// Tests the children of page `p`'s active nodes, in id order: children in this page
     /// come later in it, so re-reading each word picks them up.
     #[allow(clippy::too_many_arguments)]
-    fn sweep_page(
+    fn sweep_page<'a>(
         &mut self,
-        store: &NodeStore,
+        store: &'a NodeStore,
         judge: &Judge,
         t: f32,
         tight: f32,
         p: u32,
-        page: TestedPage<'_>,
+        page: TestedPage<'a>,
         stats: &mut SweepStats,
     ) {
-        let keeping = judge.criteria().frustum == FrustumMode::Ignore;
         let words = self.active[p as usize].len();
-        let (mut child_index, mut child_page) = (p, page);
-        // The page of the last children found resident: consecutive nodes' children are
-        // usually in one page, so most residency checks need no look-up.
-        let mut grandchildren: Option<TestedPage<'_>> = None;
+        let mut cursor = Cursor {
+            index: p,
+            page,
+            grandchildren: None,
+        };
         for w in 0..words {
             let mut done = 0u64;
             loop {
@@ -238,52 +255,66 @@ impl Sweep {
                 }
                 let b = pending.trailing_zeros();
                 done |= 1 << b;
-                stats.active += 1;
                 let hot = &page.hot[w * 64 + b as usize];
-                // A passing group bound folds every child, except that in `Ignore` mode a
-                // child outside the frustum keeps its state: those active before are tested.
-                let group_passed = judge.group_within(hot, tight);
-                if group_passed {
-                    stats.groups_passed += 1;
-                    if !keeping {
-                        continue;
-                    }
-                }
-                for c in hot.first_child..hot.first_child + hot.child_count {
-                    if !child_page.holds(c) {
-                        // Siblings share a page, so this is once a family at most.
-                        let index = store.page_index(c).expect("children exist");
-                        child_index = index;
-                        child_page = store
-                            .tested_page(index)
-                            .expect("an active node's children are resident");
-                    }
-                    let local = (c - child_page.first) as usize;
-                    let keep = bit(&self.before, child_index, local);
-                    if group_passed && !keep {
-                        continue;
-                    }
-                    stats.tests += 1;
-                    if child_page.hot[local].child_count == 0 {
-                        continue;
-                    }
-                    if !unfolds(judge, child_page.tested(local), t, keep) {
-                        continue;
-                    }
-                    if child_page.is_checked(local)
-                        && children_resident(store, c, &child_page.hot[local], &mut grandchildren)
-                    {
-                        self.set(child_index, local, child_page.hot.len(), c);
-                    } else {
-                        self.deferred.push(c);
-                    }
-                }
+                self.visit(store, judge, t, tight, hot, &mut cursor, stats);
             }
         }
     }
 
-    /// Marks entry `local` of page `p` (of `len` nodes), node `id`, active and queues the
-    /// page; when resuming, lists the node if it was not active.
+    /// Tests the children of the active node of record `hot` (unless its group bound says
+    /// none can unfold) and marks those that unfold.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn visit<'a>(
+        &mut self,
+        store: &'a NodeStore,
+        judge: &Judge,
+        t: f32,
+        tight: f32,
+        hot: &Hot,
+        cursor: &mut Cursor<'a>,
+        stats: &mut SweepStats,
+    ) {
+        stats.active += 1;
+        // A passing group bound folds every child, except that in `Ignore` mode a child
+        // outside the frustum keeps its state: those active before are tested.
+        let group_passed = judge.group_within(hot, tight);
+        if group_passed {
+            stats.groups_passed += 1;
+            if judge.criteria().frustum != FrustumMode::Ignore {
+                return;
+            }
+        }
+        for c in hot.first_child..hot.first_child + hot.child_count {
+            if !cursor.page.holds(c) {
+                // Siblings share a page, so this is once a family at most.
+                cursor.index = store.page_index(c).expect("children exist");
+                cursor.page = store
+                    .tested_page(cursor.index)
+                    .expect("an active node's children are resident");
+            }
+            let local = (c - cursor.page.first) as usize;
+            let keep = bit(&self.before, cursor.index, local);
+            if group_passed && !keep {
+                continue;
+            }
+            stats.tests += 1;
+            let child = &cursor.page.hot[local];
+            if child.child_count == 0 || !unfolds(judge, cursor.page.tested(local), t, keep) {
+                continue;
+            }
+            if cursor.page.is_checked(local)
+                && children_resident(store, c, child, &mut cursor.grandchildren)
+            {
+                self.set(cursor.index, local, cursor.page.hot.len(), c);
+            } else {
+                self.deferred.push(c);
+            }
+        }
+    }
+
+    /// Marks entry `local` of page `p` (of `len` nodes), node `id`, active. In a run, queues
+    /// the page; when resuming, lists and queues the node itself if it was not active.
     #[inline]
     fn set(&mut self, p: u32, local: usize, len: usize, id: u32) {
         let bits = &mut self.active[p as usize];
@@ -291,10 +322,16 @@ impl Sweep {
             bits.resize(len.div_ceil(64), 0);
         }
         let word = &mut bits[local / 64];
-        if self.resuming && *word & (1 << (local % 64)) == 0 {
-            self.unfolded.push(id);
-        }
+        let fresh = *word & (1 << (local % 64)) == 0;
         *word |= 1 << (local % 64);
+        if self.resuming {
+            if fresh {
+                self.unfolded.push(id);
+                self.nodes_queued.push(Reverse(id));
+                self.pages.push(p);
+            }
+            return;
+        }
         let queued = &mut self.queued[p as usize / 64];
         if *queued & (1 << (p % 64)) == 0 {
             *queued |= 1 << (p % 64);
@@ -404,8 +441,15 @@ pub(crate) fn adjust_threshold(
         active.sort_unstable();
         sweep.adopt(cut.store(), &active);
     }
-    let stats = sweep_and_apply(sweep, cut, judge, t);
-    sweep.operations = cut.operations();
+    let mut in_step = true;
+    let stats = sweep_and_apply(sweep, cut, judge, t, &mut in_step);
+    // Out of step (an unfold the memory budget refused, or an error midway), the next
+    // adjust adopts the cut as it is.
+    sweep.operations = if in_step && stats.is_ok() {
+        cut.operations()
+    } else {
+        u64::MAX
+    };
     stats
 }
 
@@ -415,6 +459,7 @@ fn sweep_and_apply(
     cut: &mut Cut,
     judge: &Judge,
     t: f32,
+    in_step: &mut bool,
 ) -> Result<AdjustStats, VdtError> {
     let mut stats = AdjustStats::default();
     // The still passes' list of nodes to revisit is the incremental pass's; it must not
@@ -430,13 +475,22 @@ fn sweep_and_apply(
             cut.fold_node(id, false);
         }
         for &id in sweep.unfolded() {
-            cut.unfold_available(id);
+            // The cut's own arrays grow within the memory budget: a node it cannot make room
+            // for stays folded, and so does everything the sweep unfolded below it.
+            if unfoldable(cut, id) && cut.make_room_for_unfold(id) {
+                cut.unfold_available(id);
+                stats.unfolds += 1;
+            } else {
+                *in_step = false;
+            }
         }
         stats.folds += found.folded;
-        stats.unfolds += found.unfolded;
         seeds.clear();
         for &id in sweep.deferred() {
-            if cut.children_available(id)? {
+            // Below a node the budget kept folded, a deferred node is not in the cut.
+            if !unfoldable(cut, id) {
+                *in_step = false;
+            } else if cut.children_available(id)? {
                 seeds.push(id);
             } else if cut.request_children(id, judge.screen_error(cut.store().tested(id))) {
                 stats.deferred_unfolds += 1;
@@ -463,6 +517,23 @@ fn unfolds(judge: &Judge, tested: crate::store::Tested<'_>, t: f32, keep: bool) 
         Decision::Fold => false,
         Decision::Keep => keep,
     }
+}
+
+/// Whether node `id` is on the boundary of `cut` with children, so it may unfold. Below a node
+/// whose unfold the budget refused, the sweep's nodes are not in the cut, and their pages,
+/// which nothing pins, may have been evicted to make room for another.
+fn unfoldable(cut: &Cut, id: u32) -> bool {
+    cut.store().is_resident(id) && cut.can_unfold(id)
+}
+
+/// Where the children of the nodes being visited were last found.
+struct Cursor<'a> {
+    /// The page holding the last children tested, and its index.
+    page: TestedPage<'a>,
+    index: u32,
+    /// The page of the last grandchildren found resident: consecutive nodes' children are
+    /// usually in one page, so most residency checks need no look-up.
+    grandchildren: Option<TestedPage<'a>>,
 }
 
 /// Whether the children of node `id`, of record `hot`, are resident: in the page `last`
