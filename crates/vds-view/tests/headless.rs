@@ -10,6 +10,15 @@ fn vds_view() -> Command {
     Command::new(env!("CARGO_BIN_EXE_vds-view"))
 }
 
+/// Fails the test with the process's error output unless it succeeded.
+fn assert_succeeded(result: &std::process::Output) {
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+}
+
 fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("vds-view-test-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -35,11 +44,7 @@ fn headless_orbit_writes_every_frame_and_a_row_per_frame() {
         .arg(dir.join("stats.csv"))
         .output()
         .unwrap();
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
+    assert_succeeded(&result);
     for frame in 0..5 {
         let png = dir.join(format!("frames/frame-{frame:05}.png"));
         let image = vds_render::Image::read_png(&png).unwrap();
@@ -112,11 +117,7 @@ fn asynchronous_frames_are_complete_cuts_across_a_camera_jump() {
     // --verify makes the run fail if any frame drew a state that is not exactly the cut after
     // one complete adjust (checked against that adjust's fingerprint) or any cut is
     // inconsistent.
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
+    assert_succeeded(&result);
     let csv = std::fs::read_to_string(dir.join("stats.csv")).unwrap();
     assert_eq!(csv.lines().count(), 37);
     std::fs::remove_dir_all(&dir).unwrap();
@@ -219,11 +220,7 @@ fn headless_background_loading_reports_pages_and_keeps_every_frame_a_whole_cut()
         .arg(dir.join("stats.csv"))
         .output()
         .unwrap();
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
+    assert_succeeded(&result);
     let csv = std::fs::read_to_string(dir.join("stats.csv")).unwrap();
     let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len(), 21);
@@ -258,11 +255,7 @@ fn headless_memory_budget_holds_evicts_and_keeps_the_mirror_whole() {
         .arg(dir.join("stats.csv"))
         .output()
         .unwrap();
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
+    assert_succeeded(&result);
     let csv = std::fs::read_to_string(dir.join("stats.csv")).unwrap();
     let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
     let column = |name: &str| rows[0].iter().position(|c| *c == name).unwrap();
@@ -302,11 +295,7 @@ fn adjusting_by_sweeps_draws_what_the_incremental_pass_draws() {
             .arg(dir.join(name))
             .output()
             .unwrap();
-        assert!(
-            result.status.success(),
-            "{}",
-            String::from_utf8_lossy(&result.stderr)
-        );
+        assert_succeeded(&result);
         (0..6)
             .map(|frame| {
                 vds_render::Image::read_png(&dir.join(format!("{name}/frame-{frame:05}.png")))
