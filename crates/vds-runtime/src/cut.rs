@@ -726,16 +726,11 @@ impl Cut {
         Ok(self.store.children_available(id)? && self.reserve_for_unfold(id))
     }
 
-    /// [`Cut::children_available`] for a node whose children are known to be resident and
-    /// checked: whether the cut's own arrays have room for its unfold within the memory
-    /// budget (grown if they need to be).
-    pub(crate) fn make_room_for_unfold(&mut self, id: u32) -> bool {
-        self.reserve_for_unfold(id)
-    }
-
     /// Makes room in the slot array and the active list for unfolding `id`, within the
-    /// memory budget; false when the budget cannot give it.
-    fn reserve_for_unfold(&mut self, id: u32) -> bool {
+    /// memory budget; false when the budget cannot give it. (The part of
+    /// [`Cut::children_available`] a caller needs whose children are known to be resident
+    /// and checked.)
+    pub(crate) fn reserve_for_unfold(&mut self, id: u32) -> bool {
         let subtris = match self.tracking {
             CornerTracking::Ranks => 0,
             _ => self.store.subtris(id).len(),

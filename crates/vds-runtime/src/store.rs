@@ -1080,9 +1080,9 @@ impl NodeStore {
         std::mem::take(&mut self.page_errors)
     }
 
-    /// The page holding node `id`, if any ([`page_from_block`]).
+    /// The page holding node `id` (resident or not), if any ([`page_from_block`]).
     #[inline]
-    fn page_of(&self, id: u32) -> Option<u32> {
+    pub(crate) fn page_of(&self, id: u32) -> Option<u32> {
         if id >= self.node_count {
             return None;
         }
@@ -1342,12 +1342,6 @@ impl NodeStore {
     /// Number of pages in the file.
     pub(crate) fn page_count(&self) -> u32 {
         self.page_first_node.len() as u32
-    }
-
-    /// The page holding node `id` (resident or not), or `None` past the last node.
-    #[inline]
-    pub(crate) fn page_index(&self, id: u32) -> Option<u32> {
-        self.page_of(id)
     }
 
     /// The first node id of page `index`.

@@ -100,15 +100,8 @@ impl Sweep {
         if let Some(root_page) = store.tested_page(0) {
             stats.tests = 1;
             let keep = bit(&self.before, 0, 0);
-            if unfolds(judge, root_page.tested(0), t, keep) {
-                if root_page.hot[0].child_count > 0
-                    && root_page.is_checked(0)
-                    && store.children_resident(0)
-                {
-                    self.set(0, 0, root_page.hot.len(), 0);
-                } else if root_page.hot[0].child_count > 0 {
-                    self.deferred.push(0);
-                }
+            if root_page.hot[0].child_count > 0 && unfolds(judge, root_page.tested(0), t, keep) {
+                self.unfold_or_defer(store, 0, root_page, 0, 0, &mut None);
             }
         }
         self.sweep_queued(store, judge, t, &mut stats);
@@ -137,7 +130,7 @@ impl Sweep {
         }
         self.pages.clear();
         for &id in active {
-            let p = store.page_index(id).expect("an active node exists");
+            let p = store.page_of(id).expect("an active node exists");
             let page = store.tested_page(p).expect("an active node is resident");
             let local = (id - page.first) as usize;
             let bits = &mut self.active[p as usize];
@@ -172,26 +165,21 @@ impl Sweep {
         let mut stats = SweepStats::default();
         for &id in seeds {
             let Some((p, page)) = store
-                .page_index(id)
+                .page_of(id)
                 .and_then(|p| Some((p, store.tested_page(p)?)))
             else {
                 continue;
             };
             let local = (id - page.first) as usize;
-            if bit(&self.active, p, local) {
-                continue;
-            }
-            if page.is_checked(local) && store.children_resident(id) {
-                self.set(p, local, page.hot.len(), id);
-            } else {
-                self.deferred.push(id);
+            if !bit(&self.active, p, local) {
+                self.unfold_or_defer(store, p, page, local, id, &mut None);
             }
         }
         // Only the nodes this call unfolds are visited, parents first: the rest of the cut
         // was swept by the run.
         let tight = judge.tightest(t);
         while let Some(Reverse(id)) = self.nodes_queued.pop() {
-            let p = store.page_index(id).expect("an unfolded node exists");
+            let p = store.page_of(id).expect("an unfolded node exists");
             let page = store.tested_page(p).expect("an unfolded node is resident");
             let mut cursor = Cursor {
                 index: p,
@@ -288,7 +276,7 @@ impl Sweep {
         for c in hot.first_child..hot.first_child + hot.child_count {
             if !cursor.page.holds(c) {
                 // Siblings share a page, so this is once a family at most.
-                cursor.index = store.page_index(c).expect("children exist");
+                cursor.index = store.page_of(c).expect("children exist");
                 cursor.page = store
                     .tested_page(cursor.index)
                     .expect("an active node's children are resident");
@@ -303,13 +291,27 @@ impl Sweep {
             if child.child_count == 0 || !unfolds(judge, cursor.page.tested(local), t, keep) {
                 continue;
             }
-            if cursor.page.is_checked(local)
-                && children_resident(store, c, child, &mut cursor.grandchildren)
-            {
-                self.set(cursor.index, local, cursor.page.hot.len(), c);
-            } else {
-                self.deferred.push(c);
-            }
+            let (index, page) = (cursor.index, cursor.page);
+            self.unfold_or_defer(store, index, page, local, c, &mut cursor.grandchildren);
+        }
+    }
+
+    /// Marks node `id`, entry `local` of page `p`, active when its children are resident and
+    /// checked ([`children_resident`], with its cache `grandchildren`), and lists it as
+    /// deferred when they are not.
+    fn unfold_or_defer<'a>(
+        &mut self,
+        store: &'a NodeStore,
+        p: u32,
+        page: TestedPage<'a>,
+        local: usize,
+        id: u32,
+        grandchildren: &mut Option<TestedPage<'a>>,
+    ) {
+        if page.is_checked(local) && children_resident(store, id, &page.hot[local], grandchildren) {
+            self.set(p, local, page.hot.len(), id);
+        } else {
+            self.deferred.push(id);
         }
     }
 
@@ -397,7 +399,7 @@ impl Sweep {
     /// Whether node `id` is active in the last run's cut.
     pub fn is_active(&self, store: &NodeStore, id: u32) -> bool {
         store
-            .page_index(id)
+            .page_of(id)
             .is_some_and(|p| bit(&self.active, p, (id - store.page_first(p)) as usize))
     }
 
@@ -424,8 +426,8 @@ impl Sweep {
 /// sees an ordinary cut. The nodes a sweep leaves folded because their children are not
 /// resident get them: with synchronous loading they are loaded and the sweep resumes below
 /// them ([`Sweep::resume`]), once per level of pages reached, until no node waits or no page
-/// could be loaded (the memory budget refused it); with background loading they are asked for, by their screen-space
-/// error, and unfold in a later adjust.
+/// could be loaded (the memory budget refused it); with background loading they are asked
+/// for, by their screen-space error, and unfold in a later adjust.
 ///
 /// `cut` must be what `sweep`'s last run left (or the root alone, before its first).
 pub(crate) fn adjust_threshold(
@@ -477,7 +479,7 @@ fn sweep_and_apply(
         for &id in sweep.unfolded() {
             // The cut's own arrays grow within the memory budget: a node it cannot make room
             // for stays folded, and so does everything the sweep unfolded below it.
-            if unfoldable(cut, id) && cut.make_room_for_unfold(id) {
+            if unfoldable(cut, id) && cut.reserve_for_unfold(id) {
                 cut.unfold_available(id);
                 stats.unfolds += 1;
             } else {
@@ -550,7 +552,7 @@ fn children_resident<'a>(
         return true;
     }
     let page = store
-        .page_index(first)
+        .page_of(first)
         .and_then(|index| store.tested_page(index))
         .filter(|page| page.holds(end));
     if page.is_some() {
