@@ -259,6 +259,20 @@ impl<'a> TestedPage<'a> {
     }
 }
 
+/// Where a node sits in the tree and how many triangles it owns: what a change report needs
+/// of a node that folded or unfolded ([`crate::sweep::Sweep::report`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Family {
+    /// The parent's id, or [`crate::NIL`] for the root.
+    pub parent: u32,
+    /// The first child's id; the children are consecutive.
+    pub first_child: u32,
+    /// Number of children.
+    pub child_count: u32,
+    /// Number of subtris.
+    pub subtri_count: u32,
+}
+
 /// The rest of a node: where it sits in the tree and which triangles it owns.
 #[derive(Debug, Clone, Copy, PartialEq, Zeroable)]
 struct Topology {
@@ -1350,6 +1364,14 @@ impl NodeStore {
         self.page_first_node[index as usize]
     }
 
+    /// The id after page `index`'s last node.
+    pub(crate) fn page_end(&self, index: u32) -> u32 {
+        self.page_first_node
+            .get(index as usize + 1)
+            .copied()
+            .unwrap_or(self.node_count)
+    }
+
     /// What the criteria read of resident page `index`'s nodes, side by side, or `None` when
     /// the page is not resident.
     #[inline]
@@ -1745,6 +1767,22 @@ impl NodeStore {
     pub fn hot(&self, id: u32) -> &Hot {
         let p = self.expect_place(id);
         &self.resident(p.slot).hot[p.local as usize]
+    }
+
+    /// Node `id`'s parent, children and subtri count, or `None` if its page is not resident
+    /// (one page look-up, two records).
+    #[inline]
+    pub(crate) fn family(&self, id: u32) -> Option<Family> {
+        let p = self.place(id)?;
+        let page = self.resident(p.slot);
+        let i = p.local as usize;
+        let (hot, topology) = (&page.hot[i], &page.topology[i]);
+        Some(Family {
+            parent: topology.parent,
+            first_child: hot.first_child,
+            child_count: hot.child_count,
+            subtri_count: topology.subtri_count,
+        })
     }
 
     /// What the criteria read of resident node `id`.

@@ -29,7 +29,7 @@ use vds_format::VdtError;
 
 use crate::adjust::AdjustStats;
 use crate::criteria::{Decision, FrustumMode, Judge};
-use crate::cut::Cut;
+use crate::cut::{Changes, Cut, NIL};
 use crate::store::{Hot, NodeStore, TestedPage};
 
 /// Work done and found by one [`Sweep::run`].
@@ -343,41 +343,70 @@ impl Sweep {
 
     /// Lists the nodes whose bit differs from the sweep before.
     fn diff(&mut self, store: &NodeStore, stats: &mut SweepStats) {
-        self.unfolded.clear();
-        self.folded.clear();
-        let (mut a, mut b) = (0, 0);
-        // Both lists are ascending: walk their union in order.
-        while a < self.pages.len() || b < self.pages_before.len() {
-            let p = match (self.pages.get(a), self.pages_before.get(b)) {
-                (Some(&x), Some(&y)) => x.min(y),
-                (Some(&x), None) => x,
-                (None, Some(&y)) => y,
-                (None, None) => unreachable!(),
-            };
-            a += usize::from(self.pages.get(a) == Some(&p));
-            b += usize::from(self.pages_before.get(b) == Some(&p));
-            let first = store.page_first(p);
-            let (now, then) = (&self.active[p as usize], &self.before[p as usize]);
-            for w in 0..now.len().max(then.len()) {
-                let (x, y) = (
-                    now.get(w).copied().unwrap_or(0),
-                    then.get(w).copied().unwrap_or(0),
-                );
-                let mut changed = x ^ y;
-                while changed != 0 {
-                    let k = changed.trailing_zeros();
-                    changed &= changed - 1;
-                    let id = first + (w * 64) as u32 + k;
-                    if x & (1 << k) != 0 {
-                        self.unfolded.push(id);
-                    } else {
-                        self.folded.push(id);
-                    }
-                }
-            }
-        }
+        let (mut unfolded, mut folded) = (
+            std::mem::take(&mut self.unfolded),
+            std::mem::take(&mut self.folded),
+        );
+        unfolded.clear();
+        folded.clear();
+        self.bits_now_and_before()
+            .for_each_change(store, |id, now| match now {
+                true => unfolded.push(id),
+                false => folded.push(id),
+            });
+        (self.unfolded, self.folded) = (unfolded, folded);
         stats.unfolded = self.unfolded.len() as u32;
         stats.folded = self.folded.len() as u32;
+    }
+
+    /// The cut now and as the run before found it.
+    fn bits_now_and_before(&self) -> BitsNowAndBefore<'_> {
+        BitsNowAndBefore {
+            pages: &self.pages,
+            pages_before: &self.pages_before,
+            now: &self.active,
+            before: &self.before,
+        }
+    }
+
+    /// What changed from the cut the run before left to the cut now (after the last run and
+    /// the resumes since), as a renderer tracking leaf ranks reads it: nodes unfolded and
+    /// folded (ascending), nodes that joined and left the boundary, triangles added and
+    /// removed. It is found from the two bit sets and the changed nodes' families alone, with
+    /// no state per node: an unfolded node leaves the boundary if its parent was active, and
+    /// its children that are not active now join it; a folded node joins the boundary if its
+    /// parent is active, and its children that were not active leave it (the root's parent
+    /// counts as active). Repeats are not looked for (`hidden` and `shown` stay empty, as do
+    /// the slot fields). `None` when a changed node's page is no longer resident.
+    pub fn report(&self, store: &NodeStore) -> Option<Changes> {
+        let bits = self.bits_now_and_before();
+        let mut changes = Changes::default();
+        let mut complete = true;
+        bits.for_each_change(store, |id, now| {
+            let Some(family) = store.family(id) else {
+                complete = false;
+                return;
+            };
+            let children = family.first_child..family.first_child + family.child_count;
+            if now {
+                changes.added += family.subtri_count;
+                changes.unfolded.push(id);
+                if bits.is_set_before(store, family.parent) {
+                    changes.left_boundary.push(id);
+                }
+                let joined = children_unset(bits.now, store, children);
+                changes.joined_boundary.extend(joined);
+            } else {
+                changes.removed += family.subtri_count;
+                changes.folded.push(id);
+                if bits.is_set_now(store, family.parent) {
+                    changes.joined_boundary.push(id);
+                }
+                let left = children_unset(bits.before, store, children);
+                changes.left_boundary.extend(left);
+            }
+        });
+        complete.then_some(changes)
     }
 
     /// Nodes active now that were not at the run before, ascending (parents first).
@@ -509,6 +538,85 @@ fn sweep_and_apply(
             return Ok(stats);
         }
     }
+}
+
+/// Two cuts as bits per page: now, and as the run before left it.
+#[derive(Clone, Copy)]
+struct BitsNowAndBefore<'a> {
+    /// Pages holding an active node now, and before (ascending).
+    pages: &'a [u32],
+    pages_before: &'a [u32],
+    now: &'a [Vec<u64>],
+    before: &'a [Vec<u64>],
+}
+
+impl BitsNowAndBefore<'_> {
+    /// Calls `each(id, now)` for every node active in one cut and not the other, in ascending
+    /// id order (`now`: active now).
+    fn for_each_change(&self, store: &NodeStore, mut each: impl FnMut(u32, bool)) {
+        let (mut a, mut b) = (0, 0);
+        // Both page lists are ascending: walk their union in order.
+        while a < self.pages.len() || b < self.pages_before.len() {
+            let p = match (self.pages.get(a), self.pages_before.get(b)) {
+                (Some(&x), Some(&y)) => x.min(y),
+                (Some(&x), None) => x,
+                (None, Some(&y)) => y,
+                (None, None) => unreachable!(),
+            };
+            a += usize::from(self.pages.get(a) == Some(&p));
+            b += usize::from(self.pages_before.get(b) == Some(&p));
+            let first = store.page_first(p);
+            let (now, then) = (&self.now[p as usize], &self.before[p as usize]);
+            for w in 0..now.len().max(then.len()) {
+                let x = now.get(w).copied().unwrap_or(0);
+                let mut changed = x ^ then.get(w).copied().unwrap_or(0);
+                while changed != 0 {
+                    let k = changed.trailing_zeros();
+                    changed &= changed - 1;
+                    each(first + (w * 64) as u32 + k, x & (1 << k) != 0);
+                }
+            }
+        }
+    }
+
+    /// Whether node `id` is active now; [`NIL`] (the root's parent) is.
+    fn is_set_now(&self, store: &NodeStore, id: u32) -> bool {
+        is_set(self.now, store, id)
+    }
+
+    /// Whether node `id` was active before; [`NIL`] (the root's parent) was.
+    fn is_set_before(&self, store: &NodeStore, id: u32) -> bool {
+        is_set(self.before, store, id)
+    }
+}
+
+/// The nodes of `ids` (a node's children) not set in `pages`, with one page look-up for those
+/// in the first one's page.
+#[inline]
+fn children_unset<'a>(
+    pages: &'a [Vec<u64>],
+    store: &'a NodeStore,
+    ids: std::ops::Range<u32>,
+) -> impl Iterator<Item = u32> + 'a {
+    let page = store.page_of(ids.start);
+    let first = page.map_or(0, |p| store.page_first(p));
+    let in_page = page.map_or(0, |p| store.page_end(p) - first);
+    ids.filter(move |&c| {
+        let set = match page {
+            Some(p) if c - first < in_page => bit(pages, p, (c - first) as usize),
+            _ => is_set(pages, store, c),
+        };
+        !set
+    })
+}
+
+/// Whether node `id` is set in `pages`; [`NIL`] is.
+#[inline]
+fn is_set(pages: &[Vec<u64>], store: &NodeStore, id: u32) -> bool {
+    id == NIL
+        || store
+            .page_of(id)
+            .is_some_and(|p| bit(pages, p, (id - store.page_first(p)) as usize))
 }
 
 /// Whether the criteria leave a node active: unfold, or keep a node that was (`keep`).

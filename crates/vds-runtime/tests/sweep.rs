@@ -3,7 +3,8 @@
 //! paths with jumps, thresholds and every frustum mode, the sweep's active nodes are the
 //! recursion's, its lists of changes are the differences of consecutive cuts, and those
 //! lists, applied to a runtime's cut by its own fold and unfold, give a cut that passes the
-//! cut's consistency check and the screen-space guarantee.
+//! cut's consistency check and the screen-space guarantee, and whose change report the
+//! sweep's own report from its bits (`Sweep::report`) matches.
 
 mod common;
 
@@ -12,8 +13,8 @@ use std::collections::BTreeSet;
 use common::*;
 use vds_runtime::sweep::Sweep;
 use vds_runtime::{
-    CameraPath, CornerTracking, Criteria, Decision, FrustumMode, Goal, Judge, Loading, NodeStore,
-    Runtime, Viewpoint, measure,
+    CameraPath, Changes, CornerTracking, Criteria, Decision, FrustumMode, Goal, Judge, Loading,
+    NodeStore, Runtime, Viewpoint, measure,
 };
 
 /// As in `cut.rs`: room for the rounding of a bound computed in `f32` against a projection
@@ -118,6 +119,10 @@ fn a_sweep_finds_the_recursive_cut_and_its_changes_keep_the_threshold() {
                 active == found,
                 "{name} step {step}: the applied cut differs"
             );
+            // The report from the sweep's bits is the cut's own, node for node.
+            let changes = cut.take_changes();
+            let reported = sweep.report(cut.store()).expect("every page is resident");
+            assert_same_report(&reported, &changes, &format!("{name} step {step}"));
             if criteria.frustum != FrustumMode::Ignore {
                 let facing = criteria.backface.then(|| {
                     measure::facing_vertices(runtime.cut().store(), &positions, camera.view().eye)
@@ -140,6 +145,35 @@ fn a_sweep_finds_the_recursive_cut_and_its_changes_keep_the_threshold() {
         }
         assert!(seen >= 8, "{name}: too few cameras saw the model");
     }
+}
+
+/// Asserts that two change reports list the same nodes (in any order) and triangle counts;
+/// repeats are not compared (a sweep's report does not look for them).
+fn assert_same_report(reported: &Changes, expected: &Changes, context: &str) {
+    let sorted = |nodes: &[u32]| {
+        let mut nodes = nodes.to_vec();
+        nodes.sort_unstable();
+        nodes
+    };
+    let lists = |c: &Changes| {
+        [&c.unfolded, &c.folded, &c.joined_boundary, &c.left_boundary].map(|l| sorted(l))
+    };
+    for (kind, (found, wanted)) in [
+        "unfolded",
+        "folded",
+        "joined the boundary",
+        "left the boundary",
+    ]
+    .iter()
+    .zip(lists(reported).iter().zip(&lists(expected)))
+    {
+        assert_eq!(found, wanted, "{context}: nodes that {kind}");
+    }
+    assert_eq!(
+        (reported.added, reported.removed),
+        (expected.added, expected.removed),
+        "{context}: triangles added and removed"
+    );
 }
 
 /// The active nodes of `runtime`'s cut, ascending.

@@ -229,6 +229,10 @@ struct SweepFigures {
     changed: Vec<f64>,
     /// Nodes active in one cut and not the other.
     differing: Vec<f64>,
+    /// The change report from the sweep's bits (`Sweep::report`): time, and nodes that
+    /// joined or left the boundary.
+    report_ms: Vec<f64>,
+    boundary_changes: Vec<f64>,
     ids: Vec<u32>,
 }
 
@@ -239,6 +243,12 @@ impl SweepFigures {
         let judge = Judge::new(viewpoint, criteria);
         let stats = self.sweep.run(store, &judge, t);
         self.ms.push(start.elapsed().as_secs_f64() * 1e3);
+        let start = Instant::now();
+        let report = self.sweep.report(store);
+        self.report_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        let report = report.expect("every page is resident");
+        self.boundary_changes
+            .push((report.joined_boundary.len() + report.left_boundary.len()) as f64);
         self.tests.push(f64::from(stats.tests));
         self.groups_passed.push(f64::from(stats.groups_passed));
         self.pages.push(f64::from(stats.pages));
@@ -271,6 +281,14 @@ impl SweepFigures {
             median(&self.changed),
             median(&self.differing),
             percentile(&self.differing, 1.0),
+        );
+        println!(
+            "  {:<28} report from the sweep's bits: median {:6.3} ms  p99 {:6.3} ms | {:.0} \
+             nodes joined or left the boundary (median)",
+            "",
+            median(&self.report_ms),
+            percentile(&self.report_ms, 0.99),
+            median(&self.boundary_changes),
         );
     }
 }
