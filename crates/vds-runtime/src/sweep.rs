@@ -13,7 +13,8 @@
 //! before its children. An active node whose group bound passes ([`Judge::group_within`])
 //! has no child to unfold and its children are not read; the others' children, which are
 //! contiguous, are tested one by one. What changed since the sweep before comes out of the
-//! two bit sets: nodes that unfolded (ascending, so parents first) and nodes that folded.
+//! two bit sets: nodes that unfolded (ascending, so parents first) and nodes that folded, and
+//! with their families the report a rank-tracking renderer reads ([`Sweep::report`]).
 //!
 //! A node unfolds only if its children are resident and checked; one whose criteria ask for
 //! it but whose children are not is left folded and listed ([`Sweep::deferred`]); once they
