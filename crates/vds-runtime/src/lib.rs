@@ -142,13 +142,16 @@ impl Runtime {
     }
 
     /// Tests the threshold pass's active entries on `threads` threads (1, the default: on the
-    /// calling thread). The cut is the same whatever the number; folds and unfolds stay on
-    /// the calling thread.
+    /// calling thread), and runs adjusts by sweeps ([`Runtime::set_sweep`]) on as many. The
+    /// cut is the same whatever the number; folds and unfolds stay on the calling thread.
     pub fn set_adjust_threads(&mut self, threads: usize) {
         self.adjuster.set_threads(threads);
+        if let Some(sweep) = &mut self.sweep {
+            sweep.set_threads(threads);
+        }
     }
 
-    /// The number of threads the threshold pass tests entries on.
+    /// The number of threads the threshold pass tests entries on (and sweeps run on).
     pub fn adjust_threads(&self) -> usize {
         self.adjuster.threads()
     }
@@ -173,7 +176,11 @@ impl Runtime {
         // what the sweeps changed.
         self.cut.clear_reuse();
         self.cut.forget_revisits();
-        self.sweep = on.then(sweep::Sweep::new);
+        self.sweep = on.then(|| {
+            let mut sweep = sweep::Sweep::new();
+            sweep.set_threads(self.adjuster.threads());
+            sweep
+        });
     }
 
     /// Sets the memory budget in bytes for the decoded tree and the cut

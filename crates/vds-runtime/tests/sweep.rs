@@ -61,6 +61,12 @@ fn a_sweep_finds_the_recursive_cut_and_its_changes_keep_the_threshold() {
         runtime.load_every_page().unwrap();
         let positions = runtime.leaf_positions().unwrap();
         let mut sweep = Sweep::new();
+        // The same sweeps on two and three threads.
+        let mut parallel = [2, 3].map(|threads| {
+            let mut sweep = Sweep::new();
+            sweep.set_threads(threads);
+            sweep
+        });
         let mut before = BTreeSet::new();
         let mut rng = Rng(name.len() as u64 + 11);
         let mut camera = random_camera(&mut rng, center, radius);
@@ -103,6 +109,16 @@ fn a_sweep_finds_the_recursive_cut_and_its_changes_keep_the_threshold() {
             assert_eq!(sweep.unfolded(), unfolded, "{name} step {step}: unfolded");
             assert_eq!(sweep.folded(), folded, "{name} step {step}: folded");
             assert!(found.iter().all(|&id| sweep.is_active(store, id)));
+            for other in &mut parallel {
+                let other_stats = other.run(store, &judge, t);
+                assert_eq!(other_stats, stats, "{name} step {step}: on threads");
+                assert_eq!(other.active_nodes(store), sweep.active_nodes(store));
+                assert_eq!(other.unfolded(), sweep.unfolded(), "{name} step {step}");
+                assert_eq!(other.folded(), sweep.folded(), "{name} step {step}");
+                let mut deferred = sweep.deferred().to_vec();
+                deferred.sort_unstable();
+                assert_eq!(other.deferred(), deferred, "{name} step {step}");
+            }
 
             // The changes, applied by the cut's own operations: folds deepest first, then
             // unfolds parents first.
@@ -203,6 +219,10 @@ fn adjusts_by_sweeps_load_their_pages_and_give_the_recursive_cut() {
         // Pages loaded as the sweeps reach them.
         let mut swept = runtime(&bytes, tracking);
         swept.set_sweep(true);
+        // The same on two threads.
+        let mut on_threads = runtime(&bytes, tracking);
+        on_threads.set_sweep(true);
+        on_threads.set_adjust_threads(2);
         let mut rng = Rng(name.len() as u64 + 5);
         let mut camera = random_camera(&mut rng, center, radius);
         for step in 0..40 {
@@ -220,10 +240,12 @@ fn adjusts_by_sweeps_load_their_pages_and_give_the_recursive_cut() {
             let viewpoint = Viewpoint::Camera(camera);
             // A budget adjust now and then changes the cut behind the sweep's back.
             if step % 10 == 9 {
-                swept
-                    .adjust(&viewpoint, &criteria, Goal::Budget(500 + 40 * step as u32))
-                    .unwrap();
-                swept.cut_mut().check().unwrap();
+                for runtime in [&mut swept, &mut on_threads] {
+                    runtime
+                        .adjust(&viewpoint, &criteria, Goal::Budget(500 + 40 * step as u32))
+                        .unwrap();
+                    runtime.cut_mut().check().unwrap();
+                }
                 continue;
             }
             let t = [1.0f32, 3.0][step % 2];
@@ -233,6 +255,18 @@ fn adjusts_by_sweeps_load_their_pages_and_give_the_recursive_cut() {
                 .unwrap();
             swept.cut_mut().check().unwrap();
             assert_eq!(frame.stats.deferred_unfolds, 0, "{name} step {step}");
+            let threaded = on_threads
+                .adjust(&viewpoint, &criteria, Goal::Threshold(t))
+                .unwrap();
+            on_threads.cut_mut().check().unwrap();
+            assert!(
+                active_nodes(&on_threads) == active_nodes(&swept),
+                "{name} step {step}: adjusts by sweeps on two threads differ"
+            );
+            assert_eq!(
+                threaded.stats.visited, frame.stats.visited,
+                "{name} step {step}"
+            );
             let judge = Judge::new(&viewpoint, &criteria);
             let expected = recursive_cut(reference.cut().store(), &judge, t, &before);
             assert!(

@@ -294,9 +294,10 @@ impl SweepFigures {
 }
 
 /// Plays `path` at threshold `t` through a fresh rank-tracked runtime with every page resident
-/// that adjusts by sweeps ([`Runtime::set_sweep`]): each frame's sweep from scratch, its
-/// changes applied through the cut's fold and unfold, and the report a renderer reads.
-fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
+/// that adjusts by sweeps ([`Runtime::set_sweep`]) on `threads` threads: each frame's sweep
+/// from scratch, its changes applied through the cut's fold and unfold, and the report a
+/// renderer reads.
+fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32, threads: usize) -> Result<()> {
     let mut runtime = Runtime::new(
         Box::new(VdtFile::from_bytes(bytes.to_vec())?),
         CornerTracking::Ranks,
@@ -304,6 +305,7 @@ fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
     runtime.set_memory_budget(u64::MAX);
     runtime.load_every_page()?;
     runtime.set_sweep(true);
+    runtime.set_adjust_threads(threads);
     let criteria = Criteria::default();
     let (mut ms, mut changed) = (vec![], vec![]);
     let mut first_ms = 0.0;
@@ -340,7 +342,8 @@ pub struct Runs {
     /// Also time settled checks (a second adjust for each frame's camera) and re-adjusts (a
     /// third) of the resident runs; full runs time settled checks for incidence lists only.
     pub settled: bool,
-    /// Threads the threshold pass tests entries on ([`Runtime::set_adjust_threads`]).
+    /// Threads the threshold pass tests entries on, and adjusts by sweeps run on
+    /// ([`Runtime::set_adjust_threads`]).
     pub threads: usize,
     /// Also run the sweep in place of the adjust ([`play_sweep`]).
     pub sweep: bool,
@@ -386,7 +389,7 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
         if fly { "flying through" } else { "orbiting" },
         match runs.threads {
             0 | 1 => "one thread".to_string(),
-            n => format!("entries tested on {n} threads"),
+            n => format!("entries tested and sweeps run on {n} threads"),
         },
     );
     let resident_trackings: &[CornerTracking] = if runs.ranks_only {
@@ -412,7 +415,7 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
                 runs.threads,
             )?;
             if runs.sweep && tracking == CornerTracking::Ranks {
-                play_sweep(bytes, &path, t)?;
+                play_sweep(bytes, &path, t, runs.threads)?;
             }
             if runs.settled {
                 for timed in [Timed::SettledChecks, Timed::Readjusts] {
