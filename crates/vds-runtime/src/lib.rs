@@ -142,16 +142,13 @@ impl Runtime {
     }
 
     /// Tests the threshold pass's active entries on `threads` threads (1, the default: on the
-    /// calling thread), and runs adjusts by sweeps ([`Runtime::set_sweep`]) on as many. The
-    /// cut is the same whatever the number; folds and unfolds stay on the calling thread.
+    /// calling thread). The cut is the same whatever the number; folds and unfolds stay on
+    /// the calling thread.
     pub fn set_adjust_threads(&mut self, threads: usize) {
         self.adjuster.set_threads(threads);
-        if let Some(sweep) = &mut self.sweep {
-            sweep.set_threads(threads);
-        }
     }
 
-    /// The number of threads the threshold pass tests entries on (and sweeps run on).
+    /// The number of threads the threshold pass tests entries on.
     pub fn adjust_threads(&self) -> usize {
         self.adjuster.threads()
     }
@@ -176,11 +173,7 @@ impl Runtime {
         // what the sweeps changed.
         self.cut.clear_reuse();
         self.cut.forget_revisits();
-        self.sweep = on.then(|| {
-            let mut sweep = sweep::Sweep::new();
-            sweep.set_threads(self.adjuster.threads());
-            sweep
-        });
+        self.sweep = on.then(sweep::Sweep::new);
     }
 
     /// Sets the memory budget in bytes for the decoded tree and the cut

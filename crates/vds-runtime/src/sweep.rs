@@ -20,6 +20,9 @@
 //! it but whose children are not is left folded and listed ([`Sweep::deferred`]); once they
 //! arrive, [`Sweep::resume`] continues below it without sweeping the rest again.
 //!
+//! Subtrees are independent, so a run can share them among threads ([`Sweep::set_threads`]),
+//! each sweeping its share page by page with bits of its own, joined at the end.
+//!
 //! [`crate::Runtime::set_sweep`] makes a runtime's threshold adjusts run a sweep and apply
 //! its changes through the cut's own fold and unfold.
 
@@ -122,8 +125,11 @@ enum Order {
 }
 
 /// A thread's share of a parallel run: the walker it sweeps each chunk of subtrees with, and
-/// the marks of the chunks it has finished.
+/// the marks of the chunks it has finished. Aligned to two cache lines so that no two
+/// threads' helpers share one: each thread writes its own counts and queues for every node it
+/// visits, and a line written by both would pass between their cores at each write.
 #[derive(Default)]
+#[repr(align(128))]
 struct Helper {
     walker: Walker,
     done: Vec<Vec<u64>>,
@@ -136,8 +142,6 @@ struct Helper {
 const CHUNKS_PER_THREAD: usize = 32;
 /// Subtrees per chunk, at least.
 const SEEDS_PER_CHUNK: usize = 4;
-/// Active nodes per thread that an adjust by sweeps runs on ([`adjust_threshold`]).
-const MIN_SHARE: usize = 65_536;
 
 impl Sweep {
     /// A sweep whose cut before its first run is the root alone, folded.
@@ -155,11 +159,6 @@ impl Sweep {
     /// Evaluates the cut for `judge`'s view at threshold `t` over `store`'s resident pages,
     /// and what changed since the run before.
     pub fn run(&mut self, store: &NodeStore, judge: &Judge, t: f32) -> SweepStats {
-        self.run_on(store, judge, t, self.threads)
-    }
-
-    /// [`Sweep::run`] on `threads` threads.
-    fn run_on(&mut self, store: &NodeStore, judge: &Judge, t: f32, threads: usize) -> SweepStats {
         self.fit(store);
         let walker = &mut self.walker;
         std::mem::swap(&mut walker.marks, &mut self.before);
@@ -167,7 +166,7 @@ impl Sweep {
         walker.clear_marks();
         walker.deferred.clear();
         let mut stats = SweepStats::default();
-        let threads = threads.max(1);
+        let threads = self.threads.max(1);
         walker.order = match threads {
             1 => Order::Pages,
             _ => Order::Nodes { list: false },
@@ -747,12 +746,7 @@ fn sweep_and_apply(
     // The still passes' list of nodes to revisit is the incremental pass's; it must not
     // grow with these changes.
     cut.forget_revisits();
-    // A thread more for each share of the cut's active nodes: below that, starting one costs
-    // more than it saves (measured at 1 M, 17-33 k active nodes: 1-8 % slower on two).
-    let threads = sweep
-        .threads
-        .min(1 + cut.active_node_count() as usize / MIN_SHARE);
-    let mut found = sweep.run_on(cut.store(), judge, t, threads);
+    let mut found = sweep.run(cut.store(), judge, t);
     let mut seeds = Vec::new();
     loop {
         stats.visited += found.tests + found.active;

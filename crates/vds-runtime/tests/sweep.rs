@@ -1,10 +1,11 @@
 //! The sweep (`vds_runtime::sweep`) against the obvious evaluation of the same cut: a
 //! recursion from the root that unfolds a node when the criteria ask for it. Along camera
 //! paths with jumps, thresholds and every frustum mode, the sweep's active nodes are the
-//! recursion's, its lists of changes are the differences of consecutive cuts, and those
-//! lists, applied to a runtime's cut by its own fold and unfold, give a cut that passes the
-//! cut's consistency check and the screen-space guarantee, and whose change report the
-//! sweep's own report from its bits (`Sweep::report`) matches.
+//! recursion's (on one, two and three threads), its lists of changes are the differences
+//! of consecutive cuts, and those lists, applied to a runtime's cut by its own fold and
+//! unfold, give a cut that passes the cut's consistency check and the screen-space
+//! guarantee, and whose change report the sweep's own report from its bits
+//! (`Sweep::report`) matches.
 
 mod common;
 
@@ -219,10 +220,6 @@ fn adjusts_by_sweeps_load_their_pages_and_give_the_recursive_cut() {
         // Pages loaded as the sweeps reach them.
         let mut swept = runtime(&bytes, tracking);
         swept.set_sweep(true);
-        // The same on two threads.
-        let mut on_threads = runtime(&bytes, tracking);
-        on_threads.set_sweep(true);
-        on_threads.set_adjust_threads(2);
         let mut rng = Rng(name.len() as u64 + 5);
         let mut camera = random_camera(&mut rng, center, radius);
         for step in 0..40 {
@@ -240,12 +237,10 @@ fn adjusts_by_sweeps_load_their_pages_and_give_the_recursive_cut() {
             let viewpoint = Viewpoint::Camera(camera);
             // A budget adjust now and then changes the cut behind the sweep's back.
             if step % 10 == 9 {
-                for runtime in [&mut swept, &mut on_threads] {
-                    runtime
-                        .adjust(&viewpoint, &criteria, Goal::Budget(500 + 40 * step as u32))
-                        .unwrap();
-                    runtime.cut_mut().check().unwrap();
-                }
+                swept
+                    .adjust(&viewpoint, &criteria, Goal::Budget(500 + 40 * step as u32))
+                    .unwrap();
+                swept.cut_mut().check().unwrap();
                 continue;
             }
             let t = [1.0f32, 3.0][step % 2];
@@ -255,18 +250,6 @@ fn adjusts_by_sweeps_load_their_pages_and_give_the_recursive_cut() {
                 .unwrap();
             swept.cut_mut().check().unwrap();
             assert_eq!(frame.stats.deferred_unfolds, 0, "{name} step {step}");
-            let threaded = on_threads
-                .adjust(&viewpoint, &criteria, Goal::Threshold(t))
-                .unwrap();
-            on_threads.cut_mut().check().unwrap();
-            assert!(
-                active_nodes(&on_threads) == active_nodes(&swept),
-                "{name} step {step}: adjusts by sweeps on two threads differ"
-            );
-            assert_eq!(
-                threaded.stats.visited, frame.stats.visited,
-                "{name} step {step}"
-            );
             let judge = Judge::new(&viewpoint, &criteria);
             let expected = recursive_cut(reference.cut().store(), &judge, t, &before);
             assert!(

@@ -162,14 +162,13 @@ struct Args {
     /// lists, rewritten per triangle changed).
     #[arg(long, value_enum, default_value_t = CornersArg::Ranks)]
     corners: CornersArg,
-    /// Threads the threshold pass tests active entries on, or with --sweep each sweep runs
-    /// on, 1 to 256 (default: every core). Folds and unfolds stay on one; the cut is the same
-    /// whatever the number.
+    /// Threads the threshold pass tests active entries on, 1 to 256 (default: every core).
+    /// Folds and unfolds stay on one; the cut is the same whatever the number.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
     adjust_threads: Option<u32>,
     /// Threshold adjusts by a sweep from scratch each frame (the top-down cut, page by page)
     /// instead of the incremental pass: faster on large scenes; fetches no page ahead of need.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "adjust_threads")]
     sweep: bool,
 }
 

@@ -105,7 +105,7 @@ fn play(
     let mut settled_changes = 0u64;
     // The sweep from scratch beside the adjust, on the same resident store (rank tracking).
     let mut sweep = (resident && tracking == CornerTracking::Ranks && timed == Timed::Adjusts)
-        .then(SweepFigures::default);
+        .then(|| SweepFigures::on_threads(threads));
     for (i, camera) in path.cameras.iter().enumerate() {
         for _ in 0..timed.before() {
             runtime.adjust(&Viewpoint::Camera(*camera), &criteria, goal)?;
@@ -218,7 +218,8 @@ fn play(
 }
 
 /// The sweep from scratch (`vds_runtime::sweep`) along the same path as an adjust, after
-/// each adjust, on its store: time, work, and how far its cut is from the adjust's.
+/// each adjust, on its store and as many threads: time, work, and how far its cut is from
+/// the adjust's.
 #[derive(Default)]
 struct SweepFigures {
     sweep: Sweep,
@@ -237,6 +238,13 @@ struct SweepFigures {
 }
 
 impl SweepFigures {
+    /// Figures of a sweep on `threads` threads (`Sweep::set_threads`).
+    fn on_threads(threads: usize) -> SweepFigures {
+        let mut figures = SweepFigures::default();
+        figures.sweep.set_threads(threads);
+        figures
+    }
+
     fn frame(&mut self, runtime: &Runtime, viewpoint: &Viewpoint, criteria: &Criteria, t: f32) {
         let store = runtime.cut().store();
         let start = Instant::now();
@@ -294,10 +302,9 @@ impl SweepFigures {
 }
 
 /// Plays `path` at threshold `t` through a fresh rank-tracked runtime with every page resident
-/// that adjusts by sweeps ([`Runtime::set_sweep`]) on `threads` threads: each frame's sweep
-/// from scratch, its changes applied through the cut's fold and unfold, and the report a
-/// renderer reads.
-fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32, threads: usize) -> Result<()> {
+/// that adjusts by sweeps ([`Runtime::set_sweep`]): each frame's sweep from scratch, its
+/// changes applied through the cut's fold and unfold, and the report a renderer reads.
+fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
     let mut runtime = Runtime::new(
         Box::new(VdtFile::from_bytes(bytes.to_vec())?),
         CornerTracking::Ranks,
@@ -305,7 +312,6 @@ fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32, threads: usize) -> Result
     runtime.set_memory_budget(u64::MAX);
     runtime.load_every_page()?;
     runtime.set_sweep(true);
-    runtime.set_adjust_threads(threads);
     let criteria = Criteria::default();
     let (mut ms, mut changed) = (vec![], vec![]);
     let mut first_ms = 0.0;
@@ -342,8 +348,8 @@ pub struct Runs {
     /// Also time settled checks (a second adjust for each frame's camera) and re-adjusts (a
     /// third) of the resident runs; full runs time settled checks for incidence lists only.
     pub settled: bool,
-    /// Threads the threshold pass tests entries on, and adjusts by sweeps run on
-    /// ([`Runtime::set_adjust_threads`]).
+    /// Threads the threshold pass tests entries on ([`Runtime::set_adjust_threads`]), and the
+    /// sweep from scratch beside it runs on (`Sweep::set_threads`).
     pub threads: usize,
     /// Also run the sweep in place of the adjust ([`play_sweep`]).
     pub sweep: bool,
@@ -389,7 +395,7 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
         if fly { "flying through" } else { "orbiting" },
         match runs.threads {
             0 | 1 => "one thread".to_string(),
-            n => format!("entries tested and sweeps run on {n} threads"),
+            n => format!("entries tested and sweeps from scratch run on {n} threads"),
         },
     );
     let resident_trackings: &[CornerTracking] = if runs.ranks_only {
@@ -415,7 +421,7 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
                 runs.threads,
             )?;
             if runs.sweep && tracking == CornerTracking::Ranks {
-                play_sweep(bytes, &path, t, runs.threads)?;
+                play_sweep(bytes, &path, t)?;
             }
             if runs.settled {
                 for timed in [Timed::SettledChecks, Timed::Readjusts] {

@@ -145,8 +145,8 @@ enum Commands {
         /// is built in the process (quicker runs, and instruction counts of the runtime alone).
         #[arg(long)]
         vdt: Option<PathBuf>,
-        /// Threads the threshold pass tests active entries on, and adjusts by sweeps run on
-        /// (folds and unfolds stay on one).
+        /// Threads the threshold pass tests active entries on (folds and unfolds stay on one),
+        /// and the sweep from scratch beside it runs on.
         #[arg(long, default_value_t = 1)]
         threads: usize,
         /// Also run each resident rank-tracked path adjusting by sweeps from scratch

@@ -76,13 +76,13 @@ struct Args {
     /// Background loading threads, 1 to 64 (default: the cores but one, at most 4).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
     loading_threads: Option<u32>,
-    /// Threads the threshold pass tests active entries on, or with --sweep each sweep runs
-    /// on, 1 to 256 (folds and unfolds stay on one; the cut is the same whatever the number).
+    /// Threads the threshold pass tests active entries on, 1 to 256 (folds and unfolds stay
+    /// on one; the cut is the same whatever the number).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=256))]
     adjust_threads: u32,
     /// Threshold adjusts by a sweep from scratch each frame (the top-down cut, page by page)
     /// instead of the incremental pass; fetches no page ahead of need.
-    #[arg(long, conflicts_with = "prevent_folds")]
+    #[arg(long, conflicts_with_all = ["prevent_folds", "adjust_threads"])]
     sweep: bool,
     /// Screen-space error threshold in pixels (scene units with --view-independent); a finite
     /// number, at least 0.
