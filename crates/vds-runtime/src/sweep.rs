@@ -267,13 +267,7 @@ impl Sweep {
         let walker = &mut self.walker;
         for helper in &mut self.helpers {
             for &p in &helper.done_pages {
-                let (row, done) = (&mut walker.marks[p as usize], &mut helper.done[p as usize]);
-                if row.len() < done.len() {
-                    row.resize(done.len(), 0);
-                }
-                for (word, bits) in row.iter_mut().zip(done.iter_mut()) {
-                    *word |= std::mem::take(bits);
-                }
+                move_bits(&mut helper.done[p as usize], &mut walker.marks[p as usize]);
                 walker.pages.push(p);
             }
             helper.done_pages.clear();
@@ -406,24 +400,32 @@ impl Sweep {
                 complete = false;
                 return;
             };
-            let children = family.first_child..family.first_child + family.child_count;
-            if now {
-                changes.added += family.subtri_count;
-                changes.unfolded.push(id);
-                if bits.is_set_before(store, family.parent) {
-                    changes.left_boundary.push(id);
-                }
-                let joined = children_unset(bits.now, store, children);
-                changes.joined_boundary.extend(joined);
+            // In the cut where the node is not active it is on the boundary if its parent is
+            // active; in the cut where it is, its children that are not active are.
+            let (triangles, nodes, boundary_without, boundary_with, (without, with)) = if now {
+                (
+                    &mut changes.added,
+                    &mut changes.unfolded,
+                    &mut changes.left_boundary,
+                    &mut changes.joined_boundary,
+                    (bits.before, bits.now),
+                )
             } else {
-                changes.removed += family.subtri_count;
-                changes.folded.push(id);
-                if bits.is_set_now(store, family.parent) {
-                    changes.joined_boundary.push(id);
-                }
-                let left = children_unset(bits.before, store, children);
-                changes.left_boundary.extend(left);
+                (
+                    &mut changes.removed,
+                    &mut changes.folded,
+                    &mut changes.joined_boundary,
+                    &mut changes.left_boundary,
+                    (bits.now, bits.before),
+                )
+            };
+            *triangles += family.subtri_count;
+            nodes.push(id);
+            if is_set(without, store, family.parent) {
+                boundary_without.push(id);
             }
+            let children = family.first_child..family.first_child + family.child_count;
+            boundary_with.extend(children_unset(with, store, children));
         });
         complete.then_some(changes)
     }
@@ -489,13 +491,7 @@ impl Helper {
         // The chunk's pages are swept: its marks move out of the way of the next chunk's
         // (a page may hold nodes of both, and a sweep visits every mark of a page).
         for &p in &walker.pages {
-            let (bits, done) = (&mut walker.marks[p as usize], &mut self.done[p as usize]);
-            if done.len() < bits.len() {
-                done.resize(bits.len(), 0);
-            }
-            for (d, b) in done.iter_mut().zip(bits.iter_mut()) {
-                *d |= std::mem::take(b);
-            }
+            move_bits(&mut walker.marks[p as usize], &mut self.done[p as usize]);
             self.done_pages.push(p);
         }
         walker.pages.clear();
@@ -828,16 +824,6 @@ impl BitsNowAndBefore<'_> {
             }
         }
     }
-
-    /// Whether node `id` is active now; [`NIL`] (the root's parent) is.
-    fn is_set_now(&self, store: &NodeStore, id: u32) -> bool {
-        is_set(self.now, store, id)
-    }
-
-    /// Whether node `id` was active before; [`NIL`] (the root's parent) was.
-    fn is_set_before(&self, store: &NodeStore, id: u32) -> bool {
-        is_set(self.before, store, id)
-    }
 }
 
 /// The nodes of `ids` (a node's children) not set in `pages`, with one page look-up for those
@@ -919,6 +905,16 @@ fn children_resident<'a>(
     }
     // Children over two pages, or not resident.
     store.children_resident(id)
+}
+
+/// Sets in `into` every bit set in `from`, and clears `from` (keeping its length).
+fn move_bits(from: &mut [u64], into: &mut Vec<u64>) {
+    if into.len() < from.len() {
+        into.resize(from.len(), 0);
+    }
+    for (word, bits) in into.iter_mut().zip(from.iter_mut()) {
+        *word |= std::mem::take(bits);
+    }
 }
 
 /// Bit `local` of page `p` in `pages` (false for a page without bits).
