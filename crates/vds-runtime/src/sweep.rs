@@ -21,7 +21,8 @@
 //! arrive, [`Sweep::resume`] continues below it without sweeping the rest again.
 //!
 //! Subtrees are independent, so a run can share them among threads ([`Sweep::set_threads`]),
-//! each sweeping its share page by page with bits of its own, joined at the end.
+//! each sweeping its share page by page with bits of its own for the pages it reaches (kept
+//! between runs, as the sweep's own are), joined at the end.
 //!
 //! [`crate::Runtime::set_sweep`] makes a runtime's threshold adjusts run a sweep and apply
 //! its changes through the cut's own fold and unfold.
@@ -54,6 +55,8 @@ pub struct SweepStats {
     pub folded: u32,
     /// Nodes the criteria ask to unfold whose children are not resident and checked.
     pub deferred: u32,
+    /// Subtrees shared among the threads ([`Sweep::set_threads`]); zero on one thread.
+    pub shared: u32,
 }
 
 impl SweepStats {
@@ -66,6 +69,7 @@ impl SweepStats {
         self.unfolded += other.unfolded;
         self.folded += other.folded;
         self.deferred += other.deferred;
+        self.shared += other.shared;
     }
 }
 
@@ -137,10 +141,11 @@ struct Helper {
     stats: SweepStats,
 }
 
-/// The subtrees a parallel run hands to each of its threads, in chunks taken in turn so that
-/// the threads finish together.
+/// How many chunks of subtrees a parallel run makes per thread: threads take them in turn,
+/// so that they finish together however unequal the subtrees.
 const CHUNKS_PER_THREAD: usize = 32;
-/// Subtrees per chunk, at least.
+/// Subtrees per chunk: a parallel run walks node by node until this many per chunk wait (a
+/// cut that never has that many is walked node by node on the calling thread).
 const SEEDS_PER_CHUNK: usize = 4;
 
 impl Sweep {
@@ -149,9 +154,10 @@ impl Sweep {
         Sweep::default()
     }
 
-    /// Sweeps on `threads` threads (1: on the calling thread alone). The cut found, and its
-    /// lists of changes, are the same; only the order of [`Sweep::deferred`] differs (it is
-    /// ascending on several threads).
+    /// Runs on `threads` threads (0 or 1: on the calling thread alone; each run starts the
+    /// others afresh, so more than the cores only costs). The cut found, its lists of changes
+    /// and the work counted are the same; only the order of [`Sweep::deferred`] differs (it
+    /// is ascending on several threads). [`Sweep::resume`] runs on the calling thread.
     pub fn set_threads(&mut self, threads: usize) {
         self.threads = threads.max(1);
     }
@@ -192,8 +198,8 @@ impl Sweep {
     /// The rest of a run on `threads` threads, once the root is marked: the first levels node
     /// by node on the calling thread until there are subtrees enough to share, then those
     /// subtrees in chunks, each thread taking the next chunk when done with one and sweeping
-    /// it page by page with its own bits (subtrees are disjoint, so no node is marked or
-    /// visited twice), and the threads' bits joined into the cut's.
+    /// it page by page with its own bits (subtrees are disjoint, so no node is visited twice),
+    /// and the threads' bits joined into the cut's.
     fn sweep_in_parallel(
         &mut self,
         store: &NodeStore,
@@ -215,6 +221,7 @@ impl Sweep {
         seeds.sort_unstable();
         walker.order = Order::Pages;
         if !seeds.is_empty() {
+            stats.shared = seeds.len() as u32;
             self.share(store, judge, t, threads, &seeds, stats);
         }
         let walker = &mut self.walker;
