@@ -185,7 +185,7 @@ impl Sweep {
             }
         }
         if threads == 1 {
-            walker.sweep_queued(store, &self.before, judge, t, &mut stats);
+            walker.sweep_queued(&Pass::new(store, &self.before, judge, t), &mut stats);
         } else {
             self.sweep_in_parallel(store, judge, t, threads, &mut stats);
         }
@@ -208,14 +208,14 @@ impl Sweep {
         threads: usize,
         stats: &mut SweepStats,
     ) {
-        let tight = judge.tightest(t);
+        let pass = Pass::new(store, &self.before, judge, t);
         let enough = threads * CHUNKS_PER_THREAD * SEEDS_PER_CHUNK;
         let walker = &mut self.walker;
         while walker.nodes_queued.len() < enough {
             let Some(Reverse(id)) = walker.nodes_queued.pop() else {
                 break;
             };
-            walker.visit_node(store, &self.before, judge, t, tight, id, stats);
+            walker.visit_node(&pass, id, stats);
         }
         let mut seeds: Vec<u32> = walker.nodes_queued.drain().map(|Reverse(id)| id).collect();
         seeds.sort_unstable();
@@ -246,7 +246,7 @@ impl Sweep {
         let next = std::sync::atomic::AtomicUsize::new(0);
         let page_count = store.page_count() as usize;
         self.helpers.resize_with(threads, Helper::default);
-        let before = &self.before;
+        let pass = Pass::new(store, &self.before, judge, t);
         let work = |helper: &mut Helper| {
             helper.walker.fit(page_count);
             if helper.done.len() < page_count {
@@ -259,7 +259,7 @@ impl Sweep {
                 let Some(chunk) = chunks.get(k) else {
                     break;
                 };
-                helper.sweep_chunk(store, before, judge, t, chunk);
+                helper.sweep_chunk(&pass, chunk);
             }
         };
         let (first, others) = self.helpers.split_first_mut().expect("a helper per thread");
@@ -347,9 +347,9 @@ impl Sweep {
         }
         // Only the nodes this call unfolds are visited, parents first: the rest of the cut
         // was swept by the run.
-        let tight = judge.tightest(t);
+        let pass = Pass::new(store, &self.before, judge, t);
         while let Some(Reverse(id)) = walker.nodes_queued.pop() {
-            walker.visit_node(store, &self.before, judge, t, tight, id, &mut stats);
+            walker.visit_node(&pass, id, &mut stats);
         }
         walker.pages.sort_unstable();
         walker.pages.dedup();
@@ -480,21 +480,17 @@ impl Sweep {
 impl Helper {
     /// Sweeps the subtrees under `seeds` (nodes marked active whose children are still to
     /// test) page by page, then moves their marks to `done`.
-    fn sweep_chunk(
-        &mut self,
-        store: &NodeStore,
-        before: &[Vec<u64>],
-        judge: &Judge,
-        t: f32,
-        seeds: &[u32],
-    ) {
+    fn sweep_chunk(&mut self, pass: &Pass<'_>, seeds: &[u32]) {
         let walker = &mut self.walker;
         for &id in seeds {
-            let p = store.page_of(id).expect("a marked node exists");
-            let page = store.tested_page(p).expect("a marked node is resident");
+            let p = pass.store.page_of(id).expect("a marked node exists");
+            let page = pass
+                .store
+                .tested_page(p)
+                .expect("a marked node is resident");
             walker.set(p, (id - page.first) as usize, page.hot.len(), id);
         }
-        walker.sweep_queued(store, before, judge, t, &mut self.stats);
+        walker.sweep_queued(pass, &mut self.stats);
         // The chunk's pages are swept: its marks move out of the way of the next chunk's
         // (a page may hold nodes of both, and a sweep visits every mark of a page).
         for &p in &walker.pages {
@@ -523,22 +519,15 @@ impl Walker {
     }
 
     /// Sweeps the queued pages in index order, and those their nodes queue.
-    fn sweep_queued(
-        &mut self,
-        store: &NodeStore,
-        before: &[Vec<u64>],
-        judge: &Judge,
-        t: f32,
-        stats: &mut SweepStats,
-    ) {
-        let tight = judge.tightest(t);
+    fn sweep_queued(&mut self, pass: &Pass<'_>, stats: &mut SweepStats) {
         let first_new = self.pages.len();
         while let Some(Reverse(p)) = self.queue.pop() {
             self.pages.push(p);
-            let page = store
+            let page = pass
+                .store
                 .tested_page(p)
                 .expect("a page holding an active node is resident");
-            self.sweep_page(store, before, judge, t, tight, p, page, stats);
+            self.sweep_page(pass, p, page, stats);
         }
         for &p in &self.pages[first_new..] {
             self.queued[p as usize / 64] &= !(1 << (p % 64));
@@ -547,24 +536,15 @@ impl Walker {
 
     /// Tests the children of page `p`'s marked nodes, in id order: children in this page
     /// come later in it, so re-reading each word picks them up.
-    #[allow(clippy::too_many_arguments)]
     fn sweep_page<'a>(
         &mut self,
-        store: &'a NodeStore,
-        before: &[Vec<u64>],
-        judge: &Judge,
-        t: f32,
-        tight: f32,
+        pass: &Pass<'a>,
         p: u32,
         page: TestedPage<'a>,
         stats: &mut SweepStats,
     ) {
         let words = self.marks[p as usize].len();
-        let mut cursor = Cursor {
-            index: p,
-            page,
-            grandchildren: None,
-        };
+        let mut cursor = Cursor::at(p, page);
         for w in 0..words {
             let mut done = 0u64;
             loop {
@@ -575,49 +555,39 @@ impl Walker {
                 let b = pending.trailing_zeros();
                 done |= 1 << b;
                 let hot = &page.hot[w * 64 + b as usize];
-                self.visit(store, before, judge, t, tight, hot, &mut cursor, stats);
+                self.visit(pass, hot, &mut cursor, stats);
             }
         }
     }
 
     /// [`Walker::visit`] for marked node `id`, looked up by id (walks by node).
-    #[allow(clippy::too_many_arguments)]
-    fn visit_node(
-        &mut self,
-        store: &NodeStore,
-        before: &[Vec<u64>],
-        judge: &Judge,
-        t: f32,
-        tight: f32,
-        id: u32,
-        stats: &mut SweepStats,
-    ) {
-        let p = store.page_of(id).expect("a marked node exists");
-        let page = store.tested_page(p).expect("a marked node is resident");
-        let mut cursor = Cursor {
-            index: p,
-            page,
-            grandchildren: None,
-        };
+    fn visit_node(&mut self, pass: &Pass<'_>, id: u32, stats: &mut SweepStats) {
+        let p = pass.store.page_of(id).expect("a marked node exists");
+        let page = pass
+            .store
+            .tested_page(p)
+            .expect("a marked node is resident");
         let hot = &page.hot[(id - page.first) as usize];
-        self.visit(store, before, judge, t, tight, hot, &mut cursor, stats);
+        self.visit(pass, hot, &mut Cursor::at(p, page), stats);
     }
 
     /// Tests the children of the marked node of record `hot` (unless its group bound says
     /// none can unfold) and marks those that unfold.
-    #[allow(clippy::too_many_arguments)]
     #[inline]
     fn visit<'a>(
         &mut self,
-        store: &'a NodeStore,
-        before: &[Vec<u64>],
-        judge: &Judge,
-        t: f32,
-        tight: f32,
+        pass: &Pass<'a>,
         hot: &Hot,
         cursor: &mut Cursor<'a>,
         stats: &mut SweepStats,
     ) {
+        let Pass {
+            store,
+            before,
+            judge,
+            t,
+            tight,
+        } = *pass;
         stats.active += 1;
         // A passing group bound folds every child, except that in `Ignore` mode a child
         // outside the frustum keeps its state: those active before are tested.
@@ -879,6 +849,30 @@ fn unfoldable(cut: &Cut, id: u32) -> bool {
     cut.store().is_resident(id) && cut.can_unfold(id)
 }
 
+/// What every step of a run or a resume reads: the store, the cut the run before found, the
+/// view's criteria and the threshold.
+#[derive(Clone, Copy)]
+struct Pass<'a> {
+    store: &'a NodeStore,
+    before: &'a [Vec<u64>],
+    judge: &'a Judge,
+    t: f32,
+    /// `judge.tightest(t)`, the group bounds' threshold.
+    tight: f32,
+}
+
+impl<'a> Pass<'a> {
+    fn new(store: &'a NodeStore, before: &'a [Vec<u64>], judge: &'a Judge, t: f32) -> Pass<'a> {
+        Pass {
+            store,
+            before,
+            judge,
+            t,
+            tight: judge.tightest(t),
+        }
+    }
+}
+
 /// Where the children of the nodes being visited were last found.
 struct Cursor<'a> {
     /// The page holding the last children tested, and its index.
@@ -887,6 +881,17 @@ struct Cursor<'a> {
     /// The page of the last grandchildren found resident: consecutive nodes' children are
     /// usually in one page, so most residency checks need no look-up.
     grandchildren: Option<TestedPage<'a>>,
+}
+
+impl<'a> Cursor<'a> {
+    /// A cursor at page `index`, `page`.
+    fn at(index: u32, page: TestedPage<'a>) -> Cursor<'a> {
+        Cursor {
+            page,
+            index,
+            grandchildren: None,
+        }
+    }
 }
 
 /// Whether the children of node `id`, of record `hot`, are resident: in the page `last`
