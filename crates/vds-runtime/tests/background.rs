@@ -63,6 +63,10 @@ fn settle(runtime: &mut Runtime, viewpoint: &Viewpoint, criteria: &Criteria, goa
     for round in 1..=200 {
         let frame = runtime.adjust(viewpoint, criteria, goal).unwrap();
         if frame.stats.deferred_unfolds == 0 && runtime.pending_pages() == 0 {
+            // Pages fetched ahead of need, or asked for by the loader looking ahead, may
+            // still be on their way: taken in now, so that what a test does next starts
+            // from an idle loader whatever the threads' timing.
+            runtime.wait_for_pages();
             return round;
         }
         runtime.wait_for_pages();
