@@ -1065,6 +1065,8 @@ impl Cut {
             }
         }
         self.repeats.groups.insert(id, groups);
+        // Its members' corners are worked out afresh at the next comparison.
+        self.repeats.corners.remove(&id);
         self.repeats.dirty.push(id);
         true
     }
@@ -1074,6 +1076,7 @@ impl Cut {
         let Some(groups) = self.repeats.groups.remove(&id) else {
             return;
         };
+        self.repeats.corners.remove(&id);
         for &t in groups.iter().flatten() {
             for rank in self.store.triangle_corners(t) {
                 self.watched.remove(&(rank, id));
@@ -1116,7 +1119,10 @@ impl Cut {
     }
 
     /// Rank tracking: compares again the groups whose corners moved, and every group made
-    /// since the last comparison.
+    /// since the last comparison. A member's corners are kept from the last comparison and
+    /// brought up to date from there ([`Cut::refreshed_corner`]): most have not moved, and
+    /// one that moved is a few levels from where it was, while working a corner out from the
+    /// group's node descends through every active level between them.
     fn settle_rank_repeats(&mut self) {
         if self.repeats.dirty.is_empty() {
             return;
@@ -1124,26 +1130,67 @@ impl Cut {
         let mut dirty = std::mem::take(&mut self.repeats.dirty);
         dirty.sort_unstable();
         dirty.dedup();
-        let mut corners: Vec<[u32; 3]> = Vec::new();
+        let mut verdicts: Vec<bool> = Vec::new();
         for &owner in &dirty {
-            let Some(groups) = self.repeats.groups.get(&owner).cloned() else {
+            let Some(groups) = self.repeats.groups.remove(&owner) else {
                 continue;
             };
             let owner_node = self.store.node(owner);
-            for group in &groups {
-                corners.clear();
-                for &t in group {
+            let mut corners = self.repeats.corners.remove(&owner).unwrap_or_default();
+            if corners.is_empty() {
+                // Groups made since the last comparison: every corner from the node.
+                for &t in groups.iter().flatten() {
                     let leaves = self.store.triangle_corners(t);
                     corners.push(leaves.map(|r| self.current_corner(r, owner, &owner_node)));
                 }
-                let verdicts: Vec<bool> = hidden_members(&corners).collect();
-                for (&t, hidden) in group.iter().zip(verdicts) {
+            } else {
+                for (&t, kept) in groups.iter().flatten().zip(corners.iter_mut()) {
+                    let leaves = self.store.triangle_corners(t);
+                    for (corner, rank) in kept.iter_mut().zip(leaves) {
+                        *corner = self.refreshed_corner(*corner, rank, owner, &owner_node);
+                    }
+                }
+            }
+            let mut start = 0;
+            for group in &groups {
+                let members = &corners[start..start + group.len()];
+                start += group.len();
+                verdicts.clear();
+                verdicts.extend(hidden_members(members));
+                for (&t, &hidden) in group.iter().zip(&verdicts) {
                     self.set_hidden_by_rank(t, owner, hidden);
                 }
             }
+            self.repeats.groups.insert(owner, groups);
+            self.repeats.corners.insert(owner, corners);
         }
         dirty.clear();
         self.repeats.dirty = dirty;
+    }
+
+    /// Rank tracking: the current corner of leaf `rank` of a subtri of active node `owner`,
+    /// from `kept`, its corner at the last comparison of `owner`'s groups (a boundary node
+    /// then, on `rank`'s path from the root). Still on the boundary: unchanged. Active: it
+    /// unfolded, and the corner is below it. Inactive: a node above it folded, and the corner
+    /// is the first boundary node above it, if the walk up stays in resident pages (a page
+    /// whose nodes left the cut is kept for the frame after, but that is the store's policy,
+    /// not this function's to rely on); otherwise worked out from `owner`.
+    fn refreshed_corner(&self, kept: u32, rank: u32, owner: u32, owner_node: &Node) -> u32 {
+        let is_active = |n: u32| self.store.state(n) == NodeState::Active;
+        match self.store.state(kept) {
+            NodeState::Boundary => kept,
+            NodeState::Active => self.store.descend(kept, rank, is_active),
+            NodeState::Inactive => {
+                let mut up = kept;
+                while self.store.is_resident(up) {
+                    up = self.store.parent(up);
+                    if self.store.state(up) == NodeState::Boundary {
+                        return up;
+                    }
+                }
+                self.current_corner(rank, owner, owner_node)
+            }
+        }
     }
 
     /// Moves active triangles out of the tail of the slot array into free slots below, and

@@ -140,6 +140,9 @@ pub(crate) struct Repeats {
     /// For each unfolded node with groups, its groups: triangle indices, ascending within a
     /// group, each group of two or more.
     pub groups: FxHashMap<u32, Vec<Vec<u32>>>,
+    /// Rank tracking: for each node in `groups` whose groups have been compared, its
+    /// members' current corners at that comparison, in the order of its groups' members.
+    pub corners: FxHashMap<u32, Vec<[u32; 3]>>,
     /// Nodes whose grouped subtris' corners moved since their groups were last compared.
     pub dirty: Vec<u32>,
     /// Active triangles hidden as repeats.
@@ -158,7 +161,13 @@ impl Repeats {
                     + g.iter().map(|m| m.capacity() * 4).sum::<usize>()
             })
             .sum();
-        (map + groups + self.dirty.capacity() * 4) as u64
+        let corners = self.corners.capacity() * (size_of::<(u32, Vec<[u32; 3]>)>() + 1)
+            + self
+                .corners
+                .values()
+                .map(|c| c.capacity() * size_of::<[u32; 3]>())
+                .sum::<usize>();
+        (map + groups + corners + self.dirty.capacity() * 4) as u64
     }
 }
 
