@@ -1109,63 +1109,77 @@ impl Cut {
         if !self.watched.is_empty() {
             // Open-ended and cut short by hand: a bounded range searches the tree for both
             // ends, and nearly every fold or unfold finds nothing past the first.
-            self.repeats.dirty.extend(
+            self.repeats.moved.extend(
                 self.watched
                     .range((begin, 0)..)
                     .take_while(|&&(rank, _)| rank < end)
-                    .map(|&(_, owner)| owner),
+                    .map(|&(rank, owner)| (owner, rank)),
             );
         }
     }
 
     /// Rank tracking: compares again the groups whose corners moved, and every group made
-    /// since the last comparison. A member's corners are kept from the last comparison and
-    /// brought up to date from there ([`Cut::refreshed_corner`]): most have not moved, and
-    /// one that moved is a few levels from where it was, while working a corner out from the
-    /// group's node descends through every active level between them.
+    /// since the last comparison. A member's corners are kept from the last comparison with
+    /// the ranks they stand for; only those whose rank moved are brought up to date, from
+    /// where they were ([`Cut::refreshed_corner`]): one that moved is a few levels from where
+    /// it was, while working it out from the group's node descends through every active
+    /// level between them.
     fn settle_rank_repeats(&mut self) {
-        if self.repeats.dirty.is_empty() {
+        if self.repeats.dirty.is_empty() && self.repeats.moved.is_empty() {
             return;
         }
+        let mut moved = std::mem::take(&mut self.repeats.moved);
+        moved.sort_unstable();
+        moved.dedup();
         let mut dirty = std::mem::take(&mut self.repeats.dirty);
+        dirty.extend(moved.iter().map(|&(owner, _)| owner));
         dirty.sort_unstable();
         dirty.dedup();
         let mut verdicts: Vec<bool> = Vec::new();
+        let mut group_corners: Vec<[u32; 3]> = Vec::new();
         for &owner in &dirty {
             let Some(groups) = self.repeats.groups.remove(&owner) else {
                 continue;
             };
             let owner_node = self.store.node(owner);
-            let mut corners = self.repeats.corners.remove(&owner).unwrap_or_default();
-            if corners.is_empty() {
+            let mut members = self.repeats.corners.remove(&owner).unwrap_or_default();
+            if members.is_empty() {
                 // Groups made since the last comparison: every corner from the node.
                 for &t in groups.iter().flatten() {
                     let leaves = self.store.triangle_corners(t);
-                    corners.push(leaves.map(|r| self.current_corner(r, owner, &owner_node)));
+                    let nodes = leaves.map(|r| self.current_corner(r, owner, &owner_node));
+                    members.push(crate::repeats::MemberCorners { leaves, nodes });
                 }
             } else {
-                for (&t, kept) in groups.iter().flatten().zip(corners.iter_mut()) {
-                    let leaves = self.store.triangle_corners(t);
-                    for (corner, rank) in kept.iter_mut().zip(leaves) {
-                        *corner = self.refreshed_corner(*corner, rank, owner, &owner_node);
+                let first = moved.partition_point(|&(o, _)| o < owner);
+                let end = first + moved[first..].partition_point(|&(o, _)| o == owner);
+                let ranks = &moved[first..end];
+                for member in &mut members {
+                    for (node, &rank) in member.nodes.iter_mut().zip(&member.leaves) {
+                        if ranks.binary_search(&(owner, rank)).is_ok() {
+                            *node = self.refreshed_corner(*node, rank, owner, &owner_node);
+                        }
                     }
                 }
             }
             let mut start = 0;
             for group in &groups {
-                let members = &corners[start..start + group.len()];
+                group_corners.clear();
+                group_corners.extend(members[start..start + group.len()].iter().map(|m| m.nodes));
                 start += group.len();
                 verdicts.clear();
-                verdicts.extend(hidden_members(members));
+                verdicts.extend(hidden_members(&group_corners));
                 for (&t, &hidden) in group.iter().zip(&verdicts) {
                     self.set_hidden_by_rank(t, owner, hidden);
                 }
             }
             self.repeats.groups.insert(owner, groups);
-            self.repeats.corners.insert(owner, corners);
+            self.repeats.corners.insert(owner, members);
         }
         dirty.clear();
         self.repeats.dirty = dirty;
+        moved.clear();
+        self.repeats.moved = moved;
     }
 
     /// Rank tracking: the current corner of leaf `rank` of a subtri of active node `owner`,

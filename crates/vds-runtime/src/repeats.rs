@@ -141,8 +141,11 @@ pub(crate) struct Repeats {
     /// group, each group of two or more.
     pub groups: FxHashMap<u32, Vec<Vec<u32>>>,
     /// Rank tracking: for each node in `groups` whose groups have been compared, its
-    /// members' current corners at that comparison, in the order of its groups' members.
-    pub corners: FxHashMap<u32, Vec<[u32; 3]>>,
+    /// members' corners at that comparison, in the order of its groups' members.
+    pub corners: FxHashMap<u32, Vec<MemberCorners>>,
+    /// Rank tracking: (node, leaf rank) for each corner of a node's grouped subtris whose
+    /// current node changed since the last comparison (repeated when it changed again).
+    pub moved: Vec<(u32, u32)>,
     /// Nodes whose grouped subtris' corners moved since their groups were last compared.
     pub dirty: Vec<u32>,
     /// Active triangles hidden as repeats.
@@ -161,14 +164,24 @@ impl Repeats {
                     + g.iter().map(|m| m.capacity() * 4).sum::<usize>()
             })
             .sum();
-        let corners = self.corners.capacity() * (size_of::<(u32, Vec<[u32; 3]>)>() + 1)
+        let corners = self.corners.capacity() * (size_of::<(u32, Vec<MemberCorners>)>() + 1)
             + self
                 .corners
                 .values()
-                .map(|c| c.capacity() * size_of::<[u32; 3]>())
+                .map(|c| c.capacity() * size_of::<MemberCorners>())
                 .sum::<usize>();
-        (map + groups + corners + self.dirty.capacity() * 4) as u64
+        let lists = self.dirty.capacity() * 4 + self.moved.capacity() * 8;
+        (map + groups + corners + lists) as u64
     }
+}
+
+/// Rank tracking: a group member's corners at the last comparison of its group.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct MemberCorners {
+    /// Its original corners (leaf ranks).
+    pub leaves: [u32; 3],
+    /// The boundary nodes that stood for them then.
+    pub nodes: [u32; 3],
 }
 
 /// Sorts subtris, given as (corners in their node's own cut, triangle index) in increasing
