@@ -353,6 +353,9 @@ pub struct Runs {
     pub threads: usize,
     /// Also run the sweep in place of the adjust ([`play_sweep`]).
     pub sweep: bool,
+    /// Instead of timing, estimate the tests a per-node slack could skip
+    /// ([`crate::slack`]).
+    pub slack_estimate: bool,
 }
 
 /// Runtime figures for one mesh along `path`, at t = 1 and 5 px: every corner strategy with
@@ -388,6 +391,16 @@ pub fn paths_of_vdt(name: &str, bytes: &[u8], frames: u32, fly: bool, runs: Runs
             height,
         )
     };
+    if runs.slack_estimate {
+        println!(
+            "{name}: per-node slack along {frames} frames {} at {width}x{height} (an estimate)",
+            if fly { "flying through" } else { "orbiting" }
+        );
+        for t in [1.0, 5.0] {
+            crate::slack::run(bytes, &path, t)?;
+        }
+        return Ok(());
+    }
     println!(
         "{name} ({} triangles), {} frames {} at {width}x{height}, {}",
         probe.cut().store().triangle_count(),

@@ -17,6 +17,7 @@ mod first_touch;
 mod latency;
 mod read;
 mod refine;
+mod slack;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -153,6 +154,10 @@ enum Commands {
         /// (`Runtime::set_sweep`).
         #[arg(long)]
         sweep: bool,
+        /// Instead of timing, estimate how many frontier tests a per-node slack could skip
+        /// along the path, with and without a fold band (`slack.rs`).
+        #[arg(long)]
+        slack_estimate: bool,
     },
 }
 
@@ -303,6 +308,7 @@ fn main() -> Result<()> {
             vdt,
             threads,
             sweep,
+            slack_estimate,
         }) => {
             let runs = cut::Runs {
                 resident_only,
@@ -310,6 +316,7 @@ fn main() -> Result<()> {
                 settled,
                 threads,
                 sweep,
+                slack_estimate,
             };
             let bunny = args.shared.join("bunny.obj");
             if let Some(vdt) = vdt {
