@@ -222,13 +222,18 @@ fn background_loading_under_eviction_never_reads_on_the_adjusting_thread() {
         reads[opened..].iter().all(|&(_, thread)| thread != me),
         "an adjust read a page itself"
     );
+    // A page installed twice was evicted in between (reads alone do not show it: a page
+    // fetched ahead or refused is read and dropped).
     let mut pages: Vec<u32> = reads.iter().map(|&(page, _)| page).collect();
     pages.sort_unstable();
-    let read_again = pages.windows(2).filter(|w| w[0] == w[1]).count();
+    pages.dedup();
+    let memory = runtime.memory();
     assert!(
-        runtime.memory().pages_evicted > 0 && read_again > 0,
-        "{} pages evicted, {read_again} read again",
-        runtime.memory().pages_evicted
+        memory.pages_evicted > 0 && memory.pages_loaded > pages.len() as u64,
+        "{} pages evicted, {} installed, {} distinct pages read",
+        memory.pages_evicted,
+        memory.pages_loaded,
+        pages.len()
     );
 }
 
