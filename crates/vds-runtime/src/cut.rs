@@ -1129,6 +1129,7 @@ impl Cut {
             return;
         }
         let mut moved = std::mem::take(&mut self.repeats.moved);
+        let noted = moved.len();
         moved.sort_unstable();
         moved.dedup();
         let mut dirty = std::mem::take(&mut self.repeats.dirty);
@@ -1179,7 +1180,36 @@ impl Cut {
         dirty.clear();
         self.repeats.dirty = dirty;
         moved.clear();
+        // A frame that moved many watched ranks (a jump) does not keep its list's size.
+        shrink_if_sparse(&mut moved, noted);
         self.repeats.moved = moved;
+    }
+
+    /// Rank tracking, right after a comparison of repeats: the corners kept for each group
+    /// member are its triangle's, and are those worked out afresh from its node.
+    fn check_kept_corners(&self) -> Result<(), String> {
+        for (&owner, members) in &self.repeats.corners {
+            let Some(groups) = self.repeats.groups.get(&owner) else {
+                return Err(format!(
+                    "corners are kept for node {owner}, which has no groups"
+                ));
+            };
+            if members.len() != groups.iter().map(Vec::len).sum::<usize>() {
+                return Err(format!("node {owner}'s kept corners are not its members'"));
+            }
+            let owner_node = self.store.node(owner);
+            for (&t, member) in groups.iter().flatten().zip(members) {
+                let leaves = self.store.triangle_corners(t);
+                let nodes = leaves.map(|r| self.current_corner(r, owner, &owner_node));
+                if member.leaves != leaves || member.nodes != nodes {
+                    return Err(format!(
+                        "triangle {t}'s kept corners {:?} are not its corners {nodes:?}",
+                        member.nodes
+                    ));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Rank tracking: the current corner of leaf `rank` of a subtri of active node `owner`,
@@ -1744,6 +1774,7 @@ impl Cut {
             expected.dedup_by_key(|t| key(t.corners));
             expected.sort_unstable();
             let actual = self.triangles_from_ranks();
+            self.check_kept_corners()?;
             if self.repeats.hidden as usize != self.hidden_set.len()
                 || actual.len() != self.active_triangle_count() as usize
             {

@@ -27,7 +27,9 @@
 //! never looked at again. The few groups of two or more are kept with `S` while it stays
 //! unfolded, and when a member's corners move, its group's members are compared again: a
 //! member is hidden when a member with a smaller triangle index has the same corners now.
-//! A frame pays for repeats only where they can happen.
+//! A frame pays for repeats only where they can happen. With rank tracking a member's corners
+//! are kept from one comparison to the next with the leaf ranks they stand for, and only the
+//! corners whose rank a fold or unfold moved are brought up to date, from where they were.
 
 use rustc_hash::FxHashMap;
 
