@@ -301,16 +301,22 @@ impl SweepFigures {
     }
 }
 
-/// Plays `path` at threshold `t` through a fresh rank-tracked runtime with every page resident
-/// that adjusts by sweeps ([`Runtime::set_sweep`]): each frame's sweep from scratch, its
-/// changes applied through the cut's fold and unfold, and the report a renderer reads.
-fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
+/// A rank-tracked runtime over `bytes` with every page resident and no memory budget.
+pub fn resident_ranks(bytes: &[u8]) -> Result<Runtime> {
     let mut runtime = Runtime::new(
         Box::new(VdtFile::from_bytes(bytes.to_vec())?),
         CornerTracking::Ranks,
     )?;
     runtime.set_memory_budget(u64::MAX);
     runtime.load_every_page()?;
+    Ok(runtime)
+}
+
+/// Plays `path` at threshold `t` through a fresh rank-tracked runtime with every page resident
+/// that adjusts by sweeps ([`Runtime::set_sweep`]): each frame's sweep from scratch, its
+/// changes applied through the cut's fold and unfold, and the report a renderer reads.
+fn play_sweep(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
+    let mut runtime = resident_ranks(bytes)?;
     runtime.set_sweep(true);
     let criteria = Criteria::default();
     let (mut ms, mut changed) = (vec![], vec![]);

@@ -24,9 +24,8 @@
 
 use anyhow::Result;
 use glam::Vec3;
-use vds_format::VdtFile;
 use vds_runtime::store::Hot;
-use vds_runtime::{CameraPath, CornerTracking, Criteria, Goal, Judge, Runtime, Viewpoint};
+use vds_runtime::{CameraPath, Criteria, Goal, Judge, Viewpoint};
 
 /// Fold bands printed, as `h` in `t / (1 + h)`.
 const BANDS: [f32; 3] = [0.0, 0.25, 1.0];
@@ -36,13 +35,8 @@ const MOST_FRAMES: u32 = 256;
 
 /// Prints the estimate for `path` at threshold `t` over the whole resident file `bytes`.
 pub fn run(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
-    let mut runtime = Runtime::new(
-        Box::new(VdtFile::from_bytes(bytes.to_vec())?),
-        CornerTracking::Ranks,
-    )?;
     // Every page resident and no budget: the effective threshold stays `t` (checked below).
-    runtime.set_memory_budget(u64::MAX);
-    runtime.load_every_page()?;
+    let mut runtime = crate::cut::resident_ranks(bytes)?;
     let criteria = Criteria {
         silhouette_factor: None,
         ..Criteria::default()
@@ -192,9 +186,9 @@ mod tests {
     use super::*;
     use vds_runtime::Camera;
 
-    /// A node straight ahead at distance 10 whose bound is `ratio` of the threshold 1 px.
-    fn ahead(ratio_wanted: f32) -> (Judge, Hot, f32) {
-        let camera = Camera {
+    /// A camera at (0, 0, 10) looking down the z axis at the origin.
+    fn camera() -> Camera {
+        Camera {
             eye: [0.0, 0.0, 10.0],
             target: [0.0, 0.0, 0.0],
             up: [0.0, 1.0, 0.0],
@@ -202,8 +196,12 @@ mod tests {
             width: 800,
             height: 600,
             near: 0.01,
-        };
-        let judge = Judge::new(&Viewpoint::Camera(camera), &Criteria::default());
+        }
+    }
+
+    /// A node straight ahead at distance 10 whose bound is `ratio` of the threshold 1 px.
+    fn ahead(ratio_wanted: f32) -> (Judge, Hot, f32) {
+        let judge = Judge::new(&Viewpoint::Camera(camera()), &Criteria::default());
         let mut hot = Hot {
             proxy: [0.0; 3],
             error_radius: 0.001,
@@ -236,15 +234,7 @@ mod tests {
 
     #[test]
     fn an_off_axis_node_holds_for_every_motion_within_the_steps() {
-        let camera = Camera {
-            eye: [0.0, 0.0, 10.0],
-            target: [0.0, 0.0, 0.0],
-            up: [0.0, 1.0, 0.0],
-            fov_y_degrees: 60.0,
-            width: 800,
-            height: 600,
-            near: 0.01,
-        };
+        let camera = camera();
         let judge_at =
             |camera: Camera| Judge::new(&Viewpoint::Camera(camera), &Criteria::default());
         // 10 from the eye, 30° off the view axis.
