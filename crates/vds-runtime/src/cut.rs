@@ -1064,9 +1064,9 @@ impl Cut {
                 self.watched.insert((rank, id));
             }
         }
+        // No corners are kept for it (they come and go with its groups, and it had none
+        // while folded): the next comparison works them out afresh.
         self.repeats.groups.insert(id, groups);
-        // Its members' corners are worked out afresh at the next comparison.
-        self.repeats.corners.remove(&id);
         self.repeats.dirty.push(id);
         true
     }

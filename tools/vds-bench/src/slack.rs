@@ -42,7 +42,7 @@ pub fn run(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
         ..Criteria::default()
     };
     let mut rates = [0f64; BANDS.len()];
-    let (mut frontier, mut by_other, mut changed, mut frames) = (0u64, 0u64, 0u64, 0u32);
+    let (mut frontier, mut by_other, mut changed) = (0u64, 0u64, 0u64);
     let mut before: Option<(Vec3, Vec3)> = None;
     let mut steps = Vec::new();
     for camera in &path.cameras {
@@ -92,9 +92,10 @@ pub fn run(bytes: &[u8], path: &CameraPath, t: f32) -> Result<()> {
             }
         }
         changed += u64::from(frame.stats.unfolds + frame.stats.folds);
-        frames += 1;
     }
-    let per_frame = |n: f64| n / f64::from(frames.max(1));
+    // A frame counts from the second camera on: the first has no step.
+    let frames = steps.len();
+    let per_frame = |n: f64| n / frames.max(1) as f64;
     let median = |mut values: Vec<f32>| {
         values.sort_by(f32::total_cmp);
         values.get(values.len() / 2).copied().unwrap_or(0.0)
@@ -158,15 +159,8 @@ impl Step {
             };
             (r0 * phi0.cos().powi(2)) / (r * phi.cos().powi(2)).max(1e-12)
         };
-        Some(BANDS.map(|h| {
-            let holds = |k: u32| {
-                if folded {
-                    ratio * growth(k) <= 1.0
-                } else {
-                    ratio * growth(k) >= 1.0 / (1.0 + h)
-                }
-            };
-            // The largest k up to MOST_FRAMES for which it holds: the growth is monotone.
+        // The largest k up to MOST_FRAMES for which `holds`: the growth is monotone.
+        let frames_held_by = |holds: &dyn Fn(u32) -> bool| {
             let (mut held, mut fails) = (0, MOST_FRAMES + 1);
             while fails - held > 1 {
                 let mid = (held + fails) / 2;
@@ -177,7 +171,13 @@ impl Step {
                 }
             }
             held
-        }))
+        };
+        Some(if folded {
+            // The band changes only when active nodes fold.
+            [frames_held_by(&|k| ratio * growth(k) <= 1.0); BANDS.len()]
+        } else {
+            BANDS.map(|h| frames_held_by(&|k| ratio * growth(k) >= 1.0 / (1.0 + h)))
+        })
     }
 }
 
